@@ -1,0 +1,1 @@
+"""pregrasp's application layer: the command line (``app.cli``) and the viser inspection app."""

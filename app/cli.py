@@ -1,0 +1,48 @@
+"""The ``pregrasp`` command line: a thin layer over :mod:`pregrasp_core`.
+
+Each subcommand lives in ``app/commands/<name>.py`` and provides ``add_parser(subparsers)``,
+which registers its options and sets ``func`` to a function ``run(args) -> int``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from pregrasp_core.errors import PregraspError
+
+COMMANDS = ("decompose", "pregrasps", "plan", "view")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="pregrasp",
+        description="Pre-grasp generation for unknown 3D objects (after Sainul, Deb & Deb 2019).",
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in COMMANDS:
+        importlib.import_module(f"app.commands.{name}").add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    try:
+        return int(args.func(args) or 0)
+    except PregraspError as exc:
+        print(f"pregrasp {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Subcommands of the ``pregrasp`` CLI: one module each with ``add_parser(subparsers)``."""
