@@ -1,0 +1,323 @@
+"""Fit-and-split decomposition of a point cloud into a binary tree of oriented boxes.
+
+After Huebner, Ruthotto & Kragic (ICRA 2008), simplified as in Sainul, Deb & Deb (2019): start
+with the minimum-volume box of all points; try to split every box by a plane parallel to one of
+its faces, choosing the plane that minimises the summed volume of the two children; keep the
+split only when it tightens the approximation enough. See ``docs/decomposition.md``.
+
+Algorithm per node (n points, vectorised over points, loops over the 3 axes only):
+
+1. ``p_box`` = the node's points in its box frame.
+2. For each axis ``a``: sort ``p_box`` along ``a``; running min/max of the two other coordinates
+   from the front (``np.minimum.accumulate``) and from the back give, for every cut between
+   sorted positions ``i`` and ``i + 1``, the extents of both children's boxes in the parent frame,
+   so their summed volume costs O(1) per cut and O(n log n) per axis in all. Only cuts between
+   distinct coordinate values, with at least ``min_points`` points on each side, are candidates.
+3. The best cut over the three axes is refitted: each child gets its true minimum-volume box
+   (or its parent-frame box if that is smaller, which the exact MVBB never is but an
+   approximate one may be).
+4. The split is accepted when ``(V(child1) + V(child2)) / V(parent) < volume_ratio`` with the
+   refitted volumes, each child keeps ``>= min_points`` points and the node's depth is below
+   ``max_depth``. Otherwise the node is a leaf.
+
+Nodes are processed breadth-first (FIFO): node ids and ``split_order`` both follow that order.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from .box import OrientedBox, _as_points
+from .errors import DegenerateGeometryError
+from .mvbb import minimum_volume_box
+from .tolerances import FLAT_EXTENT
+
+logger = logging.getLogger(__name__)
+
+MIN_BOX_POINTS: int = 4
+"""The fewest points a box of the tree may hold (a non-flat box needs at least 4 points)."""
+
+
+@dataclass(frozen=True)
+class DecompositionParams:
+    """Parameters of the fit-and-split decomposition (defaults from the paper)."""
+
+    volume_ratio: float = 0.9
+    """A split is accepted when (V(child1) + V(child2)) / V(parent) is below this, in (0, 1]."""
+    min_points: int = 500
+    """Each child of an accepted split keeps at least this many points (>= 4)."""
+    max_depth: int = 8
+    """Nodes at this depth are never split (root depth 0; 0 = no split at all); >= 0."""
+
+    def __post_init__(self) -> None:
+        vr = self.volume_ratio
+        if isinstance(vr, bool) or not isinstance(vr, (int, float, np.floating, np.integer)):
+            raise ValueError(f"volume_ratio must be a number in (0, 1], got {vr!r}")
+        if not (np.isfinite(vr) and 0.0 < vr <= 1.0):
+            raise ValueError(f"volume_ratio must be in (0, 1], got {vr!r}")
+        for name, lo in (("min_points", MIN_BOX_POINTS), ("max_depth", 0)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+                raise ValueError(f"{name} must be an integer >= {lo}, got {v!r}")
+            if v < lo:
+                raise ValueError(f"{name} must be an integer >= {lo}, got {v!r}")
+        object.__setattr__(self, "volume_ratio", float(vr))
+        object.__setattr__(self, "min_points", int(self.min_points))
+        object.__setattr__(self, "max_depth", int(self.max_depth))
+
+
+@dataclass(frozen=True)
+class BoxNode:
+    """One box of the decomposition tree."""
+
+    id: int
+    """Position of this node in ``BoxTree.nodes`` (root 0)."""
+    parent: int
+    """Id of the parent node, -1 for the root."""
+    children: tuple[int, ...]
+    """Ids of the two children, or ``()`` for a leaf."""
+    depth: int
+    """Number of edges from the root (root 0)."""
+    indices: np.ndarray
+    """(n,) int64, sorted ascending: indices of this node's points into the cloud."""
+    box: OrientedBox
+    """The box around this node's points (world frame)."""
+    split_order: int
+    """Index of the accepted split that created this node (root 0, then 1, 2, ...); the two
+    children of one split share it."""
+
+    @property
+    def n_points(self) -> int:
+        """Number of points of this node."""
+        return int(self.indices.shape[0])
+
+    @property
+    def is_leaf(self) -> bool:
+        """True when the node has no children."""
+        return not self.children
+
+
+@dataclass(frozen=True)
+class BoxTree:
+    """A binary tree of oriented boxes over a cloud of ``n_points`` points."""
+
+    nodes: tuple[BoxNode, ...]
+    """All nodes; ``nodes[i].id == i``; breadth-first order, root first."""
+    n_points: int
+    """Number of points of the decomposed cloud."""
+
+    def __post_init__(self) -> None:
+        if not self.nodes:
+            raise ValueError("a BoxTree needs at least a root node, got 0 nodes")
+        for i, nd in enumerate(self.nodes):
+            if nd.id != i:
+                raise ValueError(f"node at position {i} has id {nd.id}; ids must be positions")
+            if (i == 0) != (nd.parent == -1):
+                raise ValueError(f"node {i}: only the root (id 0) has parent -1")
+            if len(nd.children) not in (0, 2):
+                raise ValueError(f"node {i} has {len(nd.children)} children, expected 0 or 2")
+            for c in nd.children:
+                if not (0 < c < len(self.nodes)) or self.nodes[c].parent != i:
+                    raise ValueError(f"node {i} lists child {c} whose parent is not {i}")
+
+    @property
+    def root(self) -> BoxNode:
+        """The root node (all points, the minimum-volume box of the cloud)."""
+        return self.nodes[0]
+
+    @property
+    def n_splits(self) -> int:
+        """Number of accepted splits (= number of leaves - 1)."""
+        return max(nd.split_order for nd in self.nodes)
+
+    def node(self, i: int) -> BoxNode:
+        """The node with id ``i``."""
+        if not 0 <= i < len(self.nodes):
+            raise IndexError(f"node id {i} out of range [0, {len(self.nodes) - 1}]")
+        return self.nodes[i]
+
+    def leaves(self) -> list[int]:
+        """Ids of the leaves, ascending."""
+        return [nd.id for nd in self.nodes if not nd.children]
+
+    def is_ancestor(self, a: int, b: int) -> bool:
+        """True when node ``a`` is a strict ancestor of node ``b`` (a node is not its own)."""
+        self.node(a)
+        p = self.node(b).parent
+        while p != -1:
+            if p == a:
+                return True
+            p = self.nodes[p].parent
+        return False
+
+    def is_related(self, a: int, b: int) -> bool:
+        """True when ``a == b`` or one is an ancestor of the other."""
+        return a == b or self.is_ancestor(a, b) or self.is_ancestor(b, a)
+
+    def descendants(self, i: int) -> list[int]:
+        """Ids of all strict descendants of node ``i``, breadth-first."""
+        out: list[int] = []
+        queue = deque(self.node(i).children)
+        while queue:
+            c = queue.popleft()
+            out.append(c)
+            queue.extend(self.nodes[c].children)
+        return out
+
+    def cut_at_level(self, k: int) -> list[int]:
+        """Ids of the boxes that partition the cloud after the first ``k`` accepted splits.
+
+        ``cut_at_level(0) == [0]`` (the root) and ``cut_at_level(n_splits) == leaves()``.
+        Raises ``ValueError`` when ``k`` is outside ``[0, n_splits]``.
+        """
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+            raise ValueError(f"level must be an integer in [0, {self.n_splits}], got {k!r}")
+        if not 0 <= k <= self.n_splits:
+            raise ValueError(f"level must be in [0, {self.n_splits}], got {k}")
+        return [
+            nd.id
+            for nd in self.nodes
+            if nd.split_order <= k
+            and (not nd.children or self.nodes[nd.children[0]].split_order > k)
+        ]
+
+    def point_labels(self, node_ids: list[int] | None = None) -> np.ndarray:
+        """(n_points,) int64: for each point, the id of the node of ``node_ids`` holding it.
+
+        ``node_ids`` defaults to the leaves; it must partition the cloud (e.g. a
+        ``cut_at_level``); points in none of them get -1.
+        """
+        ids = self.leaves() if node_ids is None else node_ids
+        labels = np.full(self.n_points, -1, dtype=np.int64)
+        for i in ids:
+            labels[self.node(i).indices] = i
+        return labels
+
+
+def best_cut(p_box: np.ndarray, min_points: int) -> tuple[int, int, np.ndarray, float] | None:
+    """Exact best face-parallel cut of points given in their box frame.
+
+    p_box: (n, 3) float64. Returns ``(axis, i, order, volume)``: sorting along ``axis`` with
+    ``order`` (n,), the first ``i + 1`` sorted points form one child and the rest the other;
+    ``volume`` is the minimal summed volume of the two parent-frame child boxes. ``None`` when no
+    cut leaves ``min_points`` on each side between distinct coordinate values.
+    """
+    p = _as_points(p_box, "p_box")
+    n = p.shape[0]
+    if n < 2 * min_points:
+        return None
+    best: tuple[int, int, np.ndarray, float] | None = None
+    lo, hi = min_points - 1, n - min_points - 1  # cut after sorted position i, lo <= i <= hi
+    for a in range(3):
+        order = np.argsort(p[:, a], kind="stable")
+        s = p[order]  # (n, 3) sorted along axis a
+        others = s[:, [b for b in range(3) if b != a]]  # (n, 2)
+        # prefix extents of the two other axes for the left child s[: i + 1]: (n, 2)
+        pre_ext = np.maximum.accumulate(others, axis=0) - np.minimum.accumulate(others, axis=0)
+        # suffix extents for the right child s[i:]: (n, 2)
+        rev = others[::-1]
+        suf_ext = (np.maximum.accumulate(rev, axis=0) - np.minimum.accumulate(rev, axis=0))[::-1]
+        i = np.arange(lo, hi + 1)
+        x = s[:, a]
+        v_left = (x[i] - x[0]) * pre_ext[i, 0] * pre_ext[i, 1]
+        v_right = (x[-1] - x[i + 1]) * suf_ext[i + 1, 0] * suf_ext[i + 1, 1]
+        total = v_left + v_right
+        total[x[i + 1] <= x[i]] = np.inf  # only between distinct values
+        j = int(np.argmin(total))
+        if np.isfinite(total[j]) and (best is None or total[j] < best[3]):
+            best = (a, int(i[j]), order, float(total[j]))
+    return best
+
+
+def _refit(points: np.ndarray, R_parent: np.ndarray) -> OrientedBox:
+    """Minimum-volume box of a child, never larger than its box in the parent frame."""
+    in_frame = OrientedBox.from_points_in_frame(points, R_parent)
+    try:
+        mvbb = minimum_volume_box(points)
+    except DegenerateGeometryError as exc:
+        logger.debug("child MVBB degenerate (%s); keeping the parent-frame box", exc)
+        return in_frame
+    return mvbb if mvbb.volume <= in_frame.volume else in_frame
+
+
+def decompose(points: np.ndarray, params: DecompositionParams | None = None) -> BoxTree:
+    """Split ``points`` (N, 3) into a binary tree of oriented boxes (see the module docstring).
+
+    The leaves partition the points; every node's box contains its points. Raises
+    ``DegenerateGeometryError`` when the cloud has fewer than ``MIN_BOX_POINTS`` points or no box
+    can be fitted to it (all points identical or collinear).
+    """
+    params = DecompositionParams() if params is None else params
+    if not isinstance(params, DecompositionParams):
+        raise TypeError(f"params must be DecompositionParams, got {type(params).__name__}")
+    pts = _as_points(points)
+    n = pts.shape[0]
+    if n < MIN_BOX_POINTS:
+        raise DegenerateGeometryError(
+            f"cannot decompose {n} points: a box needs at least {MIN_BOX_POINTS}; "
+            "give a cloud with more points"
+        )
+    if not np.all(np.isfinite(pts)):
+        raise ValueError("points contain NaN or inf; drop those rows first")
+
+    parent = [-1]
+    children: list[tuple[int, ...]] = [()]
+    depth = [0]
+    indices = [np.arange(n, dtype=np.int64)]
+    boxes = [minimum_volume_box(pts)]
+    split_order = [0]
+    n_splits = 0
+    queue = deque([0])
+    while queue:
+        k = queue.popleft()
+        box, idx = boxes[k], indices[k]
+        if depth[k] >= params.max_depth or idx.shape[0] < 2 * params.min_points:
+            continue
+        if box.extents[2] < FLAT_EXTENT:
+            logger.debug("node %d is flat (%.3g m); not split", k, box.extents[2])
+            continue
+        cut = best_cut(box.to_box(pts[idx]), params.min_points)
+        if cut is None:
+            continue
+        axis, i, order, v_frame = cut
+        left = np.sort(idx[order[: i + 1]])
+        right = np.sort(idx[order[i + 1 :]])
+        b1 = _refit(pts[left], box.rotation)
+        b2 = _refit(pts[right], box.rotation)
+        ratio = (b1.volume + b2.volume) / box.volume
+        logger.debug(
+            "node %d: best cut axis %d, %d | %d points, frame ratio %.3f, refit ratio %.3f",
+            k, axis, left.size, right.size, v_frame / box.volume, ratio,
+        )  # fmt: skip
+        if not ratio < params.volume_ratio:
+            continue
+        n_splits += 1
+        c1, c2 = len(parent), len(parent) + 1
+        children[k] = (c1, c2)
+        for ind, b in ((left, b1), (right, b2)):
+            parent.append(k)
+            children.append(())
+            depth.append(depth[k] + 1)
+            indices.append(ind)
+            boxes.append(b)
+            split_order.append(n_splits)
+        queue.extend((c1, c2))
+
+    nodes = tuple(
+        BoxNode(
+            id=i,
+            parent=parent[i],
+            children=children[i],
+            depth=depth[i],
+            indices=indices[i],
+            box=boxes[i],
+            split_order=split_order[i],
+        )
+        for i in range(len(parent))
+    )
+    logger.info("decomposed %d points into %d boxes (%d splits)", n, len(nodes), n_splits)
+    return BoxTree(nodes=nodes, n_points=n)
