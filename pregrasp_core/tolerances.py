@@ -10,3 +10,17 @@ BOX_CONTAINS_TOL: float = 1e-7
 
 FLAT_EXTENT: float = 1e-6
 """A box side shorter than this is flat (coplanar input gives a flat box; metres)."""
+
+# --- quality and planner (issue 5) ---
+
+QUALITY_EPS: float = 1e-9
+"""Epsilon (wrench units) at or below this is 0: the origin is on the hull boundary or outside."""
+
+QUALITY_RANK_TOL: float = 1e-9
+"""Relative singular-value threshold below which a wrench set is rank-deficient (score 0)."""
+
+CONTACT_DISTANCE: float = 0.003
+"""A hand link counts as touching the cloud when a cloud point is within this distance (metres)."""
+
+PENETRATION_TOL: float = 0.002
+"""Largest depth a cloud point may lie inside a link of the final hand (metres)."""
