@@ -21,6 +21,8 @@ Algorithm per node (n points, vectorised over points, loops over the 3 axes only
    ``max_depth``. Otherwise the node is a leaf.
 
 Nodes are processed breadth-first (FIFO): node ids and ``split_order`` both follow that order.
+The two children of a split are ordered by decreasing number of points (on a tie, the side
+below the plane first), so the tree does not depend on the signs of the box axes.
 """
 
 from __future__ import annotations
@@ -79,7 +81,7 @@ class BoxNode:
     parent: int
     """Id of the parent node, -1 for the root."""
     children: tuple[int, ...]
-    """Ids of the two children, or ``()`` for a leaf."""
+    """Ids of the two children (the one with more points first), or ``()`` for a leaf."""
     depth: int
     """Number of edges from the root (root 0)."""
     indices: np.ndarray
@@ -286,6 +288,8 @@ def decompose(points: np.ndarray, params: DecompositionParams | None = None) -> 
         axis, i, order, v_frame = cut
         left = np.sort(idx[order[: i + 1]])
         right = np.sort(idx[order[i + 1 :]])
+        if right.size > left.size:  # the child with more points first (rigid-motion invariant)
+            left, right = right, left
         b1 = _refit(pts[left], box.rotation)
         b2 = _refit(pts[right], box.rotation)
         ratio = (b1.volume + b2.volume) / box.volume
