@@ -24,3 +24,19 @@ CONTACT_DISTANCE: float = 0.003
 
 PENETRATION_TOL: float = 0.002
 """Largest depth a cloud point may lie inside a link of the final hand (metres)."""
+
+MVBB_DEGENERATE_REL: float = 1e-9
+"""MVBB: a principal-axis spread below this fraction of the largest spread counts as zero
+(identical, collinear or coplanar points; see ``docs/mvbb.md``)."""
+
+UNIT_NORMAL_TOL: float = 1e-2
+"""Input columns 4-6 are read as normals when every row's length is within this of 1
+(otherwise they are colours or other attributes and are ignored); used by ``io``."""
+
+FACE_OVERLAP_TOL: float = 0.002
+"""Metres: a box blocks a face only when it penetrates the slab in front of the face deeper than
+this (touching, e.g. a part sitting flush on the face's edge, does not block; face masks)."""
+
+SUPPORT_PENETRATION_TOL: float = 0.002
+"""Metres: the support plane blocks a face only when the slab in front of the face reaches deeper
+than this below it (so side faces of a part standing on the table stay free; face masks)."""
