@@ -1,0 +1,254 @@
+"""Grasp quality against the oracles of DESIGN section 9 (tests/data/quality_oracles.json),
+rigid-motion invariance, degenerate sets and an independent linear-programming check of force
+closure."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.optimize import linprog
+from scipy.spatial import ConvexHull
+from scipy.spatial.transform import Rotation
+
+from pregrasp_core.quality import (
+    QualityParams,
+    contact_wrenches,
+    friction_cone_edges,
+    grasp_quality,
+    hull_quality,
+    tangent_frames,
+)
+
+ORACLES = json.loads((Path(__file__).parents[1] / "data" / "quality_oracles.json").read_text())
+CASES = {c["name"]: c for c in ORACLES["cases"]}
+
+
+def _score(case, points=None, normals=None, tangents=None):
+    params = QualityParams(mu=case["mu"], n_edges=case["m"], torque_scale=case["rho"])
+    return grasp_quality(
+        np.asarray(case["points"] if points is None else points, dtype=float),
+        np.asarray(case["normals"] if normals is None else normals, dtype=float),
+        params,
+        tangents=np.asarray(case["tangents"] if tangents is None else tangents, dtype=float),
+        torques=case["torques"],
+    )
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_oracle_values(name):
+    case = CASES[name]
+    q = _score(case)
+    assert q.epsilon == pytest.approx(case["epsilon"], abs=1e-6)
+    assert q.force_closure
+    assert q.volume > 0.0
+    assert q.n_contacts == len(case["points"])
+
+
+def test_antipodal_closed_form_over_mu_and_m():
+    """eps = min(1, mu cos(pi/m)) for the antipodal pair in force space, for several mu and m."""
+    case = CASES["antipodal_pair_forces_only"]
+    for mu in (0.2, 0.5, 1.0, 1.5):
+        for m in (4, 6, 8, 16):
+            q = grasp_quality(
+                np.array(case["points"]),
+                np.array(case["normals"]),
+                QualityParams(mu=mu, n_edges=m),
+                tangents=np.array(case["tangents"]),
+                torques=False,
+            )
+            assert q.epsilon == pytest.approx(min(1.0, mu * np.cos(np.pi / m)), abs=1e-8)
+
+
+def test_default_tangent_rule_reproduces_tetrahedral_oracle():
+    """Without tangents the world rule (e_x projected) applies; the tetrahedral oracle uses it."""
+    case = CASES["sphere_four_tetrahedral"]
+    q = grasp_quality(
+        np.array(case["points"]), np.array(case["normals"]), QualityParams(torque_scale=1.0)
+    )
+    assert q.epsilon == pytest.approx(case["epsilon"], abs=1e-6)
+
+
+def test_joggled_hull_agrees_with_default_qhull():
+    """Scores from the joggled hull equal the default (merging) qhull build to 1e-8."""
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        p = rng.normal(size=(5, 3))
+        p /= np.linalg.norm(p, axis=1, keepdims=True)
+        w = contact_wrenches(p, -p)
+        eps, vol, _ = hull_quality(w)
+        hull = ConvexHull(w)
+        ref_eps = float((-hull.equations[:, -1]).min())
+        assert eps == pytest.approx(max(ref_eps, 0.0), abs=1e-8)
+        assert vol == pytest.approx(hull.volume, rel=1e-8)
+
+
+def _random_rigid(rng):
+    R = Rotation.random(random_state=rng).as_matrix()
+    t = rng.uniform(-2.0, 2.0, size=3)
+    return R, t
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_rigid_motion_invariance(name):
+    case = CASES[name]
+    base = _score(case)
+    rng = np.random.default_rng(11)
+    p, n, a = (np.asarray(case[k], dtype=float) for k in ("points", "normals", "tangents"))
+    for _ in range(5):
+        R, t = _random_rigid(rng)
+        q = _score(case, p @ R.T + t, n @ R.T, a @ R.T)
+        assert q.epsilon == pytest.approx(base.epsilon, abs=1e-8)
+        assert q.volume == pytest.approx(base.volume, rel=1e-7)
+
+
+def test_rigid_motion_invariance_random_grasps():
+    """Random contact sets on a sphere, scored, then moved rigidly (tangents moved with them)."""
+    rng = np.random.default_rng(5)
+    for _ in range(6):
+        k = int(rng.integers(3, 7))
+        p = rng.normal(size=(k, 3)) * [0.03, 0.05, 0.02] + rng.normal(size=3)
+        n = rng.normal(size=(k, 3))
+        a = rng.normal(size=(k, 3))
+        base = grasp_quality(p, n, tangents=a)
+        R, t = _random_rigid(rng)
+        moved = grasp_quality(p @ R.T + t, n @ R.T, tangents=a @ R.T)
+        assert moved.epsilon == pytest.approx(base.epsilon, abs=1e-8)
+        assert moved.volume == pytest.approx(base.volume, rel=1e-6, abs=1e-12)
+        perm = rng.permutation(k)
+        permuted = grasp_quality(p[perm], n[perm], tangents=a[perm])
+        assert permuted.epsilon == pytest.approx(base.epsilon, abs=1e-8)
+
+
+def _origin_strictly_inside_lp(w: np.ndarray) -> bool:
+    """Independent force-closure test: no direction u with w . u <= -s for all wrenches, s > 0.
+
+    maximise s subject to w u + s <= 0, -1 <= u <= 1; the origin is strictly inside the hull iff
+    the optimum is 0 and the wrenches span the space.
+    """
+    m, d = w.shape
+    res = linprog(
+        np.r_[np.zeros(d), -1.0],
+        A_ub=np.c_[w, np.ones(m)],
+        b_ub=np.zeros(m),
+        bounds=[(-1, 1)] * d + [(None, 1)],
+        method="highs",
+    )
+    return -res.fun < 1e-9 and np.linalg.matrix_rank(w - w.mean(axis=0)) == d
+
+
+def test_force_closure_agrees_with_linear_programming():
+    rng = np.random.default_rng(7)
+    n_fc = 0
+    for trial in range(30):
+        k = int(rng.integers(3, 6))
+        p = rng.normal(size=(k, 3))
+        p /= np.linalg.norm(p, axis=1, keepdims=True)
+        # normals into the object, tilted so that some sets are force closure and some not
+        n = -p + rng.normal(scale=0.8 if trial % 2 else 0.2, size=(k, 3))
+        q = grasp_quality(p, n)
+        w = contact_wrenches(p, n / np.linalg.norm(n, axis=1, keepdims=True))
+        fc = _origin_strictly_inside_lp(w)
+        if abs(q.epsilon) > 1e-6 or not fc:
+            assert q.force_closure == fc, (trial, q)
+        n_fc += fc
+    assert 3 <= n_fc <= 27  # both outcomes were exercised
+
+
+def test_epsilon_is_a_lower_bound_of_the_support_function():
+    """eps = min over unit u of max_j w_j . u; random directions can only give larger values."""
+    rng = np.random.default_rng(9)
+    case = CASES["sphere_four_tetrahedral"]
+    params = QualityParams(torque_scale=1.0)
+    w = contact_wrenches(np.array(case["points"]), np.array(case["normals"]), params)
+    eps, _, _ = hull_quality(w)
+    u = rng.normal(size=(20000, 6))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    support = (u @ w.T).max(axis=1)
+    assert support.min() >= eps - 1e-12
+    assert support.min() < eps * 1.15  # and random directions come close to it
+
+
+def test_degenerate_sets_score_zero_without_exception():
+    params = QualityParams()
+    # no contact, one contact
+    assert grasp_quality(np.zeros((0, 3)), np.zeros((0, 3))).epsilon == 0.0
+    one = grasp_quality(np.array([[0.0, 0, 0]]), np.array([[0.0, 0, 1]]))
+    assert (one.epsilon, one.volume, one.force_closure) == (0.0, 0.0, False)
+    # two antipodal contacts with torques: rank 5, degenerate
+    two = grasp_quality(np.array([[1.0, 0, 0], [-1, 0, 0]]), np.array([[-1.0, 0, 0], [1, 0, 0]]))
+    assert (two.epsilon, two.volume) == (0.0, 0.0)
+    assert "rank" in two.reason
+    # frictionless contacts: every edge equals the normal, rank <= 3
+    p = np.array([[1.0, 0, 0], [-0.5, 0.8, 0], [-0.5, -0.8, 0], [0, 0, 1]])
+    q0 = grasp_quality(p, -p, QualityParams(mu=0.0))
+    assert (q0.epsilon, q0.volume) == (0.0, 0.0)
+    # all normals the same way: every force has f_z = 1, a flat (rank 5) hull
+    rng = np.random.default_rng(1)
+    pts = rng.normal(size=(5, 3))
+    same = grasp_quality(pts, np.tile([0.0, 0.0, 1.0], (5, 1)), params)
+    assert (same.epsilon, same.volume) == (0.0, 0.0)
+    # normals all in the upper half space: full-rank hull, origin outside -> eps 0, volume > 0
+    up = rng.normal(size=(5, 3)) * [1.0, 1.0, 0.2] + [0.0, 0.0, 1.0]
+    upper = grasp_quality(pts, up, params)
+    assert upper.epsilon == 0.0 and not upper.force_closure and upper.reason == ""
+    assert upper.volume > 0.0
+    # coincident contacts: every torque is zero
+    coinc = grasp_quality(np.zeros((4, 3)), rng.normal(size=(4, 3)))
+    assert coinc.epsilon == 0.0
+    # a zero normal or a NaN point: 0, not an exception
+    bad = grasp_quality(np.eye(3), np.array([[0.0, 0, 0], [0, 1, 0], [0, 0, 1]]))
+    assert bad.epsilon == 0.0 and "invalid" in bad.reason
+    nan = grasp_quality(np.array([[np.nan, 0, 0], [0, 1, 0], [0, 0, 1]]), np.eye(3))
+    assert nan.epsilon == 0.0
+    # a coplanar wrench set handed to the hull directly
+    assert hull_quality(np.c_[rng.normal(size=(20, 5)), np.zeros(20)])[:2] == (0.0, 0.0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    k=st.integers(0, 6),
+    seed=st.integers(0, 2**31 - 1),
+    mu=st.floats(0.0, 2.0),
+    m=st.integers(3, 10),
+)
+def test_never_raises_and_is_bounded(k, seed, mu, m):
+    rng = np.random.default_rng(seed)
+    p = rng.normal(size=(k, 3))
+    n = rng.normal(size=(k, 3))
+    q = grasp_quality(p, n, QualityParams(mu=mu, n_edges=m))
+    assert q.epsilon >= 0.0 and q.volume >= 0.0
+    # no facet can be farther from the origin than the farthest wrench
+    if k:
+        w = contact_wrenches(
+            p, n / np.linalg.norm(n, axis=1, keepdims=True), QualityParams(mu=mu, n_edges=m)
+        )
+        assert q.epsilon <= np.linalg.norm(w, axis=1).max() + 1e-9
+
+
+def test_cone_edges_have_unit_normal_component_and_frames_are_right_handed():
+    rng = np.random.default_rng(2)
+    n = rng.normal(size=(10, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    n[0] = [1.0, 0.0, 0.0]  # the e_y fallback of the world rule
+    f = friction_cone_edges(n, 0.5, 8)
+    assert np.allclose(np.einsum("kmi,ki->km", f, n), 1.0)
+    assert np.allclose(np.linalg.norm(f - n[:, None, :], axis=2), 0.5)
+    frames = tangent_frames(n)
+    assert np.allclose(np.linalg.det(frames), 1.0)
+    assert np.allclose(np.einsum("kij,kil->kjl", frames, frames), np.eye(3))
+
+
+def test_input_shapes_are_checked():
+    with pytest.raises(ValueError, match=r"points must have shape \(K, 3\), got \(3,\)"):
+        grasp_quality(np.zeros(3), np.zeros((1, 3)))
+    with pytest.raises(ValueError, match="same shape"):
+        grasp_quality(np.zeros((2, 3)), np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="mu must be"):
+        QualityParams(mu=-1.0)
+    with pytest.raises(ValueError, match="n_edges must be"):
+        QualityParams(n_edges=2)
