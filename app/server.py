@@ -1,0 +1,133 @@
+"""Wiring of the inspection app: ``run(config, server)`` builds it on a server it is given.
+
+Nothing here is module-level state: a test creates ``ViserServer(host="127.0.0.1", port=0)``,
+calls :func:`run` and reads ``server.get_port()``; ``pregrasp view`` calls :func:`serve`, which
+creates the server, prints how to reach it and serves until interrupted.
+"""
+
+from __future__ import annotations
+
+import getpass
+import logging
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pregrasp_core.paths import DEFAULT_OBJECT
+
+from .controller import DEFAULT_MAX_UPLOAD_BYTES, Controller
+from .gui import Gui
+from .scene import SceneRenderer
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ViewerConfig:
+    """Options of ``pregrasp view``."""
+
+    input: Path | None = None
+    """Point cloud or mesh to open; ``None`` opens the default object (the mug with a handle)."""
+    host: str = "127.0.0.1"
+    """Interface to bind; the default keeps the app private to this machine (use an SSH
+    port-forward to reach it from elsewhere, see ``docs/usage.md``)."""
+    port: int = 8080
+    """Port to listen on (viser moves to the next free port when it is taken; 0 = any)."""
+    n_points: int = 20000
+    """Points sampled on a mesh."""
+    seed: int = 0
+    """Seed of the mesh sampling."""
+    max_upload_bytes: int = DEFAULT_MAX_UPLOAD_BYTES
+    """Largest accepted upload in bytes."""
+    max_ghosts: int = 3000
+    """Most hand ghosts drawn at once (an even subsample of the filtered pool beyond that)."""
+    animate_hz: float = 30.0
+    """Rate of the animation clock (frames per second)."""
+    params: Any = field(default=None)
+    """``PipelineParams`` to start with (defaults when ``None``)."""
+
+
+class App:
+    """A running app: its controller, scene and GUI, plus the animation thread."""
+
+    def __init__(
+        self, server: Any, controller: Controller, scene: SceneRenderer, gui: Gui, animate_hz: float
+    ) -> None:
+        self.server = server
+        self.controller = controller
+        self.scene = scene
+        self.gui = gui
+        self._stop = threading.Event()
+        self._period = 1.0 / float(animate_hz)
+        self._thread = threading.Thread(target=self._animate, name="pregrasp-animator", daemon=True)
+        self._thread.start()
+
+    def _animate(self) -> None:
+        last = time.perf_counter()
+        while not self._stop.wait(self._period):
+            now = time.perf_counter()
+            if self.controller.state.view.playing:
+                self.controller.act(None, self.controller.tick, now - last)
+            last = now
+
+    def close(self) -> None:
+        """Stop the animation thread (the caller stops its server)."""
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+
+
+def run(config: ViewerConfig, server: Any) -> App:
+    """Build the app on ``server`` and load ``config.input`` (or the default object).
+
+    Raises the loader's ``PregraspError`` when the input cannot be read (the CLI prints it).
+    """
+    from pregrasp_core.hand import Hand
+
+    hand = Hand.load()
+    scene = SceneRenderer(server, hand=hand, max_ghosts=config.max_ghosts)
+    controller = Controller(
+        server,
+        scene,
+        hand,
+        params=config.params,
+        n_points=config.n_points,
+        seed=config.seed,
+        max_upload_bytes=config.max_upload_bytes,
+    )
+    scene.on_box_click = lambda node, client: controller.act(client, controller.select_node, node)
+    gui = Gui(server, controller, scene)
+    controller.load_path(config.input if config.input is not None else DEFAULT_OBJECT)
+    return App(server, controller, scene, gui, config.animate_hz)
+
+
+def access_lines(host: str, port: int) -> list[str]:
+    """The lines ``pregrasp view`` prints: the local URL and the exact SSH port-forward."""
+    shown = "localhost" if host in ("127.0.0.1", "localhost", "0.0.0.0", "::") else host
+    target = "localhost" if host in ("0.0.0.0", "::") else host
+    user, machine = getpass.getuser(), socket.getfqdn() or socket.gethostname()
+    return [
+        f"pregrasp view: open http://{shown}:{port}",
+        "From another computer, forward the port over SSH and open the same URL there:",
+        f"  ssh -N -L {port}:{target}:{port} {user}@{machine}",
+    ]
+
+
+def serve(config: ViewerConfig) -> None:
+    """Create the server, build the app, print how to reach it and serve until Ctrl-C."""
+    import viser
+
+    server = viser.ViserServer(host=config.host, port=config.port, verbose=False)
+    try:
+        app = run(config, server)
+        for line in access_lines(config.host, server.get_port()):
+            print(line, flush=True)  # noqa: T201 - the CLI's output
+        try:
+            while True:
+                time.sleep(3600)
+        finally:
+            app.close()
+    finally:
+        server.stop()

@@ -1,0 +1,121 @@
+"""The state of the inspection app: plain, immutable data and nothing else.
+
+One :class:`AppState` per server. The controller replaces it as a whole (``dataclasses.replace``)
+under its lock after every action; the scene and the GUI only read it. It holds no viser handles,
+no locks and no threads, so a test can build one, compare two, or keep an old one around.
+
+Several browsers connected to the same server share this one state (one object, one tree, one
+pool, one selection): what one user changes, every other browser sees. See ``docs/app.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+ALL = "all"
+"""Value of the grasp-type and node filters that keeps every pre-grasp."""
+
+
+@dataclass(frozen=True)
+class ObjectSource:
+    """Where the current point cloud comes from, enough to load it again with a new N or seed."""
+
+    name: str
+    """Display name: the demo object's file stem or the uploaded file's name."""
+    path: str | None = None
+    """File path of a demo object or of the ``INPUT`` given on the command line, else ``None``."""
+    data: bytes | None = field(default=None, repr=False)
+    """Raw bytes of an uploaded file (parsed by ``pregrasp_core.io`` only, never executed)."""
+
+
+@dataclass(frozen=True)
+class ViewState:
+    """What the user looks at: selections, filters and the animation clock."""
+
+    level: int | None = None
+    """Number of accepted splits shown by the level slider; ``None`` = all of them (the leaves)."""
+    selected_node: int | None = None
+    """Node id picked by clicking its box, or ``None``."""
+    show_face_masks: bool = True
+    """Draw the free/blocked faces and the usable sub-faces on the shown boxes."""
+    show_ghosts: bool = True
+    """Draw the pre-grasp pool as translucent hand ghosts."""
+    ghost_type: str = ALL
+    """Grasp-type filter of the ghosts (a ``GraspType`` value or :data:`ALL`)."""
+    ghost_node: int | None = None
+    """Node filter of the ghosts (a node id or ``None`` for every node)."""
+    selected_grasp: int | None = None
+    """Rank (0 = best) of the grasp shown with the URDF hand, or ``None``."""
+    anim_t: float = 1.0
+    """Animation phase in [0, 1]: 0 = pre-grasp pose in its preshape, 0.5 = end of the approach,
+    1 = fingers closed on the contacts."""
+    playing: bool = False
+    """Whether the animation clock advances by itself."""
+    speed: float = 1.0
+    """Animation speed: full cycles (pre-grasp to closed) per 2 seconds."""
+
+
+@dataclass(frozen=True)
+class AppState:
+    """Everything the app shows, as plain data. Replaced as a whole, never mutated."""
+
+    source: ObjectSource | None = None
+    """The loaded object, or ``None`` before the first load."""
+    n_points: int = 20000
+    """Number of points sampled on a mesh (point clouds keep at most this many)."""
+    seed: int = 0
+    """Seed of the mesh sampling (same seed, same cloud)."""
+    params: Any = None
+    """``pregrasp_core.pipeline.PipelineParams`` of the current run."""
+    result: Any = None
+    """``pregrasp_core.pipeline.PipelineResult`` (cloud, tree, shapes, masks, pool, grasps,
+    timings) of the current run, or ``None`` before the first run."""
+    planned: bool = False
+    """Whether ``result`` holds planned grasps for the current thresholds."""
+    view: ViewState = field(default_factory=ViewState)
+    """Selections, filters and the animation clock."""
+    busy: str = ""
+    """Name of the slow action in progress ("" when idle); the GUI disables its buttons."""
+    progress: float = 0.0
+    """Progress of ``busy`` in [0, 1]."""
+    message: str = ""
+    """The last status line (what was loaded or computed, and how long it took)."""
+    error: str = ""
+    """The last error message shown to the user ("" after a successful action)."""
+    version: int = 0
+    """Incremented on every replacement of the state (lets tests and the GUI detect changes)."""
+
+    @property
+    def cloud(self) -> Any:
+        """The current ``PointCloud`` or ``None``."""
+        return None if self.result is None else self.result.cloud
+
+    @property
+    def tree(self) -> Any:
+        """The current ``BoxTree`` or ``None``."""
+        return None if self.result is None else self.result.tree
+
+    @property
+    def shown_level(self) -> int:
+        """The level (number of accepted splits) whose boxes are shown."""
+        tree = self.tree
+        if tree is None:
+            return 0
+        n = n_splits(tree)
+        return n if self.view.level is None else min(max(self.view.level, 0), n)
+
+    def shown_nodes(self) -> list[int]:
+        """Ids of the boxes shown at the current level (a cut of the tree)."""
+        tree = self.tree
+        if tree is None:
+            return []
+        return list(tree.cut_at_level(self.shown_level))
+
+
+def n_splits(tree: Any) -> int:
+    """Number of accepted splits of a ``BoxTree`` (``max split_order``)."""
+    n = getattr(tree, "n_splits", None)
+    if n is not None:
+        return int(n() if callable(n) else n)
+    return max(int(node.split_order) for node in tree.nodes)
