@@ -194,9 +194,9 @@ def test_classify_tree_hammer_like():
 
 @settings(max_examples=40, deadline=None)
 @given(
-    st.tuples(
-        st.floats(0.005, 0.3), st.floats(0.005, 0.3), st.floats(0.005, 0.3)
-    ).map(lambda e: tuple(sorted(e, reverse=True))),
+    st.tuples(st.floats(0.005, 0.3), st.floats(0.005, 0.3), st.floats(0.005, 0.3)).map(
+        lambda e: tuple(sorted(e, reverse=True))
+    ),
     st.integers(0, 2**31 - 1),
 )
 def test_class_follows_aspect_ratios(extents, seed):

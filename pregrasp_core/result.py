@@ -1,0 +1,277 @@
+"""The ``pregrasp/1`` result document: a versioned JSON file (see ``docs/result-schema.md``).
+
+The core sections (input, parameters, timings, tree) are built here. Later stages add theirs
+without touching this module: each provides a function returning a JSON-ready dict (e.g. the
+pool and the planned grasps), and the caller passes them as ``extra_sections``::
+
+    doc = result_document(cloud, {"decomposition": dp, "shape": sp}, timings, tree, shapes,
+                          extra_sections={"pool": pool_section(pool)})
+    write_result(doc, "out.json")
+
+Values are made JSON-ready by :func:`to_jsonable` (dataclasses -> dicts, enums -> their value,
+numpy arrays -> nested lists, non-finite floats -> ``null``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import json
+import logging
+import math
+import os
+import tempfile
+from collections.abc import Mapping, Sequence
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .decomposition import BoxTree
+from .errors import InputError
+from .shape import NodeShape
+
+logger = logging.getLogger(__name__)
+
+SCHEMA: str = "pregrasp/1"
+"""The value of the document's ``"schema"`` key."""
+
+CORE_SECTIONS: tuple[str, ...] = (
+    "schema",
+    "generator",
+    "input",
+    "parameters",
+    "timings",
+    "tree",
+)
+"""Top-level keys built by this module; ``extra_sections`` may not reuse them."""
+
+FACE_MASK_SHAPE: tuple[int, int] = (6, 5)
+"""Shape of one node's face mask: row f = [f, l(f), d(f), r(f), u(f)], 0 free, 1 blocked."""
+
+
+def to_jsonable(obj: Any) -> Any:
+    """``obj`` as plain JSON types (dict, list, str, int, float, bool, None).
+
+    Dataclasses become dicts of their fields, enums their value, numpy arrays nested lists,
+    numpy scalars Python scalars, paths strings, tuples lists; NaN and infinities ``None``
+    (JSON has no such numbers). Raises ``TypeError`` for anything else.
+    """
+    if obj is None or isinstance(obj, (bool, str)):
+        return obj
+    if isinstance(obj, enum.Enum):
+        return to_jsonable(obj.value)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.ndarray):
+        return [to_jsonable(x) for x in obj.tolist()] if obj.dtype.kind == "f" else obj.tolist()
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: to_jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, Mapping):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(x) for x in obj]
+    raise TypeError(f"cannot write a {type(obj).__name__} to the result JSON: {obj!r}")
+
+
+def _version() -> str | None:
+    try:
+        return metadata.version("pregrasp")
+    except metadata.PackageNotFoundError:  # running from a source tree without install
+        return None
+
+
+def input_section(cloud: Any, seed: int | None = None) -> dict[str, Any]:
+    """The ``input`` section for a ``PointCloud`` (anything with points, source and info)."""
+    info = dict(getattr(cloud, "info", {}) or {})
+    pts = np.asarray(cloud.points)
+    lo, hi = (pts.min(axis=0), pts.max(axis=0)) if pts.size else (np.zeros(3), np.zeros(3))
+    return {
+        "source": str(cloud.source),
+        "format": info.get("format"),
+        "kind": info.get("kind"),
+        "n_points": int(pts.shape[0]),
+        "seed": info.get("seed") if seed is None else int(seed),
+        "scale": info.get("scale", 1.0),
+        "n_read": info.get("n_read"),
+        "n_dropped_nonfinite": info.get("n_dropped_nonfinite", 0),
+        "has_normals": getattr(cloud, "normals", None) is not None,
+        "bounds": to_jsonable(np.stack([lo, hi])),
+        "warnings": list(info.get("warnings", [])),
+    }
+
+
+def _face_mask_list(face_masks: Any, n_nodes: int) -> list[np.ndarray | None]:
+    """Normalise face masks to one (6, 5) int array or None per node."""
+    if face_masks is None:
+        return [None] * n_nodes
+    if isinstance(face_masks, np.ndarray):
+        fm = face_masks
+        if fm.shape != (n_nodes, *FACE_MASK_SHAPE):
+            raise ValueError(
+                f"face_masks must have shape ({n_nodes}, 6, 5) (one per node), got {fm.shape}"
+            )
+        masks: list[Any] = list(fm)
+    else:
+        masks = list(face_masks)
+        if len(masks) != n_nodes:
+            raise ValueError(
+                f"face_masks must have {n_nodes} entries (one per node), got {len(masks)}"
+            )
+    out: list[np.ndarray | None] = []
+    for i, m in enumerate(masks):
+        if m is None:
+            out.append(None)
+            continue
+        a = np.asarray(m)
+        if a.shape != FACE_MASK_SHAPE:
+            raise ValueError(f"face mask of node {i} must have shape (6, 5), got {a.shape}")
+        if not np.all((a == 0) | (a == 1)):
+            raise ValueError(f"face mask of node {i} must hold only 0 (free) and 1 (blocked)")
+        out.append(a.astype(np.int64))
+    return out
+
+
+def tree_section(
+    tree: BoxTree,
+    shapes: Sequence[NodeShape] | None = None,
+    face_masks: Any = None,
+    include_indices: bool = False,
+) -> dict[str, Any]:
+    """The ``tree`` section: summary and one entry per node (see ``docs/result-schema.md``).
+
+    shapes: one ``NodeShape`` per node (by id) or None; face_masks: None, an (n_nodes, 6, 5)
+    array, or a sequence of (6, 5) arrays / None per node; include_indices: add each node's
+    point indices.
+    """
+    n = len(tree.nodes)
+    if shapes is not None and len(shapes) != n:
+        raise ValueError(f"shapes must have {n} entries (one per node), got {len(shapes)}")
+    masks = _face_mask_list(face_masks, n)
+    nodes = []
+    for nd in tree.nodes:
+        entry: dict[str, Any] = {
+            "id": nd.id,
+            "parent": nd.parent,
+            "children": list(nd.children),
+            "depth": nd.depth,
+            "split_order": nd.split_order,
+            "n_points": nd.n_points,
+            **to_jsonable(nd.box.to_dict()),
+        }
+        sh = None if shapes is None else shapes[nd.id]
+        entry["eigenvalues"] = None if sh is None else to_jsonable(sh.eigenvalues)
+        entry["shape_class"] = None if sh is None else sh.shape_class.value
+        entry["grasp_type"] = None if sh is None else sh.grasp_type.value
+        entry["face_mask"] = None if masks[nd.id] is None else masks[nd.id].tolist()
+        if include_indices:
+            entry["indices"] = nd.indices.tolist()
+        nodes.append(entry)
+    return {
+        "n_points": tree.n_points,
+        "n_nodes": n,
+        "n_splits": tree.n_splits,
+        "leaves": tree.leaves(),
+        "includes_indices": bool(include_indices),
+        "nodes": nodes,
+    }
+
+
+def result_document(
+    cloud: Any,
+    params: Mapping[str, Any],
+    timings: Mapping[str, float],
+    tree: BoxTree,
+    shapes: Sequence[NodeShape] | None,
+    face_masks: Any = None,
+    include_indices: bool = False,
+    extra_sections: Mapping[str, Any] | None = None,
+    seed: int | None = None,
+) -> dict[str, Any]:
+    """The ``pregrasp/1`` document as a JSON-ready dict.
+
+    cloud: the ``PointCloud`` the tree was built from; params: stage name -> its parameters
+    dataclass (or dict), e.g. ``{"decomposition": DecompositionParams(), "shape": ...}``;
+    timings: stage name -> seconds; shapes: one ``NodeShape`` per node; face_masks, include_indices:
+    see :func:`tree_section`; extra_sections: further top-level sections (e.g. ``"pool"``,
+    ``"grasps"``, ``"best"``) made JSON-ready with :func:`to_jsonable`, after the core ones;
+    seed: the sampling seed of the input (else ``cloud.info["seed"]`` if present).
+    """
+    if int(np.asarray(cloud.points).shape[0]) != tree.n_points:
+        raise ValueError(
+            f"the tree has {tree.n_points} points but the cloud {np.asarray(cloud.points).shape[0]}"
+        )
+    t: dict[str, float] = {}
+    for k, v in timings.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
+            raise ValueError(f"timing {k!r} must be a number of seconds, got {v!r}")
+        if not (math.isfinite(v) and v >= 0):
+            raise ValueError(f"timing {k!r} must be a finite number of seconds >= 0, got {v!r}")
+        t[str(k)] = float(v)
+    doc: dict[str, Any] = {
+        "schema": SCHEMA,
+        "generator": {"name": "pregrasp", "version": _version()},
+        "input": input_section(cloud, seed),
+        "parameters": {str(k): to_jsonable(v) for k, v in params.items()},
+        "timings": t,
+        "tree": tree_section(tree, shapes, face_masks, include_indices),
+    }
+    for name, section in (extra_sections or {}).items():
+        if name in CORE_SECTIONS:
+            raise ValueError(f"extra section {name!r} would replace a core section")
+        doc[str(name)] = to_jsonable(section)
+    return doc
+
+
+def write_result(doc: Mapping[str, Any], path: str | os.PathLike) -> Path:
+    """Write ``doc`` as JSON to ``path`` atomically (a temporary file beside it, then rename).
+
+    Raises ``InputError`` when the folder does not exist or cannot be written.
+    """
+    out = Path(path)
+    folder = out.parent if str(out.parent) else Path(".")
+    if not folder.is_dir():
+        raise InputError(f"{out}: folder {folder} does not exist; create it or choose another path")
+    text = json.dumps(to_jsonable(doc), indent=1, allow_nan=False)
+    tmp_name = None
+    try:
+        with tempfile.NamedTemporaryFile(
+            "w", encoding="utf-8", dir=folder, prefix=f".{out.name}.", suffix=".tmp", delete=False
+        ) as fh:
+            tmp_name = fh.name
+            fh.write(text)
+            fh.write("\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp_name, out)
+    except OSError as exc:
+        if tmp_name is not None and os.path.exists(tmp_name):
+            os.unlink(tmp_name)
+        raise InputError(f"{out}: cannot write the result ({exc}); check the path") from exc
+    logger.info("wrote %s (%d bytes)", out, len(text) + 1)
+    return out
+
+
+def read_result(path: str | os.PathLike) -> dict[str, Any]:
+    """Read a result document and check its schema; raises ``InputError`` naming the file."""
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(f"{p}: file not found; check the path") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{p}: not a readable JSON result ({exc})") from None
+    if not isinstance(doc, dict) or doc.get("schema") != SCHEMA:
+        found = doc.get("schema") if isinstance(doc, dict) else type(doc).__name__
+        raise InputError(
+            f"{p}: not a {SCHEMA} result (schema {found!r}); write it with pregrasp decompose/plan"
+        )
+    return doc
