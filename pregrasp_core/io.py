@@ -402,8 +402,8 @@ def _load_mesh(data: bytes, fmt: str, source: str, path: Path | None) -> Any:
         ) from exc
     if mesh is None or len(getattr(mesh, "faces", ())) == 0:
         raise InputError(
-            f"{source}: the {fmt.upper()} file has no triangles; give a mesh with faces or a "
-            "point-cloud format (PLY, PCD, XYZ, NPY)"
+            f"{source}: no triangles could be read from the {fmt.upper()} file; check that it is "
+            "a valid mesh with faces, or give a point-cloud format (PLY, PCD, XYZ, NPY)"
         )
     return mesh
 
@@ -499,7 +499,7 @@ def _read_text(data: bytes, source: str) -> tuple[np.ndarray, np.ndarray | None,
     arr = _loadtxt(text, source, "XYZ/TXT data")
     if arr.size == 0:
         raise InputError(f"{source}: no data rows (only comments or blank lines)")
-    return _split_columns(arr, source, warns, "columns")
+    return _split_columns(arr, source, warns, "column")
 
 
 def _split_columns(
@@ -522,8 +522,8 @@ def _split_columns(
         else:
             _warn(
                 warns,
-                f"{source}: {what} 4-6 are not unit vectors (colours?); read as x y z and "
-                "ignored the rest",
+                f"{source}: columns 4-6 are not unit vectors (colours?); read columns 1-3 as "
+                "x y z and ignored the rest",
             )
     return pts, nrm, int(arr.shape[0]), warns
 
