@@ -1,16 +1,114 @@
-"""`pregrasp decompose` (PLACEHOLDER until issue 2 lands: replace this whole module)."""
+"""`pregrasp decompose`: split a cloud into a tree of boxes and classify the parts by PCA.
+
+With ``-o OUT.json`` writes the ``pregrasp/1`` result (input, parameters, timings per stage,
+tree); ``-o -`` prints the JSON to stdout; without ``-o`` prints a readable summary.
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
+import sys
+import time
+from pathlib import Path
 
-from pregrasp_core.errors import PregraspError
+from app.commands.common import (
+    add_decomposition_args,
+    add_input_args,
+    add_shape_args,
+    decomposition_params,
+    load_cloud,
+    shape_params,
+)
+from pregrasp_core.decomposition import BoxTree, decompose
+from pregrasp_core.result import result_document, to_jsonable, write_result
+from pregrasp_core.shape import NodeShape, classify_tree
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("decompose", help="(not built yet: issue 2)")
+    p = sub.add_parser(
+        "decompose",
+        help="split a cloud into a tree of oriented boxes and classify the parts",
+        description="Fit-and-split decomposition into minimum-volume boxes, PCA shape class and "
+        "grasp type per node. Writes the pregrasp/1 JSON with -o, else prints a summary.",
+    )
+    add_input_args(p)
+    add_decomposition_args(p)
+    add_shape_args(p)
+    p.add_argument(
+        "--include-indices", action="store_true", help="store each node's point indices in the JSON"
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        metavar="OUT.json",
+        default=None,
+        help="write the result JSON here ('-' for stdout)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    raise PregraspError("'pregrasp decompose' is not built yet (issue 2)")
+    # parameters first: a bad option fails before any slow work
+    dp = decomposition_params(args)
+    sp = shape_params(args)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    cloud = load_cloud(args)
+    t1 = time.perf_counter()
+    tree = decompose(cloud.points, dp)
+    t2 = time.perf_counter()
+    shapes = classify_tree(tree, cloud.points, sp)
+    t3 = time.perf_counter()
+    timings.update(load=t1 - t0, decompose=t2 - t1, classify=t3 - t2)
+    doc = result_document(
+        cloud,
+        {"decomposition": dp, "shape": sp},
+        timings,
+        tree,
+        shapes,
+        include_indices=args.include_indices,
+        seed=args.seed,
+    )
+    if args.output == "-":
+        json.dump(to_jsonable(doc), sys.stdout, indent=1, allow_nan=False)
+        sys.stdout.write("\n")
+    elif args.output is not None:
+        out = write_result(doc, args.output)
+        print(f"wrote {out}: {len(tree.leaves())} parts, {len(tree.nodes)} nodes")
+    else:
+        print(summary(doc, tree, shapes))
+    return 0
+
+
+def summary(doc: dict, tree: BoxTree, shapes: tuple[NodeShape, ...]) -> str:
+    """A short readable report: object, points, parts, the tree, times."""
+    inp, par = doc["input"], doc["parameters"]["decomposition"]
+    kind = f"{inp['kind']}, {inp['format']}" if inp.get("kind") else str(inp.get("format"))
+    lines = [
+        f"object:  {Path(inp['source']).name} ({kind}), {inp['n_points']} points, "
+        f"seed {inp['seed']}",
+        f"parts:   {len(tree.leaves())} ({tree.n_splits} splits; volume ratio "
+        f"{par['volume_ratio']}, min points {par['min_points']}, max depth {par['max_depth']})",
+        "",
+        f"  {'node':<14} {'class':<9} {'grasp type':<17} {'extents (mm)':>20} {'points':>8}",
+    ]
+    stack = [0]  # depth-first, children in order, for an indented listing
+    while stack:
+        nd = tree.node(stack.pop())
+        stack.extend(reversed(nd.children))
+        sh = shapes[nd.id]
+        e = nd.box.extents * 1000.0
+        ext = f"{e[0]:.0f} x {e[1]:.0f} x {e[2]:.0f}"
+        name = "  " * nd.depth + f"{nd.id}" + ("" if nd.children else " *")
+        lines.append(
+            f"  {name:<14} {sh.shape_class.value:<9} {sh.grasp_type.value:<17} {ext:>20} "
+            f"{nd.n_points:>8}"
+        )
+    lines.append("  (* = leaf, a part)")
+    t = doc["timings"]
+    times = ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in t.items())
+    lines += ["", f"times:   {times}; total {sum(t.values()) * 1000:.1f} ms"]
+    for w in inp.get("warnings", []):
+        lines.append(f"warning: {w}")
+    return "\n".join(lines)
