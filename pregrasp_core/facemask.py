@@ -1,0 +1,468 @@
+"""Face masks, the support plane and sub-faces (Sainul, Deb & Deb 2019, section III.C).
+
+Conventions (``docs/conventions.md``, "Faces, adjacency and sub-faces"):
+
+- Faces of a box, in its box frame (axis 0 longest): ``0: +x, 1: -x, 2: +y, 3: -y, 4: +z,
+  5: -z``. Face ``f`` has the outward normal ``FACE_NORMAL[f]`` and, seen from outside, a
+  ``right`` and an ``up`` direction (``FACE_RIGHT``, ``FACE_UP``; right x up = normal).
+- The four adjacent faces of ``f`` are ``ADJACENT[f] = [l, d, r, u]``: the faces whose normals
+  are -right, -up, +right and +up.
+- The face mask of a box is a 6 x 5 matrix of 0 (free) and 1 (blocked); row ``f`` is
+  ``[f, l(f), d(f), r(f), u(f)]``.
+- A face is blocked by a *blocker box* when the blocker penetrates by more than
+  ``overlap_tolerance`` the slab in front of the face (the face's rectangle pushed outwards by
+  ``clearance``), and by the support plane when that slab reaches more than
+  ``support_tolerance`` below the plane. The blockers of node ``n`` are the boxes of the current
+  decomposition (a cut of the tree, the leaves by default) that are neither ``n`` nor one of its
+  ancestors or descendants.
+- Each face is divided into a grid of sub-faces that depends on the grasp type
+  (:data:`SUBFACE_SCHEMES`): cell ``(col, row)`` with ``col`` along ``right`` from the left edge
+  and ``row`` along ``up`` from the bottom edge has index ``s = row * n_cols + col``. A cell
+  borders the adjacent faces of the face edges it touches; it is usable only when its own face
+  and every adjacent face it borders are free.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .box import OrientedBox, _as_points
+from .decomposition import BoxTree
+from .errors import InputError
+from .tolerances import (
+    FACE_OVERLAP_TOL,
+    GEOM_EPS,
+    SUPPORT_PENETRATION_TOL,
+)
+
+logger = logging.getLogger(__name__)
+
+FACE_NAMES: tuple[str, ...] = ("+x", "-x", "+y", "-y", "+z", "-z")
+"""Names of the six faces in the box frame (axis 0 = x is the longest box axis)."""
+
+FACE_AXIS: np.ndarray = np.array([0, 0, 1, 1, 2, 2])
+"""(6,) int: the box axis each face is perpendicular to."""
+
+FACE_SIGN: np.ndarray = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])
+"""(6,) float: +1 for the face on the positive side of its axis, -1 otherwise."""
+
+FACE_NORMAL: np.ndarray = np.eye(3)[FACE_AXIS] * FACE_SIGN[:, None]
+"""(6, 3) outward unit normals of the faces in the box frame."""
+
+FACE_RIGHT: np.ndarray = np.array(
+    [[0, 1, 0], [0, -1, 0], [-1, 0, 0], [1, 0, 0], [1, 0, 0], [1, 0, 0]], dtype=np.float64
+)
+"""(6, 3) the 'right' direction of each face seen from outside (box frame)."""
+
+FACE_UP: np.ndarray = np.array(
+    [[0, 0, 1], [0, 0, 1], [0, 0, 1], [0, 0, 1], [0, 1, 0], [0, -1, 0]], dtype=np.float64
+)
+"""(6, 3) the 'up' direction of each face seen from outside (box frame); right x up = normal."""
+
+ADJ_NAMES: tuple[str, ...] = ("l", "d", "r", "u")
+"""Order of the adjacent faces in :data:`ADJACENT` and in columns 1..4 of a mask row."""
+
+
+def face_of_direction(direction: np.ndarray) -> np.ndarray:
+    """Face index of axis-aligned unit directions (..., 3) in the box frame."""
+    d = np.asarray(direction, dtype=np.float64)
+    axis = np.argmax(np.abs(d), axis=-1)
+    sign = np.take_along_axis(d, axis[..., None], axis=-1)[..., 0]
+    return 2 * axis + (sign < 0)
+
+
+ADJACENT: np.ndarray = np.stack(
+    [
+        face_of_direction(-FACE_RIGHT),
+        face_of_direction(-FACE_UP),
+        face_of_direction(FACE_RIGHT),
+        face_of_direction(FACE_UP),
+    ],
+    axis=1,
+)
+"""(6, 4) int: adjacent faces [l, d, r, u] of each face."""
+
+
+# ----------------------------------------------------------------------------- parameters
+
+
+@dataclass(frozen=True)
+class FaceMaskParams:
+    """Parameters of the face masks and of the support plane."""
+
+    clearance: float = 0.025
+    """Metres: depth of the slab in front of a face that must stay empty for the face to be free
+    (finger thickness about 0.02 m plus a 0.005 m margin)."""
+    overlap_tolerance: float = FACE_OVERLAP_TOL
+    """Metres: a blocker must penetrate a face's slab deeper than this to block the face (boxes
+    that merely touch the slab's border, e.g. a part sitting flush on top of the face's edge,
+    do not block)."""
+    support: bool = True
+    """Whether a support plane (a table under the object) blocks faces."""
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    """World 'up' direction: the support plane's normal (normalised on use)."""
+    support_height: float | None = None
+    """Height of the support plane along ``up`` (metres); ``None`` = the lowest cloud point."""
+    support_tolerance: float = SUPPORT_PENETRATION_TOL
+    """Metres: a face's slab must reach deeper than this below the plane to be blocked by it."""
+
+    def __post_init__(self) -> None:
+        for name in ("clearance", "overlap_tolerance", "support_tolerance"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
+                raise ValueError(f"{name} must be a length >= 0 in metres, got {v!r}")
+            if not (np.isfinite(v) and v >= 0.0):
+                raise ValueError(f"{name} must be a length >= 0 in metres, got {v!r}")
+            object.__setattr__(self, name, float(v))
+        up = np.asarray(self.up, dtype=np.float64)
+        if up.shape != (3,) or not np.all(np.isfinite(up)) or np.linalg.norm(up) < GEOM_EPS:
+            raise ValueError(f"up must be a non-zero finite 3-vector, got {self.up!r}")
+        object.__setattr__(self, "up", tuple(float(x) for x in up))
+        h = self.support_height
+        if h is not None:
+            if isinstance(h, bool) or not isinstance(h, (int, float, np.floating, np.integer)):
+                raise ValueError(f"support_height must be a number (metres) or None, got {h!r}")
+            if not np.isfinite(h):
+                raise ValueError(f"support_height must be finite, got {h!r}")
+            object.__setattr__(self, "support_height", float(h))
+        object.__setattr__(self, "support", bool(self.support))
+
+
+# ----------------------------------------------------------------------------- support plane
+
+
+@dataclass(frozen=True)
+class SupportPlane:
+    """The plane the object stands on: points ``p`` with ``normal . p = height``."""
+
+    normal: np.ndarray
+    """(3,) float64, unit, world frame: the 'up' direction (the object is on this side)."""
+    height: float
+    """Metres: offset of the plane along ``normal``."""
+
+    def __post_init__(self) -> None:
+        n = np.asarray(self.normal, dtype=np.float64)
+        if n.shape != (3,):
+            raise ValueError(f"normal must have shape (3,), got {n.shape}")
+        norm = np.linalg.norm(n)
+        if not np.isfinite(norm) or norm < GEOM_EPS:
+            raise ValueError(f"normal must be a non-zero finite vector, got {n.tolist()}")
+        object.__setattr__(self, "normal", n / norm)
+        object.__setattr__(self, "height", float(self.height))
+
+    @classmethod
+    def from_points(
+        cls, points: np.ndarray, up: Sequence[float] = (0.0, 0.0, 1.0), height: float | None = None
+    ) -> SupportPlane:
+        """The plane perpendicular to ``up`` at ``height``, or at the lowest of ``points``."""
+        n = np.asarray(up, dtype=np.float64)
+        n = n / np.linalg.norm(n)
+        if height is None:
+            pts = _as_points(points)
+            if pts.shape[0] == 0:
+                raise InputError("the support plane needs at least one cloud point, got none")
+            height = float(np.min(pts @ n))
+        return cls(normal=n, height=float(height))
+
+    def signed_distance(self, points: np.ndarray) -> np.ndarray:
+        """(N,) metres above the plane (negative below) of world ``points`` (N, 3)."""
+        return _as_points(points) @ self.normal - self.height
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict (normal, height)."""
+        return {"normal": self.normal.tolist(), "height": self.height}
+
+
+def support_plane(points: np.ndarray, params: FaceMaskParams) -> SupportPlane | None:
+    """The support plane the parameters ask for, or ``None`` when it is turned off."""
+    if not params.support:
+        return None
+    return SupportPlane.from_points(points, params.up, params.support_height)
+
+
+# ----------------------------------------------------------------------------- geometry
+
+
+def face_slabs(box: OrientedBox, clearance: float) -> tuple[np.ndarray, np.ndarray]:
+    """The six slabs in front of the faces of ``box``.
+
+    Returns ``(centers (6, 3) world, half_extents (6, 3))``; every slab has the box's rotation.
+    Slab ``f`` covers the face's rectangle and extends ``clearance`` outwards from the face.
+    """
+    h = box.half_extents
+    half = np.tile(h, (6, 1))  # (6, 3)
+    half[np.arange(6), FACE_AXIS] = clearance / 2.0
+    offset_box = FACE_NORMAL * (h[FACE_AXIS] + clearance / 2.0)[:, None]  # (6, 3) box frame
+    return box.center + offset_box @ box.rotation.T, half
+
+
+def obb_penetration(
+    center_a: np.ndarray,
+    rotation_a: np.ndarray,
+    half_a: np.ndarray,
+    center_b: np.ndarray,
+    rotation_b: np.ndarray,
+    half_b: np.ndarray,
+) -> np.ndarray:
+    """Penetration depth of pairs of oriented boxes by the separating-axis test (broadcast).
+
+    Shapes: centers (..., 3), rotations (..., 3, 3) with columns = axes, half extents (..., 3).
+    Returns (...,) metres: the smallest overlap of the boxes' projections over the 15 candidate
+    axes (3 + 3 face normals and 9 edge cross products), which for boxes is the minimum
+    translation that separates them; negative when they are apart (then it is minus a lower
+    bound of their gap).
+    """
+    ca, Ra, ha = (np.asarray(x, dtype=np.float64) for x in (center_a, rotation_a, half_a))
+    cb, Rb, hb = (np.asarray(x, dtype=np.float64) for x in (center_b, rotation_b, half_b))
+    A = np.swapaxes(Ra, -1, -2)  # (..., 3 axes, 3)
+    B = np.swapaxes(Rb, -1, -2)
+    A, B = np.broadcast_arrays(A, B)
+    cross = np.cross(A[..., :, None, :], B[..., None, :, :])  # (..., 3, 3, 3)
+    cross = cross.reshape(cross.shape[:-3] + (9, 3))
+    axes = np.concatenate([A, B, cross], axis=-2)  # (..., 15, 3)
+    norm = np.linalg.norm(axes, axis=-1)  # (..., 15)
+    valid = norm > 1e-9
+    axes = axes / np.where(valid, norm, 1.0)[..., None]
+    ra = np.sum(ha[..., None, :] * np.abs(axes @ np.swapaxes(A, -1, -2)), axis=-1)  # (..., 15)
+    rb = np.sum(hb[..., None, :] * np.abs(axes @ np.swapaxes(B, -1, -2)), axis=-1)
+    dist = np.abs(np.einsum("...kj,...j->...k", axes, cb - ca))
+    overlap = np.where(valid, ra + rb - dist, np.inf)
+    return overlap.min(axis=-1)
+
+
+# ----------------------------------------------------------------------------- face masks
+
+
+@dataclass(frozen=True)
+class FaceMasks:
+    """Face masks of every node of a decomposition tree (indexed by node id)."""
+
+    blocked: np.ndarray
+    """(K, 6) bool: face ``f`` of node ``k`` is blocked (by a box or by the support plane)."""
+    by_support: np.ndarray
+    """(K, 6) bool: the support plane blocks face ``f`` of node ``k``."""
+    blockers: tuple[tuple[tuple[int, ...], ...], ...]
+    """``blockers[k][f]``: ids of the boxes that block face ``f`` of node ``k`` (ascending)."""
+    cut: tuple[int, ...]
+    """Ids of the boxes of the current decomposition (the possible blockers)."""
+    support: SupportPlane | None
+    """The support plane, or ``None`` when it is turned off."""
+    params: FaceMaskParams = field(default_factory=FaceMaskParams)
+    """The parameters the masks were computed with."""
+
+    @property
+    def masks(self) -> np.ndarray:
+        """(K, 6, 5) int8: row f of node k = blocked state of [f, l(f), d(f), r(f), u(f)]."""
+        return face_mask_matrix(self.blocked)
+
+    def mask(self, node: int) -> np.ndarray:
+        """(6, 5) int8: the face mask of one node."""
+        return face_mask_matrix(self.blocked[node])
+
+    def to_list(self) -> list[list[list[int]]]:
+        """(K, 6, 5) nested lists of 0/1 for the result file."""
+        return self.masks.tolist()
+
+
+def face_mask_matrix(blocked: np.ndarray) -> np.ndarray:
+    """(..., 6, 5) int8 face mask(s) from the blocked state of the faces (..., 6) bool."""
+    b = np.asarray(blocked, dtype=bool)
+    if b.shape[-1:] != (6,):
+        raise ValueError(f"blocked must have shape (..., 6), got {b.shape}")
+    cols = np.concatenate([np.arange(6)[:, None], ADJACENT], axis=1)  # (6, 5)
+    return b[..., cols].astype(np.int8)
+
+
+def blocked_by_support(
+    box: OrientedBox | Sequence[OrientedBox], support: SupportPlane, params: FaceMaskParams
+) -> np.ndarray:
+    """(6,) or (K, 6) bool: whether the slab in front of each face reaches below the plane."""
+    boxes = [box] if isinstance(box, OrientedBox) else list(box)
+    out = np.zeros((len(boxes), 6), dtype=bool)
+    for k, b in enumerate(boxes):  # loop over nodes
+        centers, half = face_slabs(b, params.clearance)
+        # lowest point of each slab along the normal: centre minus the projected half extents
+        proj = np.abs(b.rotation.T @ support.normal)  # (3,) |axis . up|
+        lowest = centers @ support.normal - half @ proj  # (6,)
+        out[k] = lowest < support.height - params.support_tolerance
+    return out[0] if isinstance(box, OrientedBox) else out
+
+
+def compute_face_masks(
+    tree: BoxTree,
+    support: SupportPlane | None = None,
+    params: FaceMaskParams | None = None,
+    cut: Sequence[int] | None = None,
+) -> FaceMasks:
+    """Face masks of every node of ``tree``.
+
+    support: the support plane (see :func:`support_plane`) or ``None`` for a free-floating
+    object. cut: ids of the boxes forming the current decomposition (the possible blockers);
+    default the leaves. The blockers of node ``n`` are the boxes of ``cut`` that are neither
+    ``n`` nor an ancestor or descendant of ``n``.
+    """
+    params = FaceMaskParams() if params is None else params
+    cut_ids = tuple(tree.leaves() if cut is None else (int(c) for c in cut))
+    for c in cut_ids:
+        tree.node(c)  # raises IndexError for a bad id
+    K = len(tree.nodes)
+    # pairs (node, blocker): Python loop over nodes x cut (small sets), SAT vectorised below
+    pair_node: list[int] = []
+    pair_blocker: list[int] = []
+    for nd in tree.nodes:
+        for c in cut_ids:
+            if not tree.is_related(nd.id, c):
+                pair_node.append(nd.id)
+                pair_blocker.append(c)
+    blocked = np.zeros((K, 6), dtype=bool)
+    hits: list[list[list[int]]] = [[[] for _ in range(6)] for _ in range(K)]
+    if pair_node:
+        slab_c = np.empty((K, 6, 3))
+        slab_h = np.empty((K, 6, 3))
+        for nd in tree.nodes:
+            slab_c[nd.id], slab_h[nd.id] = face_slabs(nd.box, params.clearance)
+        R = np.stack([nd.box.rotation for nd in tree.nodes])  # (K, 3, 3)
+        C = np.stack([nd.box.center for nd in tree.nodes])  # (K, 3)
+        H = np.stack([nd.box.half_extents for nd in tree.nodes])  # (K, 3)
+        pn = np.asarray(pair_node)
+        pb = np.asarray(pair_blocker)
+        depth = obb_penetration(  # (P, 6)
+            slab_c[pn],
+            R[pn][:, None],
+            slab_h[pn],
+            C[pb][:, None],
+            R[pb][:, None],
+            H[pb][:, None],
+        )
+        hit = depth > params.overlap_tolerance  # (P, 6)
+        for p, f in zip(*np.nonzero(hit), strict=True):
+            hits[pn[p]][f].append(int(pb[p]))
+        np.logical_or.at(blocked, pn, hit)
+    if support is not None:
+        by_support = blocked_by_support([nd.box for nd in tree.nodes], support, params)
+    else:
+        by_support = np.zeros((K, 6), dtype=bool)
+    blocked |= by_support
+    blockers = tuple(tuple(tuple(sorted(h)) for h in node_hits) for node_hits in hits)
+    return FaceMasks(
+        blocked=blocked,
+        by_support=by_support,
+        blockers=blockers,
+        cut=cut_ids,
+        support=support,
+        params=params,
+    )
+
+
+# ----------------------------------------------------------------------------- sub-faces
+
+
+@dataclass(frozen=True)
+class SubfaceScheme:
+    """How the faces of a box are divided into sub-faces for one grasp type."""
+
+    grid: tuple[tuple[int, int], ...]
+    """Per face (6): ``(n_cols, n_rows)`` of the sub-face grid; ``(0, 0)`` = face not used."""
+
+    @property
+    def n_subfaces(self) -> np.ndarray:
+        """(6,) int: number of sub-faces of each face (0 for unused faces)."""
+        return np.array([c * r for c, r in self.grid])
+
+    def borders(self, face: int) -> np.ndarray:
+        """(S, 4) bool: which adjacent faces [l, d, r, u] each sub-face of ``face`` borders."""
+        nc, nr = self.grid[face]
+        s = np.arange(nc * nr)
+        col, row = s % max(nc, 1), s // max(nc, 1)
+        return np.stack([col == 0, row == 0, col == nc - 1, row == nr - 1], axis=1)
+
+    def cell(self, face: int, right: np.ndarray, up: np.ndarray, half_r: float, half_u: float):
+        """Sub-face index (...,) of face coordinates ``right``, ``up`` (metres from the face
+        centre) on a face of half sizes ``half_r``, ``half_u``."""
+        nc, nr = self.grid[face]
+        fr = (np.asarray(right) + half_r) / max(2.0 * half_r, GEOM_EPS)
+        fu = (np.asarray(up) + half_u) / max(2.0 * half_u, GEOM_EPS)
+        col = np.clip(np.floor(fr * nc), 0, nc - 1).astype(np.int64)
+        row = np.clip(np.floor(fu * nr), 0, nr - 1).astype(np.int64)
+        return row * nc + col
+
+
+SUBFACE_SCHEMES: dict[str, SubfaceScheme] = {
+    # 3 x 3 grid on every face: centre cell bound to nothing, edge cells to one adjacent face,
+    # corner cells to two (the paper's Fig. 5e)
+    "spherical": SubfaceScheme(grid=((3, 3),) * 6),
+    "two_finger_tip": SubfaceScheme(grid=((3, 3),) * 6),
+    # cylinder axis = box axis 0: the four side faces have 'right' along it and are cut into three
+    # strips along the axis (each strip spans the face across the axis, so it is bound to the two
+    # side faces the fingers wrap towards, and the end strips to their cap); the caps (axial
+    # approach) are one sub-face bound to all four side faces (the paper's Fig. 5d)
+    "cylindrical": SubfaceScheme(grid=((1, 1), (1, 1), (3, 1), (3, 1), (3, 1), (3, 1))),
+    # flat part in the plane of axes 0, 1: the hand approaches the rim faces (0..3) in that plane;
+    # each rim face is three strips along the rim, bound to both flat faces (where the fingertips
+    # go) and the end strips to the neighbouring rim face
+    "three_finger_tip": SubfaceScheme(grid=((3, 1), (3, 1), (3, 1), (3, 1), (0, 0), (0, 0))),
+}
+"""Sub-face scheme of each grasp type (keys are the :class:`~pregrasp_core.shape.GraspType`
+values)."""
+
+
+def subface_scheme(grasp_type: object) -> SubfaceScheme:
+    """The sub-face scheme of a grasp type (a ``GraspType`` or its string value)."""
+    key = getattr(grasp_type, "value", grasp_type)
+    try:
+        return SUBFACE_SCHEMES[str(key)]
+    except KeyError:
+        raise ValueError(
+            f"unknown grasp type {grasp_type!r}; expected one of {sorted(SUBFACE_SCHEMES)}"
+        ) from None
+
+
+def usable_subfaces(blocked: np.ndarray, grasp_type: object) -> list[np.ndarray]:
+    """Which sub-faces of a box may carry pre-grasps.
+
+    blocked: (6,) bool, the blocked state of the box's faces. Returns a list of 6 arrays
+    ``(S_f,) bool``: sub-face ``s`` of face ``f`` is usable when face ``f`` is free and every
+    adjacent face the sub-face borders is free.
+    """
+    b = np.asarray(blocked, dtype=bool)
+    if b.shape != (6,):
+        raise ValueError(f"blocked must have shape (6,), got {b.shape}")
+    scheme = subface_scheme(grasp_type)
+    out = []
+    for f in range(6):
+        borders = scheme.borders(f)  # (S, 4)
+        adj_blocked = b[ADJACENT[f]]  # (4,)
+        out.append(~b[f] & ~np.any(borders & adj_blocked, axis=1))
+    return out
+
+
+def subface_rectangles(box: OrientedBox, grasp_type: object) -> list[np.ndarray]:
+    """World corners of every sub-face of ``box`` for drawing: a list of 6 arrays (S_f, 4, 3),
+    corners counter-clockwise seen from outside (bottom-left, bottom-right, top-right, top-left).
+    """
+    scheme = subface_scheme(grasp_type)
+    h = box.half_extents
+    out = []
+    for f in range(6):
+        nc, nr = scheme.grid[f]
+        if nc * nr == 0:
+            out.append(np.zeros((0, 4, 3)))
+            continue
+        r_ax, u_ax = FACE_RIGHT[f], FACE_UP[f]
+        hr, hu = float(np.abs(r_ax) @ h), float(np.abs(u_ax) @ h)
+        centre = FACE_NORMAL[f] * h[FACE_AXIS[f]]
+        s = np.arange(nc * nr)
+        col, row = s % nc, s // nc
+        r0 = -hr + 2 * hr * col / nc
+        r1 = -hr + 2 * hr * (col + 1) / nc
+        u0 = -hu + 2 * hu * row / nr
+        u1 = -hu + 2 * hu * (row + 1) / nr
+        rs = np.stack([r0, r1, r1, r0], axis=1)  # (S, 4)
+        us = np.stack([u0, u0, u1, u1], axis=1)
+        p_box = centre + rs[..., None] * r_ax + us[..., None] * u_ax  # (S, 4, 3)
+        out.append(box.to_world(p_box.reshape(-1, 3)).reshape(-1, 4, 3))
+    return out

@@ -1,0 +1,339 @@
+"""Face masks, support plane and sub-faces (DESIGN section 5, docs/conventions.md)."""
+
+from __future__ import annotations
+
+import fcl
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from pregrasp_core.box import OrientedBox
+from pregrasp_core.decomposition import BoxNode, BoxTree
+from pregrasp_core.facemask import (
+    ADJACENT,
+    FACE_NORMAL,
+    FACE_RIGHT,
+    FACE_UP,
+    FaceMaskParams,
+    SupportPlane,
+    compute_face_masks,
+    face_mask_matrix,
+    obb_penetration,
+    subface_rectangles,
+    subface_scheme,
+    support_plane,
+    usable_subfaces,
+)
+
+UP = np.array([0.0, 0.0, 1.0])
+TABLE = SupportPlane(UP, 0.0)
+
+
+def aabb(lo, hi) -> OrientedBox:
+    """An axis-aligned box from its corners, canonicalised like every box of the code."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    return OrientedBox.from_points_in_frame(np.stack([lo, hi]), np.eye(3))
+
+
+def tree_of(root: OrientedBox, *children: OrientedBox) -> BoxTree:
+    """A root with 0 or 2 leaf children (point indices are irrelevant to face masks)."""
+    idx = np.arange(1, dtype=np.int64)
+    kids = tuple(range(1, len(children) + 1))
+    nodes = [BoxNode(0, -1, kids, 0, idx, root, 0)]
+    nodes += [BoxNode(k, 0, (), 1, idx, b, 1) for k, b in zip(kids, children, strict=True)]
+    return BoxTree(tuple(nodes), 1)
+
+
+def face_toward(box: OrientedBox, world_dir) -> int:
+    """Index of the face of ``box`` whose outward normal is ``world_dir``."""
+    normals = FACE_NORMAL @ box.rotation.T  # (6, 3) world
+    f = int(np.argmax(normals @ np.asarray(world_dir, float)))
+    assert normals[f] @ world_dir > 0.999
+    return f
+
+
+def blocked_dirs(box: OrientedBox, blocked: np.ndarray) -> set[tuple[int, int, int]]:
+    """World normals (rounded) of the blocked faces: comparable across box frames."""
+    normals = FACE_NORMAL @ box.rotation.T
+    return {tuple(np.rint(n).astype(int)) for n in normals[np.asarray(blocked, bool)]}
+
+
+# ----------------------------------------------------------------------------- conventions
+
+
+def test_face_frames_are_right_handed_and_adjacency_matches_the_documented_table():
+    assert np.allclose(np.cross(FACE_RIGHT, FACE_UP), FACE_NORMAL)
+    # the table printed in docs/conventions.md
+    assert ADJACENT.tolist() == [
+        [3, 5, 2, 4],
+        [2, 5, 3, 4],
+        [0, 5, 1, 4],
+        [1, 5, 0, 4],
+        [1, 3, 0, 2],
+        [1, 2, 0, 3],
+    ]
+    for f in range(6):  # the four neighbours are the faces that are neither f nor its opposite
+        assert sorted(ADJACENT[f]) == sorted(set(range(6)) - {f, f ^ 1})
+        # l/r and d/u are opposite faces
+        assert ADJACENT[f][0] ^ 1 == ADJACENT[f][2] and ADJACENT[f][1] ^ 1 == ADJACENT[f][3]
+
+
+def test_mask_rows_are_face_then_l_d_r_u():
+    blocked = np.array([0, 0, 0, 0, 1, 1], bool)  # +z and -z blocked
+    m = face_mask_matrix(blocked)
+    assert m.shape == (6, 5) and m.dtype == np.int8
+    assert m[0].tolist() == [0, 0, 1, 0, 1]  # +x: d = -z, u = +z
+    assert m[4].tolist() == [1, 0, 0, 0, 0]  # +z itself blocked, neighbours free
+    with pytest.raises(ValueError, match=r"shape \(\.\.\., 6\)"):
+        face_mask_matrix(np.zeros(5, bool))
+
+
+# ----------------------------------------------------------------------------- SAT
+
+
+def _fcl_box(box: OrientedBox) -> fcl.CollisionObject:
+    return fcl.CollisionObject(fcl.Box(*box.extents), fcl.Transform(box.rotation, box.center))
+
+
+def test_obb_penetration_agrees_with_fcl_on_random_boxes():
+    rng = np.random.default_rng(3)
+    depths, fcl_hit = [], []
+    for _ in range(300):
+        a = OrientedBox(
+            rng.normal(0, 0.03, 3),
+            Rotation.random(random_state=rng).as_matrix(),
+            np.sort(rng.uniform(0.01, 0.08, 3))[::-1],
+        )
+        b = OrientedBox(
+            rng.normal(0, 0.03, 3),
+            Rotation.random(random_state=rng).as_matrix(),
+            np.sort(rng.uniform(0.01, 0.08, 3))[::-1],
+        )
+        d = obb_penetration(
+            a.center, a.rotation, a.half_extents, b.center, b.rotation, b.half_extents
+        )
+        depths.append(float(d))
+        res = fcl.CollisionResult()
+        fcl_hit.append(fcl.collide(_fcl_box(a), _fcl_box(b), fcl.CollisionRequest(), res) > 0)
+    depths = np.array(depths)
+    clear = np.abs(depths) > 1e-6
+    assert np.array_equal((depths > 0)[clear], np.array(fcl_hit)[clear])
+    assert 30 < np.count_nonzero(depths > 0) < 270  # both outcomes are exercised
+
+
+def test_obb_penetration_of_axis_aligned_boxes_is_the_smallest_interval_overlap():
+    a, b = aabb([0, 0, 0], [0.1, 0.1, 0.1]), aabb([0.08, 0.05, -0.2], [0.3, 0.3, 0.3])
+    d = obb_penetration(a.center, a.rotation, a.half_extents, b.center, b.rotation, b.half_extents)
+    assert d == pytest.approx(0.02)  # overlaps 0.02 in x, 0.05 in y, 0.1 in z
+    c = aabb([0.15, 0, 0], [0.2, 0.1, 0.1])  # 0.05 apart in x
+    d = obb_penetration(a.center, a.rotation, a.half_extents, c.center, c.rotation, c.half_extents)
+    assert d == pytest.approx(-0.05)
+
+
+# ----------------------------------------------------------------------------- masks
+
+
+def l_shape() -> tuple[BoxTree, OrientedBox, OrientedBox]:
+    """A horizontal bar on the table and an upright bar standing on its +x end, flush with it."""
+    bar = aabb([0, -0.025, 0], [0.2, 0.025, 0.04])
+    post = aabb([0.16, -0.02, 0.04], [0.2, 0.02, 0.16])
+    root = aabb([0, -0.025, 0], [0.2, 0.025, 0.16])
+    return tree_of(root, bar, post), bar, post
+
+
+def test_l_shape_blocks_exactly_the_shared_faces_and_the_table():
+    tree, bar, post = l_shape()
+    fm = compute_face_masks(tree, TABLE)
+    # bar: top shared with the post, bottom on the table; its +x end is flush under the post
+    # (touching, not in front) and stays free
+    assert blocked_dirs(bar, fm.blocked[1]) == {(0, 0, 1), (0, 0, -1)}
+    assert fm.blockers[1][face_toward(bar, [0, 0, 1])] == (2,)
+    assert fm.by_support[1].tolist() == [f == face_toward(bar, [0, 0, -1]) for f in range(6)]
+    # post: only its bottom, on the bar (the table is 0.04 m below it, beyond the clearance)
+    assert blocked_dirs(post, fm.blocked[2]) == {(0, 0, -1)}
+    assert fm.blockers[2][face_toward(post, [0, 0, -1])] == (1,)
+    assert not fm.by_support[2].any()
+    # root: its own descendants never block it; only the table
+    assert blocked_dirs(tree.root.box, fm.blocked[0]) == {(0, 0, -1)}
+    # the bar's +x face row: [f, l, d, r, u] with d = bottom (table) and u = top (post)
+    fx = face_toward(bar, [1, 0, 0])
+    row = fm.mask(1)[fx]
+    nbr_dirs = (FACE_NORMAL[ADJACENT[fx]] @ bar.rotation.T).round().astype(int).tolist()
+    expected = [0] + [int(d in ([0, 0, 1], [0, 0, -1])) for d in nbr_dirs]
+    assert row.tolist() == expected and sum(expected) == 2
+    assert fm.masks.shape == (3, 6, 5)
+
+
+def test_box_stacked_on_a_box():
+    bottom = aabb([-0.05, -0.04, 0], [0.05, 0.04, 0.06])
+    top = aabb([-0.03, -0.025, 0.06], [0.03, 0.025, 0.1])
+    tree = tree_of(aabb([-0.05, -0.04, 0], [0.05, 0.04, 0.1]), bottom, top)
+    fm = compute_face_masks(tree, TABLE)
+    assert blocked_dirs(bottom, fm.blocked[1]) == {(0, 0, 1), (0, 0, -1)}
+    assert blocked_dirs(top, fm.blocked[2]) == {(0, 0, -1)}
+    # the wider bottom box does not block the top box's sides (it is below them, not in front)
+    ftop = face_toward(top, [0, 0, -1])
+    assert fm.mask(2)[ftop].tolist() == [1, 0, 0, 0, 0]
+    for d in ([1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0]):
+        row = fm.mask(2)[face_toward(top, d)]
+        assert row[0] == 0 and row.sum() == 1  # its 'down' neighbour is the blocked bottom
+
+
+def test_masks_are_invariant_under_rigid_motions():
+    tree, *_ = l_shape()
+    ref = compute_face_masks(tree, TABLE)
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        R = Rotation.random(random_state=rng).as_matrix()
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, rng.normal(0, 0.5, 3)
+        moved = BoxTree(
+            tuple(
+                BoxNode(
+                    n.id,
+                    n.parent,
+                    n.children,
+                    n.depth,
+                    n.indices,
+                    n.box.transformed(T),
+                    n.split_order,
+                )
+                for n in tree.nodes
+            ),
+            1,
+        )
+        plane = SupportPlane(R @ UP, float((R @ UP) @ T[:3, 3]))
+        fm = compute_face_masks(moved, plane)
+        for k, n in enumerate(tree.nodes):
+            # world normals of the blocked faces, mapped back by R^T
+            got = {
+                tuple(np.rint(R.T @ (FACE_NORMAL[f] @ moved.nodes[k].box.rotation.T)).astype(int))
+                for f in np.flatnonzero(fm.blocked[k])
+            }
+            assert got == blocked_dirs(n.box, ref.blocked[k])
+
+
+def test_gap_within_clearance_blocks_and_beyond_does_not():
+    a = aabb([0, 0, 0], [0.1, 0.06, 0.05])
+    for gap, expect in ((0.01, True), (0.02, True), (0.03, False)):
+        b = aabb([0.1 + gap, 0, 0], [0.2, 0.06, 0.05])
+        tree = tree_of(aabb([0, 0, 0], [0.2, 0.06, 0.05]), a, b)
+        fm = compute_face_masks(tree, None, FaceMaskParams(clearance=0.025))
+        assert fm.blocked[1][face_toward(a, [1, 0, 0])] == expect
+        assert fm.blocked[1].sum() == int(expect)
+
+
+def test_support_plane_default_off_and_explicit():
+    pts = np.array([[0, 0, 0.0], [0.1, 0.06, 0.05]])
+    assert support_plane(pts, FaceMaskParams()).height == 0.0
+    assert support_plane(pts, FaceMaskParams(support=False)) is None
+    side = support_plane(pts, FaceMaskParams(up=(1, 0, 0), support_height=-0.5))
+    assert np.allclose(side.normal, [1, 0, 0]) and side.height == -0.5
+    box = aabb(pts[0], pts[1])
+    tree = tree_of(box)
+    assert blocked_dirs(
+        box, compute_face_masks(tree, support_plane(pts, FaceMaskParams())).blocked[0]
+    ) == {(0, 0, -1)}
+    assert not compute_face_masks(tree, None).blocked.any()
+    # a table 0.1 m below: beyond the clearance, nothing blocked
+    low = SupportPlane(UP, -0.1)
+    assert not compute_face_masks(tree, low).blocked.any()
+    # a plane cutting the box at mid height: the bottom and all four sides are blocked
+    mid = SupportPlane(UP, 0.025)
+    assert blocked_dirs(box, compute_face_masks(tree, mid).blocked[0]) == {
+        (0, 0, -1),
+        (1, 0, 0),
+        (-1, 0, 0),
+        (0, 1, 0),
+        (0, -1, 0),
+    }
+    # the plane along +x at the box's -x face blocks that face
+    wall = SupportPlane(np.array([1.0, 0, 0]), 0.0)
+    assert blocked_dirs(box, compute_face_masks(tree, wall).blocked[0]) == {(-1, 0, 0)}
+
+
+def test_cut_limits_the_blockers_to_the_current_decomposition():
+    tree, bar, post = l_shape()
+    fm = compute_face_masks(tree, None, cut=[0])  # the root alone: nothing blocks anything
+    assert not fm.blocked.any() and fm.cut == (0,)
+    with pytest.raises(IndexError):
+        compute_face_masks(tree, None, cut=[9])
+
+
+def test_params_validation():
+    with pytest.raises(ValueError, match="clearance must be a length >= 0"):
+        FaceMaskParams(clearance=-1.0)
+    with pytest.raises(ValueError, match="up must be a non-zero"):
+        FaceMaskParams(up=(0, 0, 0))
+    with pytest.raises(ValueError, match="support_height must be finite"):
+        FaceMaskParams(support_height=float("nan"))
+
+
+# ----------------------------------------------------------------------------- sub-faces
+
+
+def test_subfaces_next_to_a_blocked_face_are_unused():
+    blocked = np.zeros(6, bool)
+    blocked[4] = True  # +z blocked: it is 'u' of faces 0..3 and the +z face itself
+    use = usable_subfaces(blocked, "spherical")
+    for f in range(4):  # 3 x 3 grid: the top row (cells 6, 7, 8) borders u
+        assert use[f].tolist() == [True] * 6 + [False] * 3
+    assert not use[4].any()  # the blocked face itself
+    # face 5 (-z) does not border +z: all usable
+    assert use[5].all()
+    # face 0 with its 'l' (face 3) blocked too: the left column goes as well
+    blocked[3] = True
+    assert usable_subfaces(blocked, "spherical")[0].reshape(3, 3).tolist() == [
+        [False, True, True],
+        [False, True, True],
+        [False, False, False],
+    ]
+
+
+def test_subface_schemes_per_grasp_type():
+    cyl = subface_scheme("cylindrical")
+    # side faces: three strips along axis 0 (= 'right' of the side faces), caps: one sub-face
+    assert cyl.grid == ((1, 1), (1, 1), (3, 1), (3, 1), (3, 1), (3, 1))
+    assert np.allclose(np.abs(FACE_RIGHT[2:]), [1, 0, 0])
+    blocked = np.zeros(6, bool)
+    blocked[0] = True  # +x cap blocked: the strips at the +x end of the side faces go
+    use = usable_subfaces(blocked, "cylindrical")
+    for f in range(2, 6):
+        end = 2 if FACE_RIGHT[f][0] > 0 else 0  # the column at the +x end
+        assert use[f].tolist() == [i != end for i in range(3)]
+    assert use[0].tolist() == [False]  # the blocked cap itself
+    # the -x cap (face 1) borders the four side faces only, so it stays usable
+    assert use[1].tolist() == [True]
+    tip = subface_scheme("three_finger_tip")
+    assert tip.n_subfaces.tolist() == [3, 3, 3, 3, 0, 0]
+    blocked = np.zeros(6, bool)
+    blocked[5] = True  # a flat face: every rim strip borders both flat faces
+    assert not any(u.any() for u in usable_subfaces(blocked, "three_finger_tip"))
+    with pytest.raises(ValueError, match="unknown grasp type"):
+        subface_scheme("fist")
+
+
+def test_subface_rectangles_tile_each_face():
+    box = OrientedBox(
+        np.array([0.3, -0.2, 0.1]),
+        Rotation.from_euler("xyz", [0.3, -0.5, 1.0]).as_matrix(),
+        np.array([0.12, 0.08, 0.05]),
+    )
+    for gt in ("spherical", "cylindrical", "three_finger_tip", "two_finger_tip"):
+        rects = subface_rectangles(box, gt)
+        n = subface_scheme(gt).n_subfaces
+        for f in range(6):
+            assert rects[f].shape == (n[f], 4, 3)
+            if n[f] == 0:
+                continue
+            # corners on the face's plane and the areas add up to the face's area
+            normal = box.rotation @ FACE_NORMAL[f]
+            offset = box.half_extents[f // 2]
+            assert np.allclose((rects[f] - box.center) @ normal, offset)
+            e1 = rects[f][:, 1] - rects[f][:, 0]
+            e2 = rects[f][:, 3] - rects[f][:, 0]
+            area = np.linalg.norm(np.cross(e1, e2), axis=1).sum()
+            sides = np.delete(box.extents, f // 2)
+            assert area == pytest.approx(sides[0] * sides[1])
+            # counter-clockwise seen from outside
+            assert np.all(np.cross(e1, e2) @ normal > 0)
