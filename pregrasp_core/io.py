@@ -233,7 +233,9 @@ def _check_size(size: int, max_bytes: int, source: str) -> None:
         )
 
 
-def _check_request(n_points: int | None, scale: float | None, source: str) -> None:
+def _check_request(n_points: int | None, scale: float | None, source: str, seed: int = 0) -> None:
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise InputError(f"{source}: seed must be a non-negative integer, got {seed!r}")
     if n_points is not None:
         if isinstance(n_points, bool) or not isinstance(n_points, int | np.integer):
             raise InputError(f"{source}: n_points must be an integer, got {n_points!r}")
@@ -260,7 +262,7 @@ def _load(
     max_bytes: int,
     path: Path | None,
 ) -> PointCloud:
-    _check_request(n_points, scale, source)
+    _check_request(n_points, scale, source, seed)
     if ext == ".ply":
         header = _parse_ply_header(data, source)
         if header.n_faces > 0:
@@ -302,7 +304,7 @@ def _finish(
     seed: int,
 ) -> PointCloud:
     """Drop non-finite rows, scale, subsample, check count and degeneracy, build the cloud."""
-    _check_request(n_points, scale, source)
+    _check_request(n_points, scale, source, seed)
     warns: list[str] = list(info.get("warnings", []))
     info = dict(info)
     n_in = int(pts.shape[0])
@@ -442,6 +444,12 @@ def _sample_mesh(
     pts = np.asarray(pts, dtype=np.float64)
     # Unit face normals from the winding (zero-area faces are never sampled).
     normals = cross[face_idx] / area2[face_idx, None]  # (n, 3)
+    watertight = bool(getattr(mesh, "is_watertight", False)) and not bad_vert.any()
+    signed_volume = float(np.einsum("ij,ij->", tri[:, 0], cross)) / 6.0
+    if watertight and signed_volume < 0.0:
+        # A closed mesh wound inside-out: its face normals all point inwards.
+        normals = -normals
+        _warn(warns, f"{source}: the closed mesh is wound inside-out; normals flipped outwards")
     s = 1.0 if scale is None else float(scale)
     info = {
         "format": fmt,
@@ -449,7 +457,7 @@ def _sample_mesh(
         "n_read": int(len(verts)),
         "n_faces": int(len(faces)),
         "area": total * s * s,
-        "watertight": bool(getattr(mesh, "is_watertight", False)),
+        "watertight": watertight,
         "warnings": warns,
     }
     return _finish(pts, normals, source, info, scale=scale, n_points=None, seed=seed)

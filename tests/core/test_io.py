@@ -356,6 +356,16 @@ def test_gltf_with_external_buffer(tmp_path):
     _assert_on_unit_cube(cloud.points, cloud.normals)
 
 
+def test_inside_out_mesh_gets_outward_normals(tmp_path):
+    cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    inv = trimesh.Trimesh(cube.vertices, cube.faces[:, ::-1], process=False)
+    assert inv.volume < 0  # really inside-out
+    (tmp_path / "inv.obj").write_text(inv.export(file_type="obj"))
+    c = load_point_cloud(tmp_path / "inv.obj", n_points=500)
+    _assert_on_unit_cube(c.points, c.normals)
+    assert any("inside-out; normals flipped" in w for w in c.warnings)
+
+
 def test_default_n_points_for_meshes(tmp_path):
     path = _cube_files(tmp_path)["obj"]
     assert load_point_cloud(path).n_points == DEFAULT_N_POINTS
@@ -594,6 +604,8 @@ def test_bad_options(tmp_path):
         load_point_cloud(tmp_path / "a.npy", n_points=3)
     with pytest.raises(InputError, match="n_points must be an integer"):
         load_point_cloud(tmp_path / "a.npy", n_points=2.5)
+    with pytest.raises(InputError, match="seed must be a non-negative integer, got -2"):
+        load_point_cloud(tmp_path / "a.npy", seed=-2)
 
 
 # ------------------------------------------------------------------------------------------------
