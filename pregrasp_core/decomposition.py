@@ -214,24 +214,27 @@ def best_cut(p_box: np.ndarray, min_points: int) -> tuple[int, int, np.ndarray, 
         return None
     best: tuple[int, int, np.ndarray, float] | None = None
     lo, hi = min_points - 1, n - min_points - 1  # cut after sorted position i, lo <= i <= hi
+    left_i, right_i = slice(lo, hi + 1), slice(lo + 1, hi + 2)  # i and i + 1 for every cut
+    pT = np.ascontiguousarray(p.T)  # (3, n): rows are contiguous, accumulate runs fast
     for a in range(3):
-        order = np.argsort(p[:, a], kind="stable")
-        s = p[order]  # (n, 3) sorted along axis a
-        others = s[:, [b for b in range(3) if b != a]]  # (n, 2)
-        # prefix extents of the two other axes for the left child s[: i + 1]: (n, 2)
-        pre_ext = np.maximum.accumulate(others, axis=0) - np.minimum.accumulate(others, axis=0)
-        # suffix extents for the right child s[i:]: (n, 2)
-        rev = others[::-1]
-        suf_ext = (np.maximum.accumulate(rev, axis=0) - np.minimum.accumulate(rev, axis=0))[::-1]
-        i = np.arange(lo, hi + 1)
-        x = s[:, a]
-        v_left = (x[i] - x[0]) * pre_ext[i, 0] * pre_ext[i, 1]
-        v_right = (x[-1] - x[i + 1]) * suf_ext[i + 1, 0] * suf_ext[i + 1, 1]
-        total = v_left + v_right
-        total[x[i + 1] <= x[i]] = np.inf  # only between distinct values
+        # ties are never cut (see below), so the unstable sort gives the same children
+        order = np.argsort(pT[a])
+        s = pT[:, order]  # (3, n) sorted along axis a
+        x = s[a]  # (n,)
+        others = s[[b for b in range(3) if b != a]]  # (2, n)
+        # prefix extents of the two other axes for the left child s[:, : i + 1]: (2, n)
+        pre = np.maximum.accumulate(others, axis=1) - np.minimum.accumulate(others, axis=1)
+        # suffix extents for the right child s[:, i:]: (2, n)
+        rev = others[:, ::-1]
+        suf = (np.maximum.accumulate(rev, axis=1) - np.minimum.accumulate(rev, axis=1))[:, ::-1]
+        xl, xr = x[left_i], x[right_i]  # (m,) coordinates on both sides of each cut
+        v_left = (xl - x[0]) * pre[0, left_i] * pre[1, left_i]
+        v_right = (x[-1] - xr) * suf[0, right_i] * suf[1, right_i]
+        total = v_left + v_right  # (m,)
+        total[xr <= xl] = np.inf  # only between distinct values
         j = int(np.argmin(total))
         if np.isfinite(total[j]) and (best is None or total[j] < best[3]):
-            best = (a, int(i[j]), order, float(total[j]))
+            best = (a, lo + j, order, float(total[j]))
     return best
 
 

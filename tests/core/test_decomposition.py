@@ -337,14 +337,16 @@ def test_demo_objects_partition_and_containment(path):
     params = DecompositionParams(min_points=100)
     tree = decompose(pts, params)
     _check_tree_invariants(tree, pts, params)
-    # a seeded random rigid motion gives the same parts
+    # a seeded random rigid motion gives the same parts. The MVBB is only near-minimal (its
+    # local refinement may land a hair apart in another frame), and the cut search runs in the
+    # box frame, so a cut may move by a few points: compare part sizes to 1 % of the cloud.
     moved = _apply(_random_rigid(7), pts)
     tree2 = decompose(moved, params)
     _check_tree_invariants(tree2, moved, params)
     assert len(tree2.leaves()) == len(tree.leaves())
-    assert sorted(tree2.node(i).n_points for i in tree2.leaves()) == sorted(
-        tree.node(i).n_points for i in tree.leaves()
-    )
+    sizes1 = np.sort([tree.node(i).n_points for i in tree.leaves()])
+    sizes2 = np.sort([tree2.node(i).n_points for i in tree2.leaves()])
+    assert np.all(np.abs(sizes1 - sizes2) <= 0.01 * len(pts))
 
 
 def test_demo_objects_present():

@@ -206,7 +206,8 @@ def test_class_follows_aspect_ratios(extents, seed):
     s = np.sqrt(var)
     r21, r32 = s[1] / s[0], s[2] / s[1]
     params = ShapeParams()
-    if min(abs(r21 - params.max_ratio_1d), abs(r32 - params.max_ratio_2d)) < 1e-6:
+    margins = (r21 - params.max_ratio_1d, r32 - params.max_ratio_2d, extents[0] - params.small_size)
+    if min(abs(m) for m in margins) < 1e-6:
         return  # on a threshold: round-off decides
     R, t = _rigid(seed)
     pts = _grid_box(extents, m) @ R.T + t

@@ -1,0 +1,141 @@
+"""Decomposition speed against the number of points, and parts per demo object.
+
+Prints two tables (Markdown):
+
+1. scaling: for each cloud size n, the median wall time of ``decompose`` and how it splits into
+   the MVBB fits (``minimum_volume_box``: root + two refits per tried split), the exact cut
+   search (``best_cut``) and the rest; ``t / (n log2 n)`` should stay roughly flat;
+2. objects: for every demo object at ``--points`` points, parts (leaves), splits, depth,
+   shape classes of the leaves and the median time, at the default parameters (0.9 / 500).
+
+Run on one core:  .venv/bin/python benchmarks/bench_decomposition.py
+Options: --object NAME --sizes 1000,10000,... --repeats R --points N --skip-objects
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import math  # noqa: E402
+import statistics  # noqa: E402
+import time  # noqa: E402
+from collections import Counter  # noqa: E402
+
+from pregrasp_core import decomposition as dec  # noqa: E402
+from pregrasp_core.decomposition import DecompositionParams, decompose  # noqa: E402
+from pregrasp_core.io import load_point_cloud  # noqa: E402
+from pregrasp_core.paths import DEFAULT_OBJECT, OBJECTS_DIR, demo_objects  # noqa: E402
+from pregrasp_core.shape import ShapeParams, classify_tree  # noqa: E402
+
+
+class _Timed:
+    """Wraps a module function of ``decomposition`` to count calls and sum their time."""
+
+    def __init__(self, name: str):
+        self.name, self.orig = name, getattr(dec, name)
+        self.calls, self.seconds = 0, 0.0
+
+    def __call__(self, *a, **kw):
+        t0 = time.perf_counter()
+        try:
+            return self.orig(*a, **kw)
+        finally:
+            self.seconds += time.perf_counter() - t0
+            self.calls += 1
+
+    def __enter__(self):
+        setattr(dec, self.name, self)
+        return self
+
+    def __exit__(self, *exc):
+        setattr(dec, self.name, self.orig)
+
+
+def _median_time(points, params, repeats):
+    times = []
+    tree = None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        tree = decompose(points, params)
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), tree
+
+
+def scaling(path, sizes, repeats, params):
+    print(
+        f"### Scaling: {path.name}, volume ratio {params.volume_ratio}, "
+        f"min points {params.min_points}\n"
+    )
+    print(
+        "| points | parts | MVBB calls | MVBB ms | cut search ms | other ms | total ms (median) "
+        "| ns / (n log2 n) |"
+    )
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for n in sizes:
+        pts = load_point_cloud(path, n_points=n, seed=0).points
+        r = max(1, repeats if n <= 20_000 else repeats // 4 if n <= 100_000 else 1)
+        decompose(pts, params)  # warm-up
+        med, tree = _median_time(pts, params, r)
+        with _Timed("minimum_volume_box") as mv, _Timed("best_cut") as bc:
+            t0 = time.perf_counter()
+            decompose(pts, params)
+            tot = time.perf_counter() - t0
+        other = tot - mv.seconds - bc.seconds
+        norm = med * 1e9 / (n * math.log2(n))
+        print(
+            f"| {n:,} | {len(tree.leaves())} | {mv.calls} | {mv.seconds * 1e3:.1f} | "
+            f"{bc.seconds * 1e3:.1f} | {other * 1e3:.1f} | {med * 1e3:.1f} | {norm:.2f} |"
+        )
+    print()
+
+
+def objects(n_points, repeats, params):
+    sp = ShapeParams()
+    print(
+        f"### Parts per object: {n_points:,} points (seed 0), volume ratio "
+        f"{params.volume_ratio}, min points {params.min_points}, max depth {params.max_depth}\n"
+    )
+    print("| object | parts | splits | depth | leaf classes | decompose ms (median) |")
+    print("|---|---:|---:|---:|---|---:|")
+    for path in demo_objects():
+        pts = load_point_cloud(path, n_points=n_points, seed=0).points
+        med, tree = _median_time(pts, params, repeats)
+        shapes = classify_tree(tree, pts, sp)
+        classes = Counter(shapes[i].shape_class.value for i in tree.leaves())
+        cls = ", ".join(f"{v} {k}" for k, v in sorted(classes.items()))
+        depth = max(nd.depth for nd in tree.nodes)
+        print(
+            f"| {path.stem} | {len(tree.leaves())} | {tree.n_splits} | {depth} | {cls} | "
+            f"{med * 1e3:.1f} |"
+        )
+    print()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--object", default=DEFAULT_OBJECT.stem, help="object for the scaling table")
+    ap.add_argument("--sizes", default="1000,3000,10000,20000,100000,300000,1000000")
+    ap.add_argument("--repeats", type=int, default=9)
+    ap.add_argument("--points", type=int, default=20000, help="points per object (table 2)")
+    ap.add_argument("--skip-objects", action="store_true")
+    ap.add_argument("--skip-scaling", action="store_true")
+    a = ap.parse_args()
+    params = DecompositionParams()
+    path = next((p for p in demo_objects() if p.stem == a.object), OBJECTS_DIR / a.object)
+    sizes = [int(s) for s in a.sizes.split(",")]
+    print(
+        f"machine: {os.cpu_count()} cpus, single-threaded BLAS; date "
+        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}\n"
+    )
+    if not a.skip_scaling:
+        scaling(path, sizes, a.repeats, params)
+    if not a.skip_objects:
+        objects(a.points, max(1, a.repeats // 3), params)
+
+
+if __name__ == "__main__":
+    main()
