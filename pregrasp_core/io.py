@@ -4,8 +4,8 @@ Formats (the file name's extension picks the parser, case-insensitive):
 
 - point clouds: PLY without faces (ascii, binary little/big endian), PCD (PCL's format; ascii and
   binary, ``binary_compressed`` is refused with a message), XYZ/TXT/CSV (3 columns, or 6 with
-  normals; whitespace or comma separated; ``#`` comments), NPY (``allow_pickle=False``) and NPZ
-  (key ``points`` or a single array; optional ``normals``);
+  normals; whitespace or comma separated; ``#`` comments; a column-name first line is skipped),
+  NPY (``allow_pickle=False``) and NPZ (key ``points`` or a single array; optional ``normals``);
 - meshes: OBJ, STL, OFF, GLB/GLTF and PLY with faces, sampled uniformly on the surface to
   ``n_points`` points with ``seed`` (area-weighted, the face normal of each sample kept as its
   normal). Same bytes + same ``n_points`` + same ``seed`` = same cloud.
@@ -501,10 +501,25 @@ def _loadtxt(lines: list[str] | str, source: str, what: str) -> np.ndarray:
     return arr
 
 
+def _is_numeric_row(line: str) -> bool:
+    try:
+        [float(t) for t in line.split("#", 1)[0].replace(",", " ").split()]
+    except ValueError:
+        return False
+    return True
+
+
 def _read_text(data: bytes, source: str) -> tuple[np.ndarray, np.ndarray | None, int, list[str]]:
     warns: list[str] = []
     text = _decode(data, source, "XYZ")
-    arr = _loadtxt(text, source, "XYZ/TXT data")
+    lines = text.splitlines()
+    # A column-name line such as "x,y,z" before the data (common in CSV) is skipped.
+    first = next((i for i, ln in enumerate(lines) if ln.strip() and ln.lstrip()[0] != "#"), None)
+    if first is not None and not _is_numeric_row(lines[first]):
+        if any(c.isalpha() for c in lines[first]) and first + 1 < len(lines):
+            _warn(warns, f"{source}: skipped the header line {lines[first].strip()[:60]!r}")
+            del lines[first]
+    arr = _loadtxt(lines, source, "XYZ/TXT data")
     if arr.size == 0:
         raise InputError(f"{source}: no data rows (only comments or blank lines)")
     return _split_columns(arr, source, warns, "column")

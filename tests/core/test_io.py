@@ -186,6 +186,16 @@ def test_text_roundtrip(tmp_path, ext, delim):
     assert cloud.info["format"] == ext[1:]
 
 
+def test_csv_header_line_skipped(tmp_path):
+    pts, _ = known_cloud()
+    p = tmp_path / "h.csv"
+    np.savetxt(p, pts, delimiter=",", fmt="%.17g", header="x,y,z", comments="")
+    assert p.read_text().startswith("x,y,z\n")
+    cloud = load_point_cloud(p)
+    np.testing.assert_array_equal(cloud.points, pts)
+    assert any("skipped the header line 'x,y,z'" in w for w in cloud.warnings)
+
+
 def test_text_with_normals_and_with_colours(tmp_path):
     pts, nrm = known_cloud()
     p = tmp_path / "n.xyz"
@@ -477,7 +487,8 @@ def test_truncated_binary(tmp_path):
         ("a.xyz", "1 2 3 4\n" * 20, "wrong column count 4; expected 3"),
         ("a.txt", "1,2\n" * 20, "wrong column count 2; expected 3"),
         ("a.xyz", "1 2 3\n" * 5 + "1 2\n", "different numbers of columns"),
-        ("a.xyz", "x y z\n1 2 3\n", "non-numeric data"),
+        ("a.xyz", "x y z\n1 2 3\n" + "4 5 six\n" * 12, "non-numeric data"),
+        ("a.xyz", "1 2 3\n" * 12 + "x y z\n", "non-numeric data"),
         ("a.csv", "0.1,0.2,abc\n" * 20, "non-numeric data"),
         ("a.xyz", "# only a comment\n\n", "no data rows"),
         ("a.xyz", "1 2 3\n4 5 6\n7 8 10\n", r"only 3 finite points; at least 10 are needed"),
