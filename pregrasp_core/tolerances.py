@@ -40,3 +40,9 @@ this (touching, e.g. a part sitting flush on the face's edge, does not block; fa
 SUPPORT_PENETRATION_TOL: float = 0.002
 """Metres: the support plane blocks a face only when the slab in front of the face reaches deeper
 than this below it (so side faces of a part standing on the table stay free; face masks)."""
+
+# --- hand (issue 3) ---
+
+HAND_CLOSING_ANGLE_TOL: float = 1e-4
+"""Radians: the hand's closing model refines the first touching step by bisection until the
+bracket [last free, first touching] of the path parameter is narrower than this."""

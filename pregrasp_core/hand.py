@@ -1,0 +1,1061 @@
+"""The three-finger underactuated hand: URDF model, batch forward kinematics, preshapes,
+apertures, finger flexion planes, the planar closing model, collision geometry and point-in-link
+queries.
+
+Frames and names (see ``docs/hand.md`` and ``docs/conventions.md``, "The hand"):
+
+- Hand frame = the URDF root link ``palm``: origin at the centre of the palm's inner face,
+  +z = approach direction out of the palm, thumb on -y, spreading fingers f1 (+x) and f2 (-x)
+  on +y. Every ``T_hand_link`` here is a link pose in this frame.
+- Finger frame (every finger link): ``z_f`` along the straight finger, ``x_f`` = the closing
+  direction, ``y_f`` = normal of the flexion plane; flexion joints turn about ``+y_f`` and a
+  positive angle closes the finger.
+- Flexion-plane 2D frame of a finger: origin at the finger's first flexion joint (``*_j1``),
+  2D x = ``u`` = along the straight finger (= hand +z), 2D y = ``v`` = the closing direction.
+  In it the middle link spans ``[0, Lm]`` along ``(cos q1, sin q1)`` and the distal link starts at
+  ``Lm (cos q1, sin q1)`` along ``(cos(q1 + q2), sin(q1 + q2))``; the palm's inner face is the
+  line ``x = -Lk``.
+
+Joint vector ``q`` (J = 7): the actuated joints in yourdfpy's ``actuated_joint_names`` order,
+``thumb_j1, thumb_j2, f1_spread, f1_j1, f1_j2, f2_j1, f2_j2``; ``f2_spread`` mimics
+``f1_spread`` (multiplier 1, mirrored axis) and is not part of ``q``.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import fcl
+import numpy as np
+import trimesh
+import yourdfpy
+from scipy.spatial import cKDTree
+
+from .box import OrientedBox
+from .errors import HandModelError
+from .paths import HAND_URDF
+from .tolerances import GEOM_EPS, HAND_CLOSING_ANGLE_TOL
+
+logger = logging.getLogger(__name__)
+
+GRASP_TYPES: tuple[str, ...] = ("cylindrical", "spherical", "three_finger_tip", "two_finger_tip")
+"""The four grasp types (the values of ``pregrasp_core.shape.GraspType``)."""
+
+FINGER_NAMES: tuple[str, ...] = ("thumb", "f1", "f2")
+"""Finger names; finger ``n`` has links ``n_knuckle, n_middle, n_distal`` and joints
+``n_j1, n_j2`` (and ``n_spread`` for f1, f2)."""
+
+DEFAULT_COUPLING: float = 1.0
+"""Closing model: distal joint speed / proximal joint speed while both close together
+(tendon coupling; 1.0 = both joints close at the same rate)."""
+
+DEFAULT_CLOSING_STEPS: int = 64
+"""Closing model: samples along each closing phase before the contact is refined by bisection."""
+
+_PAIR_CHUNK: int = 1_000_000
+"""Batched point-in-link tests handle at most this many (point, link) pairs at once (memory)."""
+
+
+# --------------------------------------------------------------------------------------------
+# Small value types
+# --------------------------------------------------------------------------------------------
+
+
+def grasp_type_name(grasp_type: object) -> str:
+    """The grasp type as its string value; accepts the strings of :data:`GRASP_TYPES` and the
+    ``GraspType`` str enum. Raises ``ValueError`` for anything else."""
+    value = getattr(grasp_type, "value", grasp_type)
+    name = str(value)
+    if name not in GRASP_TYPES:
+        raise ValueError(f"unknown grasp type {grasp_type!r}; expected one of {GRASP_TYPES}")
+    return name
+
+
+@dataclass(frozen=True)
+class Finger:
+    """One finger of the hand and its planar geometry (read from the URDF)."""
+
+    name: str
+    """"thumb", "f1" or "f2"."""
+    links: tuple[str, str, str]
+    """(knuckle, middle, distal) link names."""
+    flexion_joints: tuple[str, str]
+    """(proximal, distal) flexion joint names, e.g. ("f1_j1", "f1_j2")."""
+    flex_index: tuple[int, int]
+    """Positions of the two flexion joints in ``Hand.joint_names``."""
+    spread_joint: str | None
+    """The URDF joint that spreads this finger (``f2_spread`` is a mimic of ``f1_spread``);
+    None for the thumb, whose knuckle is fixed to the palm."""
+    knuckle_length: float
+    """Lk, metres: height of the first flexion joint above the palm's inner face."""
+    middle_length: float
+    """Lm, metres: first to second flexion joint."""
+    distal_length: float
+    """Ld, metres: second flexion joint to the fingertip."""
+    thickness: float
+    """Extent of the middle and distal links along the closing direction (metres)."""
+    width: float
+    """Extent of the links along the flexion-plane normal (metres)."""
+    lower: np.ndarray
+    """(2,) lower limits of the flexion joints (radians)."""
+    upper: np.ndarray
+    """(2,) upper limits of the flexion joints (radians)."""
+
+
+@dataclass(frozen=True)
+class FlexionPlane:
+    """The plane in which a finger's middle and distal links move, in the hand frame."""
+
+    origin: np.ndarray
+    """(3,) position of the finger's first flexion joint (2D origin), hand frame."""
+    u: np.ndarray
+    """(3,) unit vector along the straight finger (2D x axis); equal to hand +z."""
+    v: np.ndarray
+    """(3,) unit closing direction (2D y axis)."""
+    normal: np.ndarray
+    """(3,) unit normal ``u x v`` (the flexion joints' axis)."""
+
+    @property
+    def T_hand_plane(self) -> np.ndarray:
+        """(4, 4) pose of the plane frame (columns u, v, normal; origin) in the hand frame."""
+        T = np.eye(4)
+        T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = self.u, self.v, self.normal, self.origin
+        return T
+
+    def to_plane(self, p_hand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Hand-frame points (N, 3) -> (2D coordinates (N, 2), signed offsets along ``normal``
+        (N,)). The slice of a finger is the points with ``|offset| <= width / 2``."""
+        p = _as_n3(p_hand, "p_hand")
+        d = p - self.origin
+        return np.stack([d @ self.u, d @ self.v], axis=1), d @ self.normal
+
+    def to_hand(self, p_2d: np.ndarray, offset: np.ndarray | float = 0.0) -> np.ndarray:
+        """2D plane points (N, 2) (plus optional offsets along the normal) -> hand frame (N, 3)."""
+        p = np.asarray(p_2d, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 2:
+            raise ValueError(f"p_2d must have shape (N, 2), got {p.shape}")
+        off = np.broadcast_to(np.asarray(offset, dtype=np.float64), (p.shape[0],))
+        return self.origin + p[:, :1] * self.u + p[:, 1:2] * self.v + off[:, None] * self.normal
+
+
+@dataclass(frozen=True)
+class FingerContact:
+    """A contact found by the planar closing model."""
+
+    link: str
+    """The touching link (``*_middle`` or ``*_distal``)."""
+    point: np.ndarray
+    """(2,) the touched point in the finger's flexion-plane frame."""
+    index: int
+    """Index of the touched point in the ``points_2d`` given to :meth:`Hand.close_finger`."""
+
+
+@dataclass(frozen=True)
+class FingerClosing:
+    """Result of closing one finger in its flexion plane (:meth:`Hand.close_finger`)."""
+
+    finger: str
+    """Finger name."""
+    q: np.ndarray
+    """(2,) final flexion angles (proximal, distal), radians, within the joint limits."""
+    contact_link: str | None
+    """Link of the contact that stopped the finger: the distal link if it touched, else the
+    middle link if it touched, else None (no object contact)."""
+    contact_point: np.ndarray | None
+    """(2,) the point of that contact in the flexion-plane frame, or None."""
+    contact_index: int | None
+    """Index of that point in ``points_2d``, or None."""
+    contacts: tuple[FingerContact, ...]
+    """All object contacts in the order they happened (middle first, then distal)."""
+    stopped_middle: bool
+    """The middle link touched an object point, so the proximal joint stopped there and the
+    distal joint closed on alone."""
+    stopped_distal: bool
+    """The distal link touched an object point and stopped the finger."""
+    palm_stop: bool
+    """A link reached the palm's inner face (no object contact there) and stopped."""
+    at_limits: bool
+    """The finger ended at its upper joint limits without any stop."""
+    start_in_contact: bool
+    """A moving link already touched the points at ``q_start``."""
+    path: np.ndarray
+    """(S, 2) flexion angles from ``q_start`` to ``q`` (the sampled steps, for animation)."""
+
+
+# --------------------------------------------------------------------------------------------
+# Helpers
+# --------------------------------------------------------------------------------------------
+
+
+def _as_n3(p: np.ndarray, name: str) -> np.ndarray:
+    arr = np.asarray(p, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3), got {arr.shape}")
+    return arr
+
+
+def _rot_batch(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """(B, 3, 3) rotations by ``angle`` (B,) about the unit ``axis`` (3,) (Rodrigues)."""
+    x, y, z = axis
+    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    K2 = K @ K
+    s = np.sin(angle)[:, None, None]
+    c = np.cos(angle)[:, None, None]
+    return np.eye(3) + s * K + (1.0 - c) * K2
+
+
+@dataclass(frozen=True)
+class _Joint:
+    name: str
+    parent: str
+    child: str
+    origin: np.ndarray  # (4, 4) T_parent_jointframe
+    axis: np.ndarray | None  # (3,) unit, None for fixed joints
+    source: int  # index in q of the driving actuated joint, -1 for fixed
+    multiplier: float
+    offset: float
+
+
+def _circumcircle_2d(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre (2,) and radius of the circle through three 2D points."""
+    d = 2.0 * (a[0] * (b[1] - c[1]) + b[0] * (c[1] - a[1]) + c[0] * (a[1] - b[1]))
+    if abs(d) < GEOM_EPS:
+        raise HandModelError("fingertips are collinear; cannot compute a spherical aperture")
+    sa, sb, sc = a @ a, b @ b, c @ c
+    ux = (sa * (b[1] - c[1]) + sb * (c[1] - a[1]) + sc * (a[1] - b[1])) / d
+    uy = (sa * (c[0] - b[0]) + sb * (a[0] - c[0]) + sc * (b[0] - a[0])) / d
+    center = np.array([ux, uy])
+    return center, float(np.linalg.norm(center - a))
+
+
+# Preshape flexion (proximal, distal) per grasp type and finger, and the spread. Opening the
+# proximal joint to its lower limit (-30 deg) gives the widest enveloping preshape; the tip
+# grasps keep the distal links parallel to the approach (-15 deg, +15 deg).
+_OPEN_WIDE = (-np.pi / 6.0, 0.0)
+_TIPS_UP = (-np.pi / 12.0, np.pi / 12.0)
+_THUMB_AWAY = (-np.pi / 6.0, -np.pi / 12.0)
+_PRESHAPES: dict[str, tuple[float, dict[str, tuple[float, float]]]] = {
+    "cylindrical": (0.0, {"thumb": _OPEN_WIDE, "f1": _OPEN_WIDE, "f2": _OPEN_WIDE}),
+    "spherical": (np.pi / 3.0, {"thumb": _OPEN_WIDE, "f1": _OPEN_WIDE, "f2": _OPEN_WIDE}),
+    "three_finger_tip": (0.0, {"thumb": _TIPS_UP, "f1": _TIPS_UP, "f2": _TIPS_UP}),
+    "two_finger_tip": (np.pi / 2.0, {"thumb": _THUMB_AWAY, "f1": _TIPS_UP, "f2": _TIPS_UP}),
+}
+_GRASP_FINGERS: dict[str, tuple[str, ...]] = {
+    "cylindrical": ("thumb", "f1", "f2"),
+    "spherical": ("thumb", "f1", "f2"),
+    "three_finger_tip": ("thumb", "f1", "f2"),
+    "two_finger_tip": ("f1", "f2"),
+}
+
+
+# --------------------------------------------------------------------------------------------
+# The hand
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class Hand:
+    """The kinematic and geometric model of the hand, loaded once from its URDF.
+
+    Build it with :meth:`Hand.load` (or the cached :func:`load_hand`)."""
+
+    urdf_path: Path
+    """The URDF file the model was read from."""
+    urdf: yourdfpy.URDF = field(repr=False)
+    """The yourdfpy model (scene graph built, meshes not loaded); for viewers and tests."""
+    joint_names: tuple[str, ...]
+    """The J actuated joints in yourdfpy's ``actuated_joint_names`` order (mimics excluded)."""
+    lower: np.ndarray
+    """(J,) lower joint limits (radians)."""
+    upper: np.ndarray
+    """(J,) upper joint limits (radians)."""
+    link_names: tuple[str, ...]
+    """The L links in URDF order (palm first); the column order of point-in-link queries."""
+    fingers: tuple[Finger, ...]
+    """Thumb, f1, f2."""
+    spread_index: int
+    """Position of ``f1_spread`` (the spread of both spreading fingers) in ``joint_names``."""
+    link_box_T: np.ndarray = field(repr=False)
+    """(L, 4, 4) ``T_link_box``: pose of each link's collision box in its link frame."""
+    link_box_half: np.ndarray = field(repr=False)
+    """(L, 3) half side lengths of the collision boxes (metres)."""
+    link_parent: tuple[int, ...] = field(repr=False)
+    """Index of each link's parent link in ``link_names`` (-1 for the palm)."""
+    visual_meshes: dict[str, trimesh.Trimesh] = field(repr=False)
+    """Visual mesh of each link in its link frame (visual origin applied), face-coloured."""
+    _chain: tuple[_Joint, ...] = field(repr=False)
+
+    # ---------------------------------------------------------------- loading
+    @classmethod
+    def load(cls, urdf_path: Path | str | None = None) -> Hand:
+        """Read and check the hand URDF (default ``pregrasp_core.paths.HAND_URDF``)."""
+        path = Path(HAND_URDF if urdf_path is None else urdf_path)
+        if not path.is_file():
+            raise HandModelError(
+                f"hand URDF {path} does not exist; reinstall pregrasp or pass the path of "
+                "assets/hand.urdf"
+            )
+        try:
+            urdf = yourdfpy.URDF.load(str(path), build_scene_graph=True, load_meshes=False)
+        except Exception as exc:  # yourdfpy raises many types on malformed XML
+            raise HandModelError(f"cannot parse hand URDF {path}: {exc}") from exc
+        if not urdf.validate():
+            raise HandModelError(
+                f"hand URDF {path} fails yourdfpy validation: {urdf.errors}; fix the file"
+            )
+        return cls._from_urdf(path, urdf)
+
+    @classmethod
+    def _from_urdf(cls, path: Path, urdf: yourdfpy.URDF) -> Hand:
+        joint_names = tuple(urdf.actuated_joint_names)
+        jmap = {j.name: j for j in urdf.robot.joints}
+        link_names = tuple(lk.name for lk in urdf.robot.links)
+        if urdf.base_link != "palm":
+            raise HandModelError(
+                f"hand URDF {path}: root link must be 'palm', got {urdf.base_link!r}"
+            )
+        lower = np.array([jmap[n].limit.lower for n in joint_names], dtype=np.float64)
+        upper = np.array([jmap[n].limit.upper for n in joint_names], dtype=np.float64)
+
+        # kinematic chain in topological order (parents before children)
+        child_of = {j.child: j for j in urdf.robot.joints}
+        order: list[str] = []
+        seen = {"palm"}
+        pending = [j for j in urdf.robot.joints]
+        while pending:
+            ready = [j for j in pending if j.parent in seen]
+            if not ready:
+                raise HandModelError(f"hand URDF {path}: joints do not form a tree from 'palm'")
+            for j in ready:
+                order.append(j.name)
+                seen.add(j.child)
+                pending.remove(j)
+        chain = []
+        for name in order:
+            j = jmap[name]
+            origin = np.eye(4) if j.origin is None else np.asarray(j.origin, dtype=np.float64)
+            if j.type == "fixed":
+                chain.append(_Joint(name, j.parent, j.child, origin, None, -1, 1.0, 0.0))
+                continue
+            if j.type != "revolute":
+                raise HandModelError(f"hand URDF {path}: joint {name} must be revolute or fixed")
+            axis = np.asarray(j.axis, dtype=np.float64)
+            axis = axis / np.linalg.norm(axis)
+            if j.mimic is not None:
+                src = joint_names.index(j.mimic.joint)
+                mult, off = float(j.mimic.multiplier or 1.0), float(j.mimic.offset or 0.0)
+            else:
+                src, mult, off = joint_names.index(name), 1.0, 0.0
+            chain.append(_Joint(name, j.parent, j.child, origin, axis, src, mult, off))
+
+        # collision boxes and visual meshes
+        L = len(link_names)
+        box_T = np.zeros((L, 4, 4))
+        box_half = np.zeros((L, 3))
+        visuals: dict[str, trimesh.Trimesh] = {}
+        materials = {m.name: m for m in urdf.robot.materials}
+        for i, lk in enumerate(urdf.robot.links):
+            if len(lk.collisions) != 1 or lk.collisions[0].geometry.box is None:
+                raise HandModelError(
+                    f"hand URDF {path}: link {lk.name} needs exactly one collision <box>"
+                )
+            col = lk.collisions[0]
+            box_T[i] = np.eye(4) if col.origin is None else col.origin
+            box_half[i] = np.asarray(col.geometry.box.size, dtype=np.float64) / 2.0
+            visuals[lk.name] = _load_visual(path, lk, materials)
+        parent_idx = tuple(
+            -1 if n == "palm" else link_names.index(child_of[n].parent) for n in link_names
+        )
+
+        fingers = []
+        for fname in FINGER_NAMES:
+            links = (f"{fname}_knuckle", f"{fname}_middle", f"{fname}_distal")
+            flex = (f"{fname}_j1", f"{fname}_j2")
+            for n in links:
+                if n not in link_names:
+                    raise HandModelError(f"hand URDF {path}: missing link {n}")
+            for n in flex:
+                if n not in joint_names:
+                    raise HandModelError(f"hand URDF {path}: missing actuated joint {n}")
+                if not np.allclose(jmap[n].axis, [0.0, 1.0, 0.0]):
+                    raise HandModelError(f"hand URDF {path}: flexion joint {n} must turn about y")
+            j1, j2 = jmap[flex[0]], jmap[flex[1]]
+            mid = link_names.index(links[1])
+            dist = link_names.index(links[2])
+            spread = f"{fname}_spread" if f"{fname}_spread" in jmap else None
+            fingers.append(
+                Finger(
+                    name=fname,
+                    links=links,
+                    flexion_joints=flex,
+                    flex_index=(joint_names.index(flex[0]), joint_names.index(flex[1])),
+                    spread_joint=spread,
+                    knuckle_length=float(j1.origin[2, 3]),
+                    middle_length=float(j2.origin[2, 3]),
+                    distal_length=float(box_T[dist, 2, 3] + box_half[dist, 2]),
+                    thickness=float(2.0 * box_half[mid, 0]),
+                    width=float(2.0 * box_half[mid, 1]),
+                    lower=lower[[joint_names.index(flex[0]), joint_names.index(flex[1])]],
+                    upper=upper[[joint_names.index(flex[0]), joint_names.index(flex[1])]],
+                )
+            )
+        if "f1_spread" not in joint_names:
+            raise HandModelError(f"hand URDF {path}: f1_spread must be an actuated joint")
+        hand = cls(
+            urdf_path=path,
+            urdf=urdf,
+            joint_names=joint_names,
+            lower=lower,
+            upper=upper,
+            link_names=link_names,
+            fingers=tuple(fingers),
+            spread_index=joint_names.index("f1_spread"),
+            link_box_T=box_T,
+            link_box_half=box_half,
+            link_parent=parent_idx,
+            visual_meshes=visuals,
+            _chain=tuple(chain),
+        )
+        logger.debug("loaded hand %s: joints %s", path, joint_names)
+        return hand
+
+    # ---------------------------------------------------------------- joints
+    @property
+    def n_joints(self) -> int:
+        """J, the number of actuated joints."""
+        return len(self.joint_names)
+
+    def _as_q(self, q: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Coerce ``q`` to (B, J); the flag says whether the input was a single (J,) vector."""
+        arr = np.asarray(q, dtype=np.float64)
+        J = self.n_joints
+        if arr.ndim == 1 and arr.shape[0] == J:
+            return arr[None, :], True
+        if arr.ndim == 2 and arr.shape[1] == J:
+            return arr, False
+        raise ValueError(f"q must have shape ({J},) or (B, {J}), got {arr.shape}")
+
+    def clamp(self, q: np.ndarray) -> np.ndarray:
+        """``q`` ((J,) or (B, J)) clipped to the joint limits."""
+        arr = np.asarray(q, dtype=np.float64)
+        self._as_q(arr)
+        return np.clip(arr, self.lower, self.upper)
+
+    def within_limits(self, q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+        """Whether each configuration respects the limits: bool () for (J,), (B,) for (B, J)."""
+        Q, single = self._as_q(q)
+        ok = np.all((Q >= self.lower - tol) & (Q <= self.upper + tol), axis=1)
+        return ok[0] if single else ok
+
+    def full_cfg(self, q: np.ndarray) -> dict[str, float]:
+        """Joint name -> value for every moving joint (actuated and mimic), e.g. for yourdfpy's
+        and viser's ``update_cfg`` or the result file."""
+        Q, single = self._as_q(q)
+        if not single:
+            raise ValueError(f"full_cfg takes one configuration ({self.n_joints},), got {Q.shape}")
+        out = {}
+        for j in self._chain:
+            if j.axis is not None:
+                out[j.name] = float(j.multiplier * Q[0, j.source] + j.offset)
+        return out
+
+    def finger(self, finger: str | Finger) -> Finger:
+        """The :class:`Finger` with this name (or the finger itself)."""
+        if isinstance(finger, Finger):
+            return finger
+        for f in self.fingers:
+            if f.name == finger:
+                return f
+        raise ValueError(f"unknown finger {finger!r}; expected one of {FINGER_NAMES}")
+
+    def with_flexion(self, q: np.ndarray, finger: str | Finger, q_flex: np.ndarray) -> np.ndarray:
+        """A copy of ``q`` (J,) with the finger's two flexion joints set to ``q_flex`` (2,)."""
+        Q, single = self._as_q(q)
+        if not single:
+            raise ValueError(f"q must have shape ({self.n_joints},), got {Q.shape}")
+        f = self.finger(finger)
+        out = Q[0].copy()
+        out[list(f.flex_index)] = np.asarray(q_flex, dtype=np.float64).reshape(2)
+        return out
+
+    # ---------------------------------------------------------------- kinematics
+    def fk_array(self, q: np.ndarray) -> np.ndarray:
+        """Link poses ``T_hand_link`` as one array: (B, L, 4, 4) for ``q`` (B, J), in
+        ``link_names`` order; (L, 4, 4) for ``q`` (J,). Vectorised over configurations."""
+        Q, single = self._as_q(q)
+        B = Q.shape[0]
+        out = np.empty((B, len(self.link_names), 4, 4))
+        index = {n: i for i, n in enumerate(self.link_names)}
+        out[:, index["palm"]] = np.eye(4)
+        for j in self._chain:
+            T = out[:, index[j.parent]] @ j.origin  # (B, 4, 4) parent -> joint frame
+            if j.axis is not None:
+                angle = j.multiplier * Q[:, j.source] + j.offset
+                T[:, :3, :3] = T[:, :3, :3] @ _rot_batch(j.axis, angle)
+            out[:, index[j.child]] = T
+        return out[0] if single else out
+
+    def fk(self, q: np.ndarray) -> dict[str, np.ndarray]:
+        """Link name -> ``T_hand_link``: (B, 4, 4) for ``q`` (B, J), (4, 4) for ``q`` (J,)."""
+        T = self.fk_array(q)
+        return {n: T[..., i, :, :] for i, n in enumerate(self.link_names)}
+
+    def box_poses(self, q: np.ndarray) -> np.ndarray:
+        """Collision box poses ``T_hand_box``: (B, L, 4, 4) for (B, J), (L, 4, 4) for (J,)."""
+        return self.fk_array(q) @ self.link_box_T
+
+    def fingertips(self, q: np.ndarray) -> dict[str, np.ndarray]:
+        """Finger name -> fingertip centre (end of the distal link on its axis) in the hand frame:
+        (B, 3) for ``q`` (B, J), (3,) for (J,)."""
+        T = self.fk_array(q)
+        out = {}
+        for f in self.fingers:
+            Td = T[..., self.link_names.index(f.links[2]), :, :]
+            out[f.name] = Td[..., :3, 3] + f.distal_length * Td[..., :3, 2]
+        return out
+
+    def tip_pads(self, q: np.ndarray) -> dict[str, np.ndarray]:
+        """Finger name -> the fingertip's inner edge (end of the distal link, on the closing side,
+        in the flexion plane): the point apertures are measured between. (3,) or (B, 3)."""
+        T = self.fk_array(q)
+        out = {}
+        for f in self.fingers:
+            Td = T[..., self.link_names.index(f.links[2]), :, :]
+            out[f.name] = (
+                Td[..., :3, 3]
+                + f.distal_length * Td[..., :3, 2]
+                + 0.5 * f.thickness * Td[..., :3, 0]
+            )
+        return out
+
+    def flexion_plane(self, finger: str | Finger, spread: float = 0.0) -> FlexionPlane:
+        """The finger's flexion plane in the hand frame for a spread angle (ignored for the
+        thumb). Independent of the flexion angles."""
+        f = self.finger(finger)
+        q = np.zeros(self.n_joints)
+        q[self.spread_index] = float(spread)
+        T = self.fk_array(q)
+        Tk = T[self.link_names.index(f.links[0])]  # knuckle frame: axes of the finger frame
+        Tm = T[self.link_names.index(f.links[1])]  # origin = first flexion joint
+        return FlexionPlane(
+            origin=Tm[:3, 3].copy(), u=Tk[:3, 2].copy(), v=Tk[:3, 0].copy(), normal=Tk[:3, 1].copy()
+        )
+
+    # ---------------------------------------------------------------- grasp types
+    def spread_for(self, grasp_type: object) -> float:
+        """Spread angle (radians) of a grasp type: 0, pi/3, 0, pi/2."""
+        return float(_PRESHAPES[grasp_type_name(grasp_type)][0])
+
+    def fingers_for(self, grasp_type: object) -> tuple[Finger, ...]:
+        """The fingers a grasp type closes (two-finger tip: f1 and f2; the thumb stays open)."""
+        return tuple(self.finger(n) for n in _GRASP_FINGERS[grasp_type_name(grasp_type)])
+
+    def preshape(self, grasp_type: object) -> np.ndarray:
+        """(J,) the open configuration a grasp of this type starts from (see ``docs/hand.md``)."""
+        spread, flex = _PRESHAPES[grasp_type_name(grasp_type)]
+        q = np.zeros(self.n_joints)
+        q[self.spread_index] = spread
+        for f in self.fingers:
+            q[list(f.flex_index)] = flex[f.name]
+        return self.clamp(q)
+
+    def aperture(self, grasp_type: object) -> float:
+        """Largest object size (metres) the preshape can enclose, measured between the
+        fingertips' inner edges (:meth:`tip_pads`): cylindrical and three-finger tip: the gap
+        along y between the thumb and the nearer of f1/f2; two-finger tip: the gap along x
+        between f1 and f2; spherical: the diameter of the circle through the three pads
+        projected onto the palm plane."""
+        name = grasp_type_name(grasp_type)
+        return self._aperture_and_center(name)[0]
+
+    def grasp_center(self, grasp_type: object) -> np.ndarray:
+        """(3,) the point on the palm plane (z = 0), hand frame, under the centre of the space
+        the preshape's fingertips enclose: align the object's centre with the line through this
+        point along +z (the approach). Not the hand origin for every type (the fingers are not
+        placed symmetrically about it, e.g. two-finger tip pinches at y = 0.03)."""
+        name = grasp_type_name(grasp_type)
+        c = self._aperture_and_center(name)[1]
+        return np.array([c[0], c[1], 0.0])
+
+    @functools.cached_property
+    def _apertures(self) -> dict[str, tuple[float, np.ndarray]]:
+        out = {}
+        for name in GRASP_TYPES:
+            pads = {k: v[:2] for k, v in self.tip_pads(self.preshape(name)).items()}
+            if name in ("cylindrical", "three_finger_tip"):
+                gaps = [pads[f][1] - pads["thumb"][1] for f in ("f1", "f2")]
+                y_fingers = 0.5 * (pads["f1"][1] + pads["f2"][1])
+                cx = (pads["thumb"][0] + pads["f1"][0] + pads["f2"][0]) / 3.0
+                out[name] = (float(min(gaps)), np.array([cx, 0.5 * (y_fingers + pads["thumb"][1])]))
+            elif name == "two_finger_tip":
+                gap = pads["f1"][0] - pads["f2"][0]
+                out[name] = (float(gap), 0.5 * (pads["f1"] + pads["f2"]))
+            else:
+                center, radius = _circumcircle_2d(pads["thumb"], pads["f1"], pads["f2"])
+                out[name] = (2.0 * radius, center)
+        return out
+
+    def _aperture_and_center(self, name: str) -> tuple[float, np.ndarray]:
+        return self._apertures[name]
+
+    @property
+    def palm_box(self) -> OrientedBox:
+        """The palm's collision box in the hand frame (its top face is the plane z = 0)."""
+        i = self.link_names.index("palm")
+        T = self.link_box_T[i]
+        return OrientedBox(
+            center=T[:3, 3].copy(), rotation=T[:3, :3].copy(), extents=2.0 * self.link_box_half[i]
+        )
+
+    # ---------------------------------------------------------------- closing model
+    def close_finger(
+        self,
+        finger: str | Finger,
+        points_2d: np.ndarray,
+        q_start: np.ndarray,
+        n_steps: int = DEFAULT_CLOSING_STEPS,
+        margin: float = 0.0,
+        coupling: float = DEFAULT_COUPLING,
+        palm: bool = True,
+    ) -> FingerClosing:
+        """Close one finger in its flexion plane against points (the slice of the object).
+
+        ``points_2d`` (M, 2) are in the finger's flexion-plane frame (x along the straight
+        finger from the first flexion joint, y the closing direction); ``q_start`` (2,) the
+        flexion angles to start from (clamped to the limits). The model (DESIGN section 7):
+
+        1. Both joints close together, the distal at ``coupling`` times the proximal rate; a
+           joint that reaches its upper limit stays there while the other goes on.
+        2. When the middle link touches a point (comes within ``margin`` of it), the proximal
+           joint stops and the distal joint closes alone.
+        3. When the distal link touches a point, the finger stops.
+        4. With ``palm``, the palm's inner face (2D line x = -Lk) stops a link like a point does
+           (``palm_stop``), so the model never drives the finger into the palm.
+
+        Every phase is sampled in ``n_steps`` steps, all steps x all points at once, and the
+        first touching step is refined by bisection to ``HAND_CLOSING_ANGLE_TOL``. The returned
+        configuration is the last one at which no point is within ``margin`` of a moving link.
+        """
+        f = self.finger(finger)
+        P = np.asarray(points_2d, dtype=np.float64)
+        if P.ndim != 2 or P.shape[1] != 2:
+            raise ValueError(f"points_2d must have shape (M, 2), got {P.shape}")
+        q0 = np.asarray(q_start, dtype=np.float64)
+        if q0.shape != (2,):
+            raise ValueError(f"q_start must have shape (2,), got {q0.shape}")
+        if n_steps < 1:
+            raise ValueError(f"n_steps must be >= 1, got {n_steps}")
+        if coupling <= 0:
+            raise ValueError(f"coupling must be > 0, got {coupling}")
+        q0 = np.clip(q0, f.lower, f.upper)
+        geo = _FingerGeometry(f, margin, palm)
+
+        # ---- phase 1: both joints close together (clipped at their limits)
+        def path1(t: np.ndarray) -> np.ndarray:  # (K,) -> (K, 2)
+            return np.stack(
+                [np.minimum(q0[0] + t, f.upper[0]), np.minimum(q0[1] + coupling * t, f.upper[1])],
+                axis=1,
+            )
+
+        t_end = max(f.upper[0] - q0[0], (f.upper[1] - q0[1]) / coupling, 0.0)
+        ev1 = _first_event(geo, P, path1, t_end, n_steps, links=(True, True))
+        contacts: list[FingerContact] = []
+        stopped_middle = stopped_distal = palm_stop = False
+        start_in_contact = ev1.k_hit == 0
+        if ev1.t_hit is None:  # no stop: both joints end at their limits
+            path = path1(ev1.t_samples)
+            return FingerClosing(
+                finger=f.name,
+                q=path[-1].copy(),
+                contact_link=None,
+                contact_point=None,
+                contact_index=None,
+                contacts=(),
+                stopped_middle=False,
+                stopped_distal=False,
+                palm_stop=False,
+                at_limits=True,
+                start_in_contact=False,
+                path=path,
+            )
+        q_free = path1(np.array([ev1.t_free]))[0]
+        path = np.concatenate([path1(ev1.t_samples[ev1.t_samples < ev1.t_free]), q_free[None]])
+        if ev1.distal_hit:  # the distal touched (maybe together with the middle): stop
+            if ev1.middle_idx is not None:
+                contacts.append(FingerContact(f.links[1], P[ev1.middle_idx].copy(), ev1.middle_idx))
+                stopped_middle = True
+            if ev1.distal_idx is not None:
+                contacts.append(FingerContact(f.links[2], P[ev1.distal_idx].copy(), ev1.distal_idx))
+                stopped_distal = True
+            palm_stop = ev1.palm
+            return _closing(
+                f,
+                q_free,
+                contacts,
+                stopped_middle,
+                stopped_distal,
+                palm_stop,
+                start_in_contact,
+                path,
+            )
+
+        # ---- phase 2: the middle link stopped; the distal joint closes alone
+        if ev1.middle_idx is not None:
+            contacts.append(FingerContact(f.links[1], P[ev1.middle_idx].copy(), ev1.middle_idx))
+            stopped_middle = True
+        palm_stop = ev1.palm
+        q1 = q_free[0]
+
+        def path2(t: np.ndarray) -> np.ndarray:
+            return np.stack([np.full_like(t, q1), np.minimum(q_free[1] + t, f.upper[1])], axis=1)
+
+        t_end2 = max(f.upper[1] - q_free[1], 0.0)
+        ev2 = _first_event(geo, P, path2, t_end2, n_steps, links=(False, True))
+        if ev2.t_hit is None:
+            path = np.concatenate([path, path2(ev2.t_samples[1:])])
+            return _closing(
+                f,
+                path[-1].copy(),
+                contacts,
+                stopped_middle,
+                False,
+                palm_stop,
+                start_in_contact,
+                path,
+            )
+        q_stop = path2(np.array([ev2.t_free]))[0]
+        path = np.concatenate(
+            [
+                path,
+                path2(ev2.t_samples[(ev2.t_samples > 0) & (ev2.t_samples < ev2.t_free)]),
+                q_stop[None],
+            ]
+        )
+        if ev2.distal_idx is not None:
+            contacts.append(FingerContact(f.links[2], P[ev2.distal_idx].copy(), ev2.distal_idx))
+            stopped_distal = True
+        palm_stop = palm_stop or ev2.palm
+        return _closing(
+            f, q_stop, contacts, stopped_middle, stopped_distal, palm_stop, start_in_contact, path
+        )
+
+    # ---------------------------------------------------------------- points in links
+    def points_in_links(self, p_hand: np.ndarray, q: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """(N, L) bool: point n lies inside link l's collision box grown by ``margin`` on every
+        side, for one configuration ``q`` (J,). Columns in ``link_names`` order."""
+        p = _as_n3(p_hand, "p_hand")
+        Q, single = self._as_q(q)
+        if not single:
+            raise ValueError(f"q must have shape ({self.n_joints},), got {Q.shape}")
+        Tb = self.box_poses(Q[0])  # (L, 4, 4)
+        d = p[:, None, :] - Tb[None, :, :3, 3]  # (N, L, 3)
+        local = np.einsum("nlj,ljk->nlk", d, Tb[:, :3, :3])  # box-frame coordinates
+        return np.all(np.abs(local) <= self.link_box_half + margin, axis=2)
+
+    def points_in_hand(self, p_hand: np.ndarray, q: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """(N,) bool: point inside any link (grown by ``margin``) at configuration ``q`` (J,)."""
+        return np.any(self.points_in_links(p_hand, q, margin), axis=1)
+
+    def link_point_counts(
+        self,
+        points: np.ndarray,
+        T_world_hand: np.ndarray,
+        q: np.ndarray,
+        margin: float = 0.0,
+        tree: cKDTree | None = None,
+    ) -> np.ndarray:
+        """(G, L) int64: how many of ``points`` (N, 3, world) lie in each link's box (grown by
+        ``margin``) for G hands at poses ``T_world_hand`` (G, 4, 4) and configurations ``q``
+        ((J,) shared or (G, J)).
+
+        Fast for thousands of hands against a 20k-point cloud: a k-d tree of the points
+        (pass ``tree=cKDTree(points)`` to reuse one) gives the points inside each box's
+        circumscribed sphere; only those (point, box) pairs get the exact oriented-box test."""
+        pts = _as_n3(points, "points")
+        T = np.asarray(T_world_hand, dtype=np.float64)
+        if T.ndim != 3 or T.shape[1:] != (4, 4):
+            raise ValueError(f"T_world_hand must have shape (G, 4, 4), got {T.shape}")
+        G, L = T.shape[0], len(self.link_names)
+        Q = np.asarray(q, dtype=np.float64)
+        if Q.ndim == 1:
+            self._as_q(Q)
+            Tb = np.broadcast_to(self.box_poses(Q), (G, L, 4, 4))
+        else:
+            Qb, _ = self._as_q(Q)
+            if Qb.shape[0] != G:
+                raise ValueError(
+                    f"q must have shape ({self.n_joints},) or ({G}, {self.n_joints}), got {Q.shape}"
+                )
+            Tb = self.box_poses(Qb)
+        if G == 0 or pts.shape[0] == 0:
+            return np.zeros((G, L), dtype=np.int64)
+        Tw = (T[:, None] @ Tb).reshape(G * L, 4, 4)  # world poses of every box
+        half = np.broadcast_to(self.link_box_half + margin, (G, L, 3)).reshape(G * L, 3)
+        radius = np.linalg.norm(half, axis=1)
+        if tree is None:
+            tree = cKDTree(pts)
+        lists = tree.query_ball_point(Tw[:, :3, 3], radius, return_sorted=False)
+        lens = np.fromiter((len(x) for x in lists), dtype=np.int64, count=G * L)
+        counts = np.zeros(G * L, dtype=np.int64)
+        if lens.sum() == 0:
+            return counts.reshape(G, L)
+        flat = np.concatenate([np.asarray(x, dtype=np.int64) for x in lists if len(x)])
+        box = np.repeat(np.arange(G * L), lens)  # (P,) box id of each candidate pair
+        for s in range(0, flat.shape[0], _PAIR_CHUNK):
+            b, ip = box[s : s + _PAIR_CHUNK], flat[s : s + _PAIR_CHUNK]
+            d = pts[ip] - Tw[b, :3, 3]  # (P, 3)
+            local = np.einsum("pj,pjk->pk", d, Tw[b, :3, :3])
+            inside = np.all(np.abs(local) <= half[b], axis=1)
+            counts += np.bincount(b[inside], minlength=G * L)
+        return counts.reshape(G, L)
+
+    def hands_hit_points(
+        self,
+        points: np.ndarray,
+        T_world_hand: np.ndarray,
+        q: np.ndarray,
+        margin: float = 0.0,
+        tree: cKDTree | None = None,
+    ) -> np.ndarray:
+        """(G,) bool: any of ``points`` (N, 3, world) inside any link of hand g (see
+        :meth:`link_point_counts`)."""
+        return self.link_point_counts(points, T_world_hand, q, margin, tree).sum(axis=1) > 0
+
+    # ---------------------------------------------------------------- fcl and meshes
+    def collision_objects(self, q: np.ndarray) -> dict[str, fcl.CollisionObject]:
+        """Link name -> python-fcl box object placed at configuration ``q`` (J,), hand frame."""
+        Q, single = self._as_q(q)
+        if not single:
+            raise ValueError(f"q must have shape ({self.n_joints},), got {Q.shape}")
+        Tb = self.box_poses(Q[0])
+        out = {}
+        for i, n in enumerate(self.link_names):
+            geom = fcl.Box(*(2.0 * self.link_box_half[i]))
+            out[n] = fcl.CollisionObject(geom, fcl.Transform(Tb[i, :3, :3], Tb[i, :3, 3]))
+        return out
+
+    @functools.cached_property
+    def self_collision_pairs_checked(self) -> tuple[tuple[str, str], ...]:
+        """Link pairs the self-collision check tests: all pairs except parent and child links
+        (which touch at their joint by construction)."""
+        pairs = []
+        L = len(self.link_names)
+        for a in range(L):
+            for b in range(a + 1, L):
+                if self.link_parent[a] == b or self.link_parent[b] == a:
+                    continue
+                pairs.append((self.link_names[a], self.link_names[b]))
+        return tuple(pairs)
+
+    def self_collisions(self, q: np.ndarray) -> list[tuple[str, str]]:
+        """The link pairs (of :attr:`self_collision_pairs_checked`) whose boxes intersect at
+        configuration ``q`` (J,), by python-fcl."""
+        objs = self.collision_objects(q)
+        hits = []
+        req = fcl.CollisionRequest()
+        for a, b in self.self_collision_pairs_checked:
+            res = fcl.CollisionResult()
+            if fcl.collide(objs[a], objs[b], req, res) > 0:
+                hits.append((a, b))
+        return hits
+
+    def self_collision(self, q: np.ndarray) -> bool:
+        """True when two non-adjacent links' collision boxes intersect at ``q`` (J,)."""
+        return len(self.self_collisions(q)) > 0
+
+    def hand_mesh(self, q: np.ndarray) -> trimesh.Trimesh:
+        """The visual mesh of the whole hand at configuration ``q`` (J,), in the hand frame,
+        with per-face colours from the URDF materials."""
+        T = self.fk_array(np.asarray(q, dtype=np.float64))
+        if T.ndim != 3:
+            raise ValueError(f"q must have shape ({self.n_joints},), got {np.shape(q)}")
+        parts = []
+        for i, n in enumerate(self.link_names):
+            m = self.visual_meshes[n].copy()
+            m.apply_transform(T[i])
+            parts.append(m)
+        return trimesh.util.concatenate(parts)
+
+    def collision_mesh(self, q: np.ndarray) -> trimesh.Trimesh:
+        """The collision boxes at ``q`` (J,) as one mesh in the hand frame (for drawing)."""
+        Tb = self.box_poses(np.asarray(q, dtype=np.float64))
+        if Tb.ndim != 3:
+            raise ValueError(f"q must have shape ({self.n_joints},), got {np.shape(q)}")
+        parts = [
+            trimesh.creation.box(extents=2.0 * self.link_box_half[i], transform=Tb[i])
+            for i in range(len(self.link_names))
+        ]
+        return trimesh.util.concatenate(parts)
+
+
+# --------------------------------------------------------------------------------------------
+# Closing-model internals
+# --------------------------------------------------------------------------------------------
+
+
+class _FingerGeometry:
+    """Planar link rectangles of one finger: hit tests for many configurations x points."""
+
+    def __init__(self, f: Finger, margin: float, palm: bool) -> None:
+        self.f = f
+        self.m = float(margin)
+        self.h = 0.5 * f.thickness
+        self.palm = palm
+
+    def hits(self, Q: np.ndarray, P: np.ndarray, links: tuple[bool, bool]):
+        """For configurations Q (K, 2) and points P (M, 2): (middle (K, M), distal (K, M),
+        palm (K,)) bool; a link touches a point within ``margin``."""
+        f, m, h = self.f, self.m, self.h
+        a1 = Q[:, 0]
+        a2 = Q[:, 0] + Q[:, 1]
+        d1 = np.stack([np.cos(a1), np.sin(a1)], axis=1)  # (K, 2) along the middle link
+        d2 = np.stack([np.cos(a2), np.sin(a2)], axis=1)
+        n1 = np.stack([-d1[:, 1], d1[:, 0]], axis=1)
+        n2 = np.stack([-d2[:, 1], d2[:, 0]], axis=1)
+        o2 = f.middle_length * d1  # (K, 2) second joint
+        K, M = Q.shape[0], P.shape[0]
+        mid = np.zeros((K, M), dtype=bool)
+        dis = np.zeros((K, M), dtype=bool)
+        if M:
+            if links[0]:
+                s = d1 @ P.T  # (K, M) along the link
+                r = n1 @ P.T  # (K, M) across
+                mid = (s >= -m) & (s <= f.middle_length + m) & (np.abs(r) <= h + m)
+            if links[1]:
+                s = d2 @ P.T - np.sum(d2 * o2, axis=1)[:, None]
+                r = n2 @ P.T - np.sum(n2 * o2, axis=1)[:, None]
+                dis = (s >= -m) & (s <= f.distal_length + m) & (np.abs(r) <= h + m)
+        palm = np.zeros(K, dtype=bool)
+        palm_mid = np.zeros(K, dtype=bool)
+        if self.palm:
+            floor = -f.knuckle_length + m
+            # lowest corner of each moving rectangle along the 2D x axis
+            low_mid = np.minimum(0.0, f.middle_length * d1[:, 0]) - h * np.abs(n1[:, 0])
+            low_dis = o2[:, 0] + np.minimum(0.0, f.distal_length * d2[:, 0]) - h * np.abs(n2[:, 0])
+            if links[0]:
+                palm_mid = low_mid < floor
+            if links[1]:
+                palm = low_dis < floor
+        return mid, dis, palm_mid, palm
+
+    def distance(self, q: np.ndarray, P: np.ndarray, link: int) -> np.ndarray:
+        """(M,) box-distance (Chebyshev-style; < 0 inside) of points to link 0 (middle) or 1
+        (distal) at flexion ``q`` (2,)."""
+        f, h = self.f, self.h
+        a = q[0] if link == 0 else q[0] + q[1]
+        d = np.array([np.cos(a), np.sin(a)])
+        n = np.array([-d[1], d[0]])
+        o = np.zeros(2) if link == 0 else f.middle_length * np.array([np.cos(q[0]), np.sin(q[0])])
+        length = f.middle_length if link == 0 else f.distal_length
+        s = (P - o) @ d
+        r = (P - o) @ n
+        return np.maximum(np.abs(s - 0.5 * length) - 0.5 * length, np.abs(r) - h)
+
+
+@dataclass
+class _Event:
+    t_samples: np.ndarray  # sampled path parameters before refinement
+    t_free: float  # last contact-free parameter
+    t_hit: float | None  # first touching parameter (None: no event up to the end)
+    k_hit: int | None  # index of the first touching sample
+    middle_hit: bool = False
+    distal_hit: bool = False
+    palm: bool = False
+    middle_idx: int | None = None
+    distal_idx: int | None = None
+
+
+def _first_event(
+    geo: _FingerGeometry, P: np.ndarray, path, t_end: float, n_steps: int, links: tuple[bool, bool]
+) -> _Event:
+    t = np.linspace(0.0, t_end, n_steps + 1) if t_end > 0 else np.zeros(1)
+    mid, dis, pmid, pdis = geo.hits(path(t), P, links)
+    any_hit = mid.any(axis=1) | dis.any(axis=1) | pmid | pdis  # (K,)
+    if not any_hit.any():
+        return _Event(t_samples=t, t_free=float(t[-1]), t_hit=None, k_hit=None)
+    k = int(np.argmax(any_hit))
+    if k == 0:
+        lo = hi = 0.0
+    else:
+        lo, hi = float(t[k - 1]), float(t[k])
+        # bisection: the largest contact-free parameter in [lo, hi]
+        while hi - lo > HAND_CLOSING_ANGLE_TOL:
+            mid_t = 0.5 * (lo + hi)
+            a, b, c, d = geo.hits(path(np.array([mid_t])), P, links)
+            if a.any() or b.any() or c[0] or d[0]:
+                hi = mid_t
+            else:
+                lo = mid_t
+    a, b, c, d = geo.hits(path(np.array([hi])), P, links)
+    ev = _Event(t_samples=t, t_free=lo, t_hit=hi, k_hit=k)
+    q_free = path(np.array([lo]))[0]
+    if a[0].any():
+        idx = np.flatnonzero(a[0])
+        ev.middle_idx = int(idx[np.argmin(geo.distance(q_free, P[idx], 0))])
+    if b[0].any():
+        idx = np.flatnonzero(b[0])
+        ev.distal_idx = int(idx[np.argmin(geo.distance(q_free, P[idx], 1))])
+    ev.middle_hit = bool(a[0].any() or c[0])
+    ev.distal_hit = bool(b[0].any() or d[0])
+    ev.palm = bool(c[0] or d[0])
+    return ev
+
+
+def _closing(
+    f: Finger,
+    q: np.ndarray,
+    contacts: list[FingerContact],
+    stopped_middle: bool,
+    stopped_distal: bool,
+    palm_stop: bool,
+    start_in_contact: bool,
+    path: np.ndarray,
+) -> FingerClosing:
+    last = contacts[-1] if contacts else None
+    at_limits = bool(np.all(np.abs(q - f.upper) <= HAND_CLOSING_ANGLE_TOL)) and not stopped_distal
+    return FingerClosing(
+        finger=f.name,
+        q=np.clip(q, f.lower, f.upper),
+        contact_link=None if last is None else last.link,
+        contact_point=None if last is None else last.point,
+        contact_index=None if last is None else last.index,
+        contacts=tuple(contacts),
+        stopped_middle=stopped_middle,
+        stopped_distal=stopped_distal,
+        palm_stop=palm_stop,
+        at_limits=at_limits,
+        start_in_contact=start_in_contact,
+        path=path,
+    )
+
+
+def _load_visual(urdf_path: Path, link, materials: dict) -> trimesh.Trimesh:
+    """The link's visual mesh in its link frame, coloured by its URDF material."""
+    if len(link.visuals) != 1 or link.visuals[0].geometry.mesh is None:
+        raise HandModelError(f"hand URDF {urdf_path}: link {link.name} needs one visual <mesh>")
+    vis = link.visuals[0]
+    mesh_path = urdf_path.parent / vis.geometry.mesh.filename
+    if not mesh_path.is_file():
+        raise HandModelError(
+            f"hand mesh {mesh_path} (link {link.name}) is missing; run scripts/make_hand_meshes.py"
+        )
+    mesh = trimesh.load(str(mesh_path), force="mesh")
+    if vis.origin is not None:
+        mesh.apply_transform(vis.origin)
+    rgba = (0.7, 0.7, 0.7, 1.0)
+    mat = vis.material
+    if mat is not None and mat.color is None and mat.name in materials:
+        mat = materials[mat.name]  # a reference to a robot-level material
+    if mat is not None and mat.color is not None:
+        rgba = tuple(mat.color.rgba)
+    mesh.visual.face_colors = np.round(np.asarray(rgba) * 255).astype(np.uint8)
+    return mesh
+
+
+@functools.lru_cache(maxsize=4)
+def load_hand(urdf_path: Path | str | None = None) -> Hand:
+    """:meth:`Hand.load`, cached per path (the model is immutable)."""
+    return Hand.load(urdf_path)
