@@ -124,7 +124,8 @@ class Controller:
     def load_path(self, path: str | Path) -> AppState:
         """Load a point cloud or mesh file and run the pipeline up to the pool."""
         p = Path(path)
-        return self._load(ObjectSource(name=p.name, path=str(p)))
+        demo = p.resolve() in {d.resolve() for d in demo_objects()}
+        return self._load(ObjectSource(name=p.stem if demo else p.name, path=str(p)))
 
     def load_demo(self, name: str) -> AppState:
         """Load the demo object ``name`` (file stem or file name in ``assets/objects/``)."""

@@ -251,6 +251,26 @@ class SceneRenderer:
             precision="float32",
             point_shape="rounded",
         )
+        self._frame_object(np.asarray(state.cloud.points, dtype=np.float64))
+
+    def _frame_object(self, pts: np.ndarray) -> None:
+        """Aim every camera at a new object and put a table grid under it."""
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        center, diag = (lo + hi) / 2.0, max(float(np.linalg.norm(hi - lo)), 1e-3)
+        eye = center + diag * np.array([1.1, -1.3, 0.9])
+        cam = self.server.initial_camera
+        cam.look_at, cam.position = center, eye
+        for client in self.server.get_clients().values():
+            client.camera.look_at, client.camera.position = center, eye
+        self._handles["table"] = self.server.scene.add_grid(
+            "/table",
+            width=3 * diag,
+            height=3 * diag,
+            cell_size=diag / 20,
+            section_size=diag / 4,
+            position=(center[0], center[1], lo[2]),
+            shadow_opacity=0.0,
+        )
 
     def _recolor_cloud(self, state: AppState) -> None:
         self._handles["cloud"].colors = self._cloud_colors(state)
@@ -290,7 +310,8 @@ class SceneRenderer:
             NAMES["box_edges"],
             points=seg.astype(np.float32),
             colors=np.repeat(cols[:, None, :], 2, axis=1),
-            line_width=2.0,
+            thickness=2.0,
+            thickness_units="screen",
         )
         if sel is not None and sel not in shown:
             b = tree.node(sel).box  # a selected node of another level: outline it in white
@@ -298,7 +319,8 @@ class SceneRenderer:
                 "/selected_edges",
                 points=box_edge_segments([b]).astype(np.float32),
                 colors=(255, 255, 255),
-                line_width=3.0,
+                thickness=3.0,
+                thickness_units="screen",
             )
         else:
             self._remove("selected_edges")
@@ -337,7 +359,8 @@ class SceneRenderer:
                 NAMES["subfaces"],
                 points=layers.subface_segments.astype(np.float32),
                 colors=SUBFACE_RGB,
-                line_width=1.5,
+                thickness=1.5,
+                thickness_units="screen",
             )
         else:
             self._remove("subfaces")
@@ -401,7 +424,8 @@ class SceneRenderer:
                 NAMES["cones"],
                 points=friction_cone_segments(pts, nrm, mu).astype(np.float32),
                 colors=CONTACT_RGB,
-                line_width=1.5,
+                thickness=1.5,
+                thickness_units="screen",
             )
             self.n_contacts_shown = len(pts)
 

@@ -1,0 +1,246 @@
+"""The controller and the scene helpers without a browser: loading and uploads, errors as
+notifications, planning, grasp animation, export, and the `pregrasp view` command line."""
+
+from __future__ import annotations
+
+import io
+import json
+
+import numpy as np
+import pytest
+from viser._gui_handles import GuiEvent, UploadedFile
+
+from app import cli
+from app.scene import (
+    NAMES,
+    animation_pose,
+    box_edge_segments,
+    friction_cone_segments,
+    ranked_grasps,
+    wxyz_from_matrices,
+)
+from app.server import access_lines
+from pregrasp_core.box import OrientedBox
+from pregrasp_core.errors import InputError
+
+
+def _xyz_bytes(points: np.ndarray) -> bytes:
+    buf = io.StringIO()
+    np.savetxt(buf, points, fmt="%.6f")
+    return buf.getvalue().encode()
+
+
+def _box_cloud(n: int, size, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return (rng.random((n, 3)) - 0.5) * np.asarray(size)
+
+
+# ---------------------------------------------------------------------- loading
+def test_upload_of_a_point_cloud_replaces_the_object(app):
+    pts = _box_cloud(2500, (0.06, 0.04, 0.03)) + [0, 0, 0.015]
+    # what viser does when an upload completes: store the file in the handle, run its callbacks
+    handle = app.gui.upload
+    handle._impl.value = UploadedFile(name="block.xyz", content=_xyz_bytes(pts))
+    for cb in handle._impl.update_cb:
+        cb(GuiEvent(client=None, client_id=None, target=handle))
+    s = app.controller.state
+    assert s.source.name == "block.xyz" and s.error == ""
+    np.testing.assert_allclose(s.cloud.points, pts, atol=1e-6)
+    assert app.gui.demo.value == "block.xyz"
+    assert app.scene.n_boxes == len(s.tree.leaves())
+
+
+def test_upload_errors_become_notifications_and_keep_the_state(app):
+    s0 = app.controller.state
+    app.controller.max_upload_bytes = 1000
+    big = _xyz_bytes(_box_cloud(200, (0.1, 0.1, 0.1)))
+    assert len(big) > 1000
+    with pytest.raises(InputError, match=r"upload 'big\.xyz' is .*limit"):
+        app.controller.load_upload("big.xyz", big)
+
+    class Client:  # stands in for the browser that uploaded (records its notifications)
+        def __init__(self):
+            self.notes = []
+
+        def add_notification(self, title, body, **kw):
+            self.notes.append((title, body))
+
+    client = Client()
+    app.controller.act(client, app.controller.load_upload, "junk.ply", b"ply\nformat nonsense\n")
+    assert len(client.notes) == 1 and "junk.ply" in client.notes[0][1]
+    assert client.notes[0][0] == "Cannot do that"
+    s = app.controller.state
+    assert s.result is s0.result and "junk.ply" in s.error
+    assert app.gui.status.content.startswith("**")  # the status line shows the error
+
+
+def test_unknown_demo_object(app):
+    with pytest.raises(InputError, match="no demo object named 'nope'"):
+        app.controller.load_demo("nope")
+
+
+def test_resampling_with_points_and_seed(app):
+    app.gui.n_points.value = 2000
+    s = app.controller.state
+    assert len(s.cloud.points) == 2000
+    first = s.cloud.points.copy()
+    app.gui.seed.value = 7
+    s = app.controller.state
+    assert s.seed == 7 and not np.allclose(s.cloud.points, first)
+    app.gui.seed.value = 0
+    np.testing.assert_allclose(app.controller.state.cloud.points, first)  # same seed, same cloud
+
+
+def test_internal_errors_do_not_escape(app):
+    def broken():
+        raise RuntimeError("boom")
+
+    assert app.controller.act(None, broken) is None
+    assert app.controller.state.error == "RuntimeError: boom"
+
+
+# ---------------------------------------------------------------------- planner
+def test_plan_ranks_grasps_and_animates_the_hand(app):
+    app.gui.plan.value = True  # a click: button callbacks run synchronously from Python
+    s = app.controller.state
+    assert s.planned and s.busy == "" and s.error == ""
+    ranked = ranked_grasps(s.result)
+    assert ranked, "the mug must get at least one grasp"
+    eps = [float(g.epsilon) for g in ranked]
+    assert eps == sorted(eps, reverse=True)
+    table = app.gui.table.content
+    assert f"ranked grasps: {len(ranked)}" in table
+    assert f"{eps[0]:.4f}" in table
+    assert s.view.selected_grasp == 0
+    frame = app.scene.handle("hand_frame")
+    assert frame is not None and frame.visible
+    np.testing.assert_allclose(frame.position, ranked[0].T_world_hand[:3, 3], atol=1e-6)
+    n_contacts = len(ranked[0].contacts)
+    assert app.scene.n_contacts_shown == n_contacts
+    if n_contacts:
+        cones = app.server.scene.get_handle_by_name(NAMES["cones"])
+        assert cones.points.shape == (n_contacts * 9, 2, 3)
+    if len(ranked) > 1:
+        app.gui.grasp.value = app.gui.grasp.options[1]
+        assert app.controller.state.view.selected_grasp == 1
+        np.testing.assert_allclose(frame.position, ranked[1].T_world_hand[:3, 3], atol=1e-6)
+    g = ranked[app.controller.state.view.selected_grasp]
+    app.gui.phase.value = 0.0  # back to the pre-grasp pose, open hand
+    pre = s.result.pool[int(_pregrasp_index(g))]
+    np.testing.assert_allclose(frame.position, pre.T_world_hand[:3, 3], atol=1e-6)
+    app.controller.play()
+    t0 = app.controller.state.view.anim_t
+    app.controller.tick(0.5)
+    assert app.controller.state.view.anim_t == pytest.approx(t0 + 0.25)
+    app.gui.pause.value = True
+    app.controller.tick(0.5)
+    assert app.controller.state.view.anim_t == pytest.approx(t0 + 0.25)
+
+
+def _pregrasp_index(g):
+    i = getattr(g, "pregrasp", None)
+    return getattr(g, "pregrasp_index", None) if i is None else i
+
+
+def test_threshold_change_after_planning_replans(app):
+    app.controller.plan()
+    app.gui.params[("decomposition", "volume_ratio")].value = 0.8
+    s = app.controller.state
+    assert s.planned and s.params.decomposition.volume_ratio == 0.8
+    assert s.result.grasps is not None
+
+
+def test_export_is_a_valid_result_document(app):
+    doc = json.loads(app.controller.result_json())
+    assert doc["schema"] == "pregrasp/1"
+    assert len(doc["tree"]["nodes"] if isinstance(doc["tree"], dict) else doc["tree"]) == len(
+        app.controller.state.tree.nodes
+    )
+
+
+# ---------------------------------------------------------------------- pure helpers
+def test_box_edges_have_the_box_side_lengths():
+    rng = np.random.default_rng(3)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    q[:, 2] *= np.sign(np.linalg.det(q))
+    box = OrientedBox(center=rng.normal(size=3), rotation=q, extents=np.array([0.3, 0.2, 0.1]))
+    seg = box_edge_segments([box])
+    lengths = np.sort(np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1))
+    np.testing.assert_allclose(lengths, np.repeat([0.1, 0.2, 0.3], 4))
+
+
+def test_friction_cone_half_angle_is_atan_mu():
+    rng = np.random.default_rng(0)
+    n = rng.normal(size=(5, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    p = rng.normal(size=(5, 3))
+    seg = friction_cone_segments(p, n, mu=0.5, m=8).reshape(5, 9, 2, 3)
+    np.testing.assert_allclose(seg[:, :, 0], np.repeat(p[:, None], 9, axis=1))
+    d = seg[:, :, 0] - seg[:, :, 1]  # drawn outside the object, along -n
+    d /= np.linalg.norm(d, axis=2, keepdims=True)
+    cos = np.einsum("cki,ci->ck", d, n)
+    np.testing.assert_allclose(cos[:, :8], np.cos(np.arctan(0.5)), atol=1e-12)
+    np.testing.assert_allclose(cos[:, 8], 1.0, atol=1e-12)
+
+
+def test_wxyz_matches_rotation():
+    rng = np.random.default_rng(1)
+    q = rng.normal(size=(6, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    R = np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=1,
+    )
+    got = wxyz_from_matrices(R)
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", got, q)), 1.0, atol=1e-9)
+    with pytest.raises(ValueError, match=r"shape \(B, 3, 3\)"):
+        wxyz_from_matrices(np.eye(3))
+
+
+def test_animation_pose_phases():
+    class G:
+        T_world_hand = np.eye(4)
+        q = np.array([1.0, 1.0])
+
+    class P:
+        T_world_hand = np.eye(4)
+        q = np.zeros(2)
+
+    P.T_world_hand = np.eye(4)
+    P.T_world_hand[:3, 3] = [0, 0, -0.1]
+    T, q = animation_pose(G, P, 0.0)
+    np.testing.assert_allclose(T[:3, 3], [0, 0, -0.1])
+    np.testing.assert_allclose(q, 0)
+    T, q = animation_pose(G, P, 0.25)
+    np.testing.assert_allclose(T[:3, 3], [0, 0, -0.05])
+    T, q = animation_pose(G, P, 0.75)
+    np.testing.assert_allclose(T[:3, 3], 0)
+    np.testing.assert_allclose(q, 0.5)
+    T, q = animation_pose(G, P, 1.2)
+    np.testing.assert_allclose(q, 1.0)
+
+
+# ---------------------------------------------------------------------- command line
+def test_access_lines_give_url_and_ssh_forward():
+    lines = access_lines("127.0.0.1", 8093)
+    assert "http://localhost:8093" in lines[0]
+    assert any(ln.strip().startswith("ssh -N -L 8093:127.0.0.1:8093 ") for ln in lines)
+
+
+def test_view_missing_file_is_a_clean_error(capsys, tmp_path):
+    code = cli.main(["view", str(tmp_path / "nothing.ply")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "pregrasp view: error:" in err and "nothing.ply" in err and "Traceback" not in err
+
+
+def test_view_help_mentions_ssh(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["view", "--help"])
+    out = capsys.readouterr().out
+    assert "--host" in out and "--port" in out and "SSH" in out

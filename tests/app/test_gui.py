@@ -1,0 +1,156 @@
+"""The GUI without a browser: setting a handle's value runs its callback (viser calls update
+callbacks synchronously for values set from Python); assert on the state and the scene handles.
+
+References come from the core called directly on the same cloud (``decompose``, the pool), not
+from the app."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from app.scene import NAMES, ghost_selection, node_color
+from app.state import ALL
+from pregrasp_core.decomposition import decompose
+
+
+def _box_handles(app) -> dict[int, object]:
+    """Box handles found in viser's scene by their fixed names (what the scene really holds)."""
+    out = {}
+    for i in range(len(app.controller.state.tree.nodes)):
+        h = app.server.scene.get_handle_by_name(f"{NAMES['boxes']}/node_{i}")
+        if h is not None:
+            out[i] = h
+    return out
+
+
+def _boxes_label(app) -> int:
+    text = app.gui.boxes.content
+    assert text.startswith("boxes: "), text
+    return int(text.split()[1])
+
+
+def test_start_shows_the_leaves_of_the_default_object(app):
+    s = app.controller.state
+    assert s.source.name == "mug_handle"
+    assert len(s.cloud.points) == 3000
+    leaves = s.tree.leaves()
+    handles = _box_handles(app)
+    assert sorted(handles) == sorted(leaves) == app.scene.box_ids
+    assert _boxes_label(app) == len(leaves)
+    for i, h in handles.items():  # each box sits where the core put it, with its size
+        box = s.tree.node(i).box
+        np.testing.assert_allclose(h.position, box.center, atol=1e-6)
+        np.testing.assert_allclose(sorted(h.dimensions), sorted(box.extents), rtol=1e-5)
+    cloud = app.server.scene.get_handle_by_name(NAMES["cloud"])
+    assert cloud.points.dtype == np.float32 and cloud.points.shape == (3000, 3)
+    np.testing.assert_allclose(cloud.points, s.cloud.points, atol=1e-6)
+
+
+def test_threshold_change_reruns_decomposition_and_updates_scene(app):
+    s0 = app.controller.state
+    n0 = len(s0.tree.leaves())
+    # the reference: the core's own decomposition of the same cloud with the new thresholds
+    candidates = [(0.5, 500), (0.97, 100), (0.99, 50)]
+    for ratio, min_pts in candidates:
+        params = dataclasses.replace(
+            s0.params.decomposition, volume_ratio=ratio, min_points=min_pts
+        )
+        expected = decompose(s0.cloud.points, params)
+        if len(expected.leaves()) != n0:
+            break
+    else:
+        pytest.fail("no candidate threshold changes the number of parts of the mug")
+    app.gui.params[("decomposition", "min_points")].value = min_pts
+    app.gui.params[("decomposition", "volume_ratio")].value = ratio
+    s = app.controller.state
+    assert s.params.decomposition.volume_ratio == ratio
+    assert s.params.decomposition.min_points == min_pts
+    assert len(s.tree.leaves()) == len(expected.leaves()) != n0
+    assert _boxes_label(app) == len(expected.leaves()) == len(_box_handles(app))
+    got = sorted(tuple(np.round(s.tree.node(i).box.center, 6)) for i in s.tree.leaves())
+    want = sorted(tuple(np.round(expected.node(i).box.center, 6)) for i in expected.leaves())
+    assert got == want
+    assert s.error == ""
+
+
+def test_level_slider_steps_through_the_splits(app):
+    s = app.controller.state
+    n = s.tree.n_splits
+    assert app.gui.level.max == max(n, 1) and app.gui.level.value == n
+    app.gui.level.value = 0
+    assert app.controller.state.shown_level == 0
+    assert sorted(_box_handles(app)) == [0] and _boxes_label(app) == 1
+    colors = app.server.scene.get_handle_by_name(NAMES["cloud"]).colors
+    assert np.all(colors == np.array(node_color(0)))  # one box: one colour
+    app.gui.level.value = n
+    assert sorted(_box_handles(app)) == sorted(s.tree.leaves())
+    colors = app.server.scene.get_handle_by_name(NAMES["cloud"]).colors
+    for i in s.tree.leaves():  # points coloured by the leaf that holds them
+        assert np.all(colors[s.tree.node(i).indices] == np.array(node_color(i)))
+
+
+def test_click_on_box_selects_node_and_shows_its_card(app):
+    s = app.controller.state
+    leaf = s.tree.leaves()[-1]
+    app.scene.on_box_click(leaf, None)  # the callback a browser click on that box runs
+    s = app.controller.state
+    assert s.view.selected_node == leaf
+    text = app.gui.node_info.content
+    shape = s.result.shapes[leaf]
+    assert f"node {leaf}" in text
+    assert f"class: {shape.shape_class.value}" in text
+    assert f"grasp type: {shape.grasp_type.value}" in text
+    assert f"points: {len(s.tree.node(leaf).indices)}" in text
+    rows = [ln for ln in text.splitlines() if ln.startswith("| ") and ln[2].isdigit()]
+    assert len(rows) == 6
+    mask = np.array([[int(x) for x in r.strip("| ").split(" | ")[1:]] for r in rows])
+    np.testing.assert_array_equal(mask, s.result.masks.mask(leaf))
+    assert app.server.scene.get_handle_by_name(f"{NAMES['boxes']}/node_{leaf}").opacity == 0.35
+
+
+def test_face_masks_drawn_free_and_blocked(app):
+    s = app.controller.state
+    shown = s.shown_nodes()
+    blocked = int(sum(s.result.masks.blocked[i].sum() for i in shown))
+    assert app.scene.n_faces_shown == (6 * len(shown) - blocked, blocked)
+    if blocked:
+        h = app.server.scene.get_handle_by_name(NAMES["faces_blocked"])
+        assert h.batched_positions.shape == (blocked, 3)
+    app.gui.show_masks.value = False
+    assert app.scene.n_faces_shown == (0, 0)
+    assert app.server.scene.get_handle_by_name(NAMES["faces_free"]) is None
+
+
+def test_ghost_filters(app):
+    s = app.controller.state
+    pool = s.result.pool
+    assert len(pool) > 0
+    assert app.scene.n_ghosts_shown == min(len(pool), app.scene.max_ghosts)
+    types = sorted({str(getattr(t, "value", t)) for t in pool.grasp_type})
+    gt = types[0]
+    app.gui.ghost_type.value = gt
+    want = int(ghost_selection(pool, gt, None).sum())
+    assert want == sum(str(getattr(t, "value", t)) == gt for t in pool.grasp_type)
+    assert app.scene.n_ghosts_shown == min(want, app.scene.max_ghosts)
+    node = int(np.asarray(pool.node)[0])
+    app.gui.ghost_type.value = ALL
+    app.gui.ghost_node.value = f"node {node}"
+    assert app.controller.state.view.ghost_node == node
+    assert app.scene.n_ghosts_shown == min(int((np.asarray(pool.node) == node).sum()), 3000)
+    app.gui.show_ghosts.value = False
+    assert app.scene.n_ghosts_shown == 0
+
+
+def test_bad_threshold_is_reported_and_reverted(app):
+    s0 = app.controller.state
+    h = app.gui.params[("decomposition", "volume_ratio")]
+    h.value = 1.5  # outside (0, 1]: DecompositionParams refuses it
+    s = app.controller.state
+    assert "volume_ratio" in s.error
+    assert s.params == s0.params and s.result is s0.result
+    assert h.value == s0.params.decomposition.volume_ratio  # the input shows the state again
+    app.gui.level.value = 0  # the app still works
+    assert app.controller.state.shown_level == 0

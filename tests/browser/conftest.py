@@ -1,0 +1,100 @@
+"""Browser tests: the real app server on a free port, driven by headless Chromium via Python
+playwright (Debian's ``/usr/bin/chromium``; never ``playwright install``).
+
+When Chromium or playwright is missing these tests FAIL with a message saying how to install
+them; they are never skipped (``scripts/test.sh`` installs Chromium on a fresh machine).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+CHROMIUM = os.environ.get("PREGRASP_CHROMIUM", "/usr/bin/chromium")
+"""The browser binary (Debian's chromium package)."""
+
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+    "--disable-sync",
+]
+
+SHOTS_DIR = Path(os.environ.get("PREGRASP_SHOTS_DIR", tempfile.gettempdir())) / "pregrasp-shots"
+"""Where the browser tests save their screenshots."""
+
+
+def pytest_collection_modifyitems(items):
+    for item in items:
+        if "tests/browser/" in str(item.fspath).replace(os.sep, "/"):
+            item.add_marker(pytest.mark.browser)
+
+
+@pytest.fixture(scope="session")
+def chromium() -> str:
+    """Path of the Chromium binary; fails (never skips) when it is not installed."""
+    if not (os.path.isfile(CHROMIUM) and os.access(CHROMIUM, os.X_OK)):
+        pytest.fail(
+            f"the browser tests need Chromium at {CHROMIUM}: install it with "
+            "`sudo apt-get install -y chromium` (scripts/test.sh does this as root), "
+            "or point PREGRASP_CHROMIUM at a Chromium binary",
+            pytrace=False,
+        )
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        pytest.fail("the browser tests need playwright: pip install -e '.[test]'", pytrace=False)
+    return CHROMIUM
+
+
+@pytest.fixture(scope="module")
+def browser_context(chromium) -> Iterator:
+    """A persistent headless Chromium context (own temporary profile)."""
+    from playwright.sync_api import sync_playwright
+
+    profile = tempfile.mkdtemp(prefix="pregrasp-chromium-")
+    with sync_playwright() as p:
+        ctx = p.chromium.launch_persistent_context(
+            user_data_dir=profile,
+            executable_path=chromium,
+            headless=True,
+            args=CHROMIUM_ARGS,
+            viewport={"width": 1400, "height": 900},
+            accept_downloads=True,
+        )
+        try:
+            yield ctx
+        finally:
+            ctx.close()
+    shutil.rmtree(profile, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def live_app() -> Iterator:
+    """The real app on a real ``ViserServer`` (127.0.0.1, free port) on the default object."""
+    import viser
+
+    from app.server import ViewerConfig, run
+
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        app = run(ViewerConfig(n_points=5000, max_ghosts=400), server)
+        try:
+            yield app
+        finally:
+            app.close()
+    finally:
+        server.stop()
+
+
+@pytest.fixture(scope="module")
+def shots_dir() -> Path:
+    SHOTS_DIR.mkdir(parents=True, exist_ok=True)
+    return SHOTS_DIR

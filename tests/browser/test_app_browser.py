@@ -1,0 +1,90 @@
+"""The real app in headless Chromium: load the page, change a threshold and see the number of
+boxes change, plan and see the ranked table, pick a grasp, save screenshots.
+
+What the page shows is checked against what the server's scene holds (the box handles under
+their fixed names), so the "boxes: N" label cannot drift from the scene.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+
+import pytest
+
+from app.scene import NAMES, ranked_grasps
+from pregrasp_core.decomposition import decompose
+
+LOAD_TIMEOUT_MS = 90_000
+"""Generous: headless Chromium renders WebGL in software."""
+
+
+def _scene_box_count(app) -> int:
+    s = app.controller.state
+    return sum(
+        app.server.scene.get_handle_by_name(f"{NAMES['boxes']}/node_{i}") is not None
+        for i in range(len(s.tree.nodes))
+    )
+
+
+def _boxes_in_page(page) -> int:
+    text = page.get_by_text(re.compile(r"^boxes: \d+$")).inner_text()
+    return int(text.split()[1])
+
+
+@pytest.fixture(scope="module")
+def page(browser_context, live_app):
+    page = browser_context.new_page()
+    page.goto(f"http://127.0.0.1:{live_app.server.get_port()}")
+    page.get_by_text(re.compile(r"^boxes: \d+$")).wait_for(timeout=LOAD_TIMEOUT_MS)
+    yield page
+    page.close()
+
+
+def test_threshold_change_changes_the_boxes(page, live_app, shots_dir):
+    s0 = live_app.controller.state
+    n0 = _boxes_in_page(page)
+    assert n0 == _scene_box_count(live_app) == len(s0.tree.leaves())
+    page.screenshot(path=str(shots_dir / "browser_decomposition.png"))
+    # a threshold for which the core's own decomposition of this cloud has another part count
+    for ratio in ("0.5", "0.98", "0.99"):
+        p = dataclasses.replace(s0.params.decomposition, volume_ratio=float(ratio))
+        expected = len(decompose(s0.cloud.points, p).leaves())
+        if expected != n0:
+            break
+    else:
+        pytest.fail("no volume ratio changes the number of parts of the default object")
+    box = page.get_by_label("volume ratio", exact=True)
+    box.fill(ratio)
+    box.press("Enter")
+    page.get_by_text(f"boxes: {expected}", exact=True).wait_for(timeout=LOAD_TIMEOUT_MS)
+    assert _boxes_in_page(page) == expected == _scene_box_count(live_app)
+    assert live_app.controller.state.params.decomposition.volume_ratio == float(ratio)
+
+
+def test_plan_shows_ranked_table_and_pick_a_grasp(page, live_app, shots_dir):
+    page.get_by_role("button", name="plan grasps").click()
+    page.get_by_text(re.compile(r"^ranked grasps: \d+")).wait_for(timeout=LOAD_TIMEOUT_MS)
+    s = live_app.controller.state
+    ranked = ranked_grasps(s.result)
+    assert ranked and s.planned
+    assert page.get_by_role("cell", name=f"{float(ranked[0].epsilon):.4f}").count() >= 1
+    page.screenshot(path=str(shots_dir / "browser_planned.png"))
+    if len(ranked) < 2:
+        pytest.fail("the default object should give at least two ranked grasps")
+    page.get_by_label("grasp", exact=True).click()
+    page.get_by_role("option", name=re.compile(r"^#2 ")).click()
+    page.wait_for_function(
+        "() => [...document.querySelectorAll('input')].some(i => i.value.startsWith('#2 '))",
+        timeout=LOAD_TIMEOUT_MS,
+    )
+    # the server saw the choice and posed the URDF hand at that grasp
+    for _ in range(100):
+        if live_app.controller.state.view.selected_grasp == 1:
+            break
+        page.wait_for_timeout(100)
+    assert live_app.controller.state.view.selected_grasp == 1
+    frame = live_app.scene.handle("hand_frame")
+    assert frame.visible
+    assert abs(frame.position - ranked[1].T_world_hand[:3, 3]).max() < 1e-6
+    page.screenshot(path=str(shots_dir / "browser_grasp.png"))
