@@ -78,9 +78,10 @@ class PointCloud:
     """Where the points came from: the file path, the uploaded file's name, or ``"array"``."""
     info: dict[str, Any] = field(default_factory=dict)
     """How it was read: ``format`` (e.g. ``"ply"``), ``kind`` (``"cloud"`` or ``"mesh"``),
-    ``n_read`` (rows read, or mesh vertices), ``n_dropped_nonfinite``, ``scale``, ``warnings``
-    (list of str); meshes add ``n_faces`` and ``area`` (m^2, after scaling); clouds cut to
-    ``n_points`` add ``n_subsampled_from``."""
+    ``n_read`` (rows read, or mesh vertices), ``n_dropped_nonfinite``, ``scale``, ``seed`` (of
+    the sampling/subsampling; None for an array), ``warnings`` (list of str); meshes add
+    ``n_faces``, ``area`` (m^2, after scaling) and ``watertight``; clouds cut to ``n_points`` add
+    ``n_subsampled_from``."""
 
     def __post_init__(self) -> None:
         pts = np.array(self.points, dtype=np.float64)  # a private copy we may freeze
@@ -143,7 +144,7 @@ class PointCloud:
                 raise ValueError(
                     f"normals must have shape {pts.shape} like points, got {nrm.shape}"
                 )
-        info = {"format": "array", "kind": "cloud", "n_read": int(pts.shape[0])}
+        info = {"format": "array", "kind": "cloud", "n_read": int(pts.shape[0]), "seed": None}
         return _finish(pts, nrm, source, info, scale=scale, n_points=None, seed=0)
 
 
@@ -343,6 +344,7 @@ def _finish(
     _check_geometry(pts, source, warns)
     info.update(n_dropped_nonfinite=n_bad, scale=s, warnings=warns)
     info.setdefault("n_read", n_in)
+    info.setdefault("seed", int(seed))
     return PointCloud(points=pts, normals=nrm, source=source, info=info)
 
 

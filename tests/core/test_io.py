@@ -228,9 +228,7 @@ def test_npy_and_npz_roundtrip(tmp_path):
     np.savez_compressed(tmp_path / "d.npz", whatever=pts)  # a single array, any key
     np.testing.assert_array_equal(load_point_cloud(tmp_path / "d.npz").points, pts)
     np.save(tmp_path / "i.npy", np.round(pts * 1000).astype(np.int32))  # integers are fine
-    np.testing.assert_array_equal(
-        load_point_cloud(tmp_path / "i.npy").points, np.round(pts * 1000)
-    )
+    np.testing.assert_array_equal(load_point_cloud(tmp_path / "i.npy").points, np.round(pts * 1000))
 
 
 def test_bytes_loader_matches_path_loader(tmp_path):
@@ -251,7 +249,7 @@ def test_cloud_subsampled_to_n_points(tmp_path):
     b = load_point_cloud(tmp_path / "a.npy", n_points=100, seed=3)
     c = load_point_cloud(tmp_path / "a.npy", n_points=100, seed=4)
     full = load_point_cloud(tmp_path / "a.npy", n_points=None)
-    assert a.n_points == 100 and a.info["n_subsampled_from"] == 500
+    assert a.n_points == 100 and a.info["n_subsampled_from"] == 500 and a.info["seed"] == 3
     np.testing.assert_array_equal(a.points, b.points)
     assert not np.array_equal(a.points, c.points)
     assert full.n_points == 500
@@ -809,4 +807,3 @@ def test_mug_script_parts_are_watertight():
     # a torus section: volume = pi r^2 * (arc length of the centre line)
     arc_len = 2 * mod.handle_end_angle() * mod.HANDLE_ARC_RADIUS
     assert handle.volume == pytest.approx(np.pi * mod.TUBE_RADIUS**2 * arc_len, rel=2e-2)
-
