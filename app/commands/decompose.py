@@ -88,7 +88,8 @@ def summary(doc: dict, tree: BoxTree, shapes: tuple[NodeShape, ...]) -> str:
     lines = [
         f"object:  {Path(inp['source']).name} ({kind}), {inp['n_points']} points, "
         f"seed {inp['seed']}",
-        f"parts:   {len(tree.leaves())} ({tree.n_splits} splits; volume ratio "
+        f"parts:   {len(tree.leaves())} ({tree.n_splits} split{'' if tree.n_splits == 1 else 's'}; "
+        f"volume ratio "
         f"{par['volume_ratio']}, min points {par['min_points']}, max depth {par['max_depth']})",
         "",
         f"  {'node':<14} {'class':<9} {'grasp type':<17} {'extents (mm)':>20} {'points':>8}",

@@ -78,7 +78,7 @@ def test_summary_without_output(l_cloud, capsys):
     assert main(["decompose", str(path), "--min-points", "100"]) == 0
     text = capsys.readouterr().out
     assert "l_shape.npy" in text and "2600 points" in text
-    assert "parts:   2 (1 splits" in text
+    assert "parts:   2 (1 split; volume ratio 0.9, min points 100" in text
     lines = text.splitlines()
     # the tree listing: root, then its two leaves indented by depth, extents in mm
     row = [ln for ln in lines if ln.strip().startswith("1 *")]

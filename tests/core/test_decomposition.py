@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from pregrasp_core.decomposition import (
@@ -351,3 +353,30 @@ def test_demo_objects_partition_and_containment(path):
 
 def test_demo_objects_present():
     assert len(_demo_meshes()) >= 13
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    n_clusters=st.integers(1, 4),
+    per_cluster=st.integers(10, 120),
+    min_points=st.integers(4, 40),
+    volume_ratio=st.floats(0.3, 1.0),
+    max_depth=st.integers(0, 5),
+)
+def test_invariants_on_random_clouds(
+    seed, n_clusters, per_cluster, min_points, volume_ratio, max_depth
+):
+    """Any cloud, any parameters: leaves partition the cloud, boxes contain their points, every
+    accepted split obeys the rule, depth and min_points hold."""
+    rng = np.random.default_rng(seed)
+    centers = rng.uniform(-0.2, 0.2, (n_clusters, 3))
+    scales = rng.uniform(0.005, 0.05, (n_clusters, 3))
+    pts = np.vstack(
+        [c + rng.normal(size=(per_cluster, 3)) * s for c, s in zip(centers, scales, strict=True)]
+    )
+    params = DecompositionParams(
+        volume_ratio=volume_ratio, min_points=min_points, max_depth=max_depth
+    )
+    tree = decompose(pts, params)
+    _check_tree_invariants(tree, pts, params)
