@@ -748,6 +748,34 @@ def test_demo_object_loads_within_manifest_extents(path):
     np.testing.assert_allclose(np.linalg.norm(c.normals, axis=1), 1.0, atol=1e-9)
 
 
+SINGLE_CLOSED_BODIES = {
+    "bowl", "box_cereal", "can_soda", "fruit_lemon", "mug_handle", "ramekin", "tool_frypan",
+    "toy_teddy",
+}  # fmt: skip
+"""Demo objects that are one closed body; the others are assemblies of overlapping closed parts
+(mug, thermos, tool_hammer, toy_car) or not closed (bottle)."""
+
+
+def test_demo_object_normals_point_outwards():
+    """trimesh's ray-parity inside test as the reference: 0.5 mm along the normal is outside the
+    solid, 0.5 mm against it inside. Strict for single closed bodies; assemblies hide some surface
+    inside other parts (docs/input.md), where the offset point stays inside, so most (not all) of
+    their samples pass."""
+    eps = 5e-4
+    singles = set()
+    for path in demo_objects():
+        mesh = trimesh.load(path, force="mesh")
+        c = load_point_cloud(path, n_points=400, seed=5)
+        outside = ~mesh.contains(c.points + eps * c.normals)
+        if mesh.is_watertight and mesh.body_count == 1:
+            singles.add(path.stem)
+            inside = mesh.contains(c.points - eps * c.normals)
+            assert outside.mean() >= 0.99 and inside.mean() >= 0.99, path.stem
+        else:
+            assert outside.mean() >= 0.8, path.stem
+    assert singles == SINGLE_CLOSED_BODIES
+
+
 def _load_script():
     spec = importlib.util.spec_from_file_location(
         "make_mug_handle", REPO / "scripts" / "make_mug_handle.py"
