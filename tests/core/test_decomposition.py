@@ -21,7 +21,8 @@ from pregrasp_core.decomposition import (
     decompose,
 )
 from pregrasp_core.errors import DegenerateGeometryError
-from pregrasp_core.paths import OBJECTS_DIR
+from pregrasp_core.io import load_point_cloud
+from pregrasp_core.paths import demo_objects
 from pregrasp_core.tolerances import BOX_CONTAINS_TOL
 
 
@@ -325,17 +326,9 @@ def test_deterministic():
         assert np.array_equal(a.box.center, b.box.center)
 
 
-def _demo_meshes():
-    exts = {".obj", ".stl", ".off", ".ply", ".glb"}
-    if not OBJECTS_DIR.is_dir():
-        return []
-    return sorted(p for p in OBJECTS_DIR.iterdir() if p.suffix.lower() in exts)
-
-
-@pytest.mark.parametrize("path", _demo_meshes(), ids=lambda p: p.stem)
+@pytest.mark.parametrize("path", demo_objects(), ids=lambda p: p.stem)
 def test_demo_objects_partition_and_containment(path):
-    mesh = trimesh.load(path, force="mesh")
-    pts, _ = trimesh.sample.sample_surface(mesh, 2000, seed=0)
+    pts = load_point_cloud(path, n_points=2000, seed=0).points
     params = DecompositionParams(min_points=100)
     tree = decompose(pts, params)
     _check_tree_invariants(tree, pts, params)
@@ -352,7 +345,7 @@ def test_demo_objects_partition_and_containment(path):
 
 
 def test_demo_objects_present():
-    assert len(_demo_meshes()) >= 13
+    assert len(demo_objects()) >= 13  # the copied meshes and the generated mug_handle
 
 
 @settings(max_examples=25, deadline=None)
