@@ -447,11 +447,14 @@ def _sample_mesh(
     # Unit face normals from the winding (zero-area faces are never sampled).
     normals = cross[face_idx] / area2[face_idx, None]  # (n, 3)
     watertight = bool(getattr(mesh, "is_watertight", False)) and not bad_vert.any()
-    signed_volume = float(np.einsum("ij,ij->", tri[:, 0], cross)) / 6.0
-    if watertight and signed_volume < 0.0:
-        # A closed mesh wound inside-out: its face normals all point inwards.
-        normals = -normals
-        _warn(warns, f"{source}: the closed mesh is wound inside-out; normals flipped outwards")
+    flip, n_flipped = _inside_out_faces(faces, tri[:, 0], cross)
+    if n_flipped:
+        normals = np.where(flip[face_idx, None], -normals, normals)
+        _warn(
+            warns,
+            f"{source}: {n_flipped} closed part(s) of the mesh are wound inside-out; "
+            "their normals were flipped outwards",
+        )
     s = 1.0 if scale is None else float(scale)
     info = {
         "format": fmt,
@@ -463,6 +466,48 @@ def _sample_mesh(
         "warnings": warns,
     }
     return _finish(pts, normals, source, info, scale=scale, n_points=None, seed=seed)
+
+
+def _inside_out_faces(
+    faces: np.ndarray, v0: np.ndarray, cross: np.ndarray
+) -> tuple[np.ndarray, int]:
+    """Faces of closed, consistently wound parts with negative signed volume (inside-out).
+
+    faces: (F, 3) vertex indices; v0: (F, 3) first vertex of each face; cross: (F, 3) the
+    (unnormalised) face normals. Parts are edge-connected components; a part is closed when each
+    of its edges has exactly two faces, and consistently wound when each edge is used once in
+    each direction. Returns ((F,) bool: flip this face's normal, number of parts flipped).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n_f = len(faces)
+    n_v = int(faces.max()) + 1
+    directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)  # (3F, 2) edges as wound
+    undirected = np.sort(directed, axis=1)
+    # Edges as int64 keys (a * n_v + b): 1-D unique is much faster than unique rows.
+    _, edge_id, edge_count = np.unique(
+        undirected[:, 0] * n_v + undirected[:, 1], return_inverse=True, return_counts=True
+    )  # edge_id: (3F,) index of each face edge among the unique edges
+    # Faces and edges as one bipartite graph: its components are the edge-connected parts.
+    n_e = len(edge_count)
+    face_of_edge = np.repeat(np.arange(n_f), 3)  # (3F,)
+    graph = coo_matrix(
+        (np.ones(3 * n_f), (face_of_edge, n_f + edge_id)), shape=(n_f + n_e, n_f + n_e)
+    )
+    _, labels = connected_components(graph, directed=False)
+    _, part = np.unique(labels[:n_f], return_inverse=True)  # (F,) part of each face
+    n_parts = int(part.max()) + 1
+    _, dir_id, dir_count = np.unique(
+        directed[:, 0] * n_v + directed[:, 1], return_inverse=True, return_counts=True
+    )
+    # (3F,) edge is open or non-manifold, or two faces wind it the same way
+    bad_edge = (edge_count[edge_id] != 2) | (dir_count[dir_id] != 1)
+    bad_face = bad_edge.reshape(n_f, 3).any(axis=1)
+    bad_part = np.bincount(part, weights=bad_face, minlength=n_parts) > 0
+    volume6 = np.bincount(part, weights=np.einsum("ij,ij->i", v0, cross), minlength=n_parts)
+    flip_part = ~bad_part & (volume6 < 0.0)
+    return flip_part[part], int(flip_part.sum())
 
 
 # ----------------------------------------------------------------------------------------------

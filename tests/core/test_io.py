@@ -371,7 +371,26 @@ def test_inside_out_mesh_gets_outward_normals(tmp_path):
     (tmp_path / "inv.obj").write_text(inv.export(file_type="obj"))
     c = load_point_cloud(tmp_path / "inv.obj", n_points=500)
     _assert_on_unit_cube(c.points, c.normals)
-    assert any("inside-out; normals flipped" in w for w in c.warnings)
+    assert any("1 closed part(s) of the mesh are wound inside-out" in w for w in c.warnings)
+
+
+def test_one_inside_out_part_of_an_assembly(tmp_path):
+    """Two cubes, the second wound inside-out and moved away: both get outward normals; an
+    open part (a lone square, no inside) is left as wound."""
+    a = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    b = trimesh.Trimesh(a.vertices + [3.0, 0.0, 0.0], a.faces[:, ::-1], process=False)
+    sq = trimesh.Trimesh([[0, 0, 5], [1, 0, 5], [1, 1, 5], [0, 1, 5]], [[0, 1, 2], [0, 2, 3]])
+    both = trimesh.util.concatenate([a, b, sq])
+    (tmp_path / "ab.obj").write_text(both.export(file_type="obj"))
+    c = load_point_cloud(tmp_path / "ab.obj", n_points=3000, seed=1)
+    first, second = c.points[:, 0] < 1.0, (c.points[:, 0] > 2.0)
+    top = c.points[:, 2] > 4.0
+    first &= ~top
+    assert first.sum() > 500 and second.sum() > 500 and top.sum() > 50
+    _assert_on_unit_cube(c.points[first], c.normals[first])
+    _assert_on_unit_cube(c.points[second] - [3.0, 0.0, 0.0], c.normals[second])
+    np.testing.assert_allclose(c.normals[top], [[0.0, 0.0, 1.0]] * int(top.sum()), atol=1e-12)
+    assert any("1 closed part(s)" in w for w in c.warnings)
 
 
 def test_default_n_points_for_meshes(tmp_path):
