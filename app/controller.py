@@ -10,6 +10,7 @@ notification to the browser that caused it, so the server keeps running.
 from __future__ import annotations
 
 import dataclasses
+import enum
 import logging
 import threading
 import time
@@ -220,6 +221,8 @@ class Controller:
             current = getattr(sub, name)
             if isinstance(current, bool):
                 value = bool(value)
+            elif isinstance(current, enum.Enum):
+                value = type(current)(value)
             elif isinstance(current, int):
                 value = int(round(float(value)))
             elif isinstance(current, float):

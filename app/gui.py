@@ -9,6 +9,7 @@ loops).
 
 from __future__ import annotations
 
+import enum
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -24,7 +25,7 @@ from .state import ALL, AppState, n_splits
 GRASP_TYPES = ("cylindrical", "spherical", "three_finger_tip", "two_finger_tip")
 """Options of the grasp-type filter (besides ``all``)."""
 
-PARAM_CONTROLS: tuple[tuple[str, str, str, float, float, float], ...] = (
+DECOMPOSITION_CONTROLS: tuple[tuple[str, str, str, float, float, float], ...] = (
     ("decomposition", "volume_ratio", "volume ratio", 0.01, 0.05, 1.0),
     ("decomposition", "min_points", "min points", 10, 3, 1_000_000),
     ("decomposition", "max_depth", "max depth", 1, 0, 20),
@@ -32,10 +33,17 @@ PARAM_CONTROLS: tuple[tuple[str, str, str, float, float, float], ...] = (
     ("shape", "max_ratio_2d", "2D ratio (s3/s2 <)", 0.01, 0.01, 1.0),
     ("shape", "small_size", "small size (m)", 0.005, 0.0, 1.0),
     ("sampling", "aperture_scale", "aperture scale", 0.05, 0.1, 3.0),
-    ("traversal", "aperture_scale", "aperture scale", 0.05, 0.1, 3.0),
 )
-"""Threshold controls of the decomposition panel: (params section, field, label, step, min,
-max). A control appears only when ``PipelineParams`` has that field."""
+"""Threshold controls of the decomposition panel: (``PipelineParams`` section, field, label,
+step, min, max)."""
+
+POOL_CONTROLS: tuple[tuple[str, str, str, float, float, float], ...] = (
+    ("sampling", "interval", "sampling interval (m)", 0.005, 0.005, 0.2),
+    ("sampling", "policy", "traversal", 0, 0, 0),
+    ("facemask", "clearance", "face clearance (m)", 0.005, 0.0, 0.2),
+    ("facemask", "support", "support plane", 0, 0, 0),
+)
+"""Controls of the pre-grasp panel (booleans become checkboxes, enums dropdowns)."""
 
 
 def _fmt_mask(mask: np.ndarray) -> str:
@@ -71,21 +79,19 @@ class Gui:
             self.seed.on_update(lambda e: self._do(e, c.set_seed, e.target.value))
             self.status = gui.add_markdown("")
 
+        self.params: dict[tuple[str, str], Any] = {}
+        """GUI handle of each pipeline parameter, keyed by (section, field)."""
         with gui.add_folder("Decomposition"):
-            self.params: dict[tuple[str, str], Any] = {}
-            for sec, name, label, step, lo, hi in PARAM_CONTROLS:
-                sub = getattr(c.state.params, sec, None)
-                if sub is None or not hasattr(sub, name) or any(k[1] == name for k in self.params):
-                    continue
-                h = gui.add_number(label, getattr(sub, name), min=lo, max=hi, step=step)
-                h.on_update(self._param_cb(sec, name))
-                self.params[(sec, name)] = h
+            for spec in DECOMPOSITION_CONTROLS:
+                self._add_param(*spec)
             self.level = gui.add_slider("level (splits)", min=0, max=1, step=1, initial_value=1)
             self.level.on_update(lambda e: self._do(e, c.set_level, e.target.value))
             self.boxes = gui.add_markdown("boxes: 0")
             self.node_info = gui.add_markdown("Click a box to see its node.")
 
         with gui.add_folder("Face masks and pre-grasps"):
+            for spec in POOL_CONTROLS:
+                self._add_param(*spec)
             self.show_masks = gui.add_checkbox("face masks", c.state.view.show_face_masks)
             self.show_masks.on_update(
                 lambda e: self._do(e, c.set_face_masks_visible, e.target.value)
@@ -131,6 +137,23 @@ class Gui:
             return None
         return self.controller.act(getattr(event, "client", None), fn, *args)
 
+    def _add_param(
+        self, section: str, name: str, label: str, step: float, lo: float, hi: float
+    ) -> None:
+        """A control for ``params.<section>.<name>`` whose kind follows the value's type."""
+        value = getattr(getattr(self.controller.state.params, section), name)
+        gui = self.server.gui
+        if isinstance(value, bool):
+            h = gui.add_checkbox(label, value)
+        elif isinstance(value, enum.Enum):
+            h = gui.add_dropdown(
+                label, [str(m.value) for m in type(value)], initial_value=str(value.value)
+            )
+        else:
+            h = gui.add_number(label, value, min=lo, max=hi, step=step)
+        h.on_update(self._param_cb(section, name))
+        self.params[(section, name)] = h
+
     def _param_cb(self, section: str, name: str) -> Callable[[Any], Any]:
         return lambda e: self._do(e, self.controller.set_param, section, name, e.target.value)
 
@@ -168,7 +191,8 @@ class Gui:
             self._set("demo.options", self.demo, "options", opts)
             self._set("demo", self.demo, "value", s.source.name)
         for (sec, name), h in self.params.items():
-            self._set(f"param.{sec}.{name}", h, "value", getattr(getattr(s.params, sec), name))
+            v = getattr(getattr(s.params, sec), name)
+            self._set(f"param.{sec}.{name}", h, "value", v.value if isinstance(v, enum.Enum) else v)
         tree = s.tree
         if tree is not None:
             n = n_splits(tree)

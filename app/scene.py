@@ -49,6 +49,8 @@ SUBFACE_RGB = (255, 255, 255)
 """Colour of the outlines of usable sub-faces (white)."""
 CONTACT_RGB = (255, 210, 0)
 """Colour of contact points and friction cones (yellow)."""
+DETAILED_GHOSTS = 150
+"""Up to this many ghosts use the hand's visual mesh; beyond, its collision boxes."""
 GHOST_OPACITY = 0.18
 """Opacity of the pre-grasp hand ghosts."""
 BOX_OPACITY = 0.12
@@ -162,7 +164,7 @@ class SceneRenderer:
         self._last: AppState | None = None
         self._boxes: dict[int, Any] = {}  # node id -> BoxHandle
         self._handles: dict[str, Any] = {}  # fixed name -> handle
-        self._ghost_meshes: dict[str, Any] = {}  # grasp type -> trimesh (hand frame)
+        self._ghost_meshes: dict[tuple[str, bool], Any] = {}  # (type, detailed) -> hand mesh
         self._urdf: Any = None
         self.n_ghosts_shown = 0
         """Number of ghost instances currently in the scene."""
@@ -380,7 +382,9 @@ class SceneRenderer:
         T = np.asarray(pool.T_world_hand, dtype=np.float64)
         for gt in sorted(set(types[idx].tolist())):  # loop over grasp types (at most 4)
             sel = idx[types[idx] == gt]
-            mesh = self._ghost_mesh(gt, np.asarray(pool.q)[sel[0]])
+            mesh = self._ghost_mesh(
+                gt, np.asarray(pool.q)[sel[0]], detailed=len(idx) <= DETAILED_GHOSTS
+            )
             self._handles[f"ghost:{gt}"] = self.server.scene.add_batched_meshes_simple(
                 f"{NAMES['ghosts']}/{gt}",
                 vertices=mesh.vertices,
@@ -394,11 +398,15 @@ class SceneRenderer:
             )
             self.n_ghosts_shown += len(sel)
 
-    def _ghost_mesh(self, grasp_type: str, q: np.ndarray) -> Any:
-        mesh = self._ghost_meshes.get(grasp_type)
+    def _ghost_mesh(self, grasp_type: str, q: np.ndarray, detailed: bool) -> Any:
+        """The hand at its preshape (hand frame): the visual mesh when few ghosts are drawn, the
+        link boxes (12 triangles per link) for large pools, so thousands stay smooth."""
+        key = (grasp_type, detailed)
+        mesh = self._ghost_meshes.get(key)
         if mesh is None:
-            mesh = self.hand.hand_mesh(np.asarray(q, dtype=np.float64))
-            self._ghost_meshes[grasp_type] = mesh
+            q = np.asarray(q, dtype=np.float64)
+            mesh = self.hand.hand_mesh(q) if detailed else self.hand.collision_mesh(q)
+            self._ghost_meshes[key] = mesh
         return mesh
 
     def _draw_grasp(self, state: AppState) -> None:

@@ -1,0 +1,159 @@
+"""App latency: a threshold change until the updated scene has been sent to a browser.
+
+The app runs on a real ``ViserServer``; one websocket client (speaking viser's wire format: zstd
+msgpack frames) stays connected like a browser. Each trial sets the volume-ratio GUI input from
+Python, which runs exactly the callback a browser's edit runs (re-run the decomposition and
+everything downstream, redraw, update the GUI), and stops the clock when the client has received
+the frame carrying the new "boxes: N" label, which the app sends after the scene update.
+
+Columns: points; pipeline = the pipeline stages re-run by the change (decompose, classify, face
+masks, pool; from the result's timings); callback = the whole callback on the server (pipeline +
+scene + GUI); received = threshold change to the client holding the new scene (median, min and
+max over the trials). Timings are wall-clock on one machine; under load they are noisy, so the
+rows of one run are compared with each other.
+
+    .venv/bin/python benchmarks/bench_app.py [--points 20000 200000] [--trials 7]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import re
+import statistics
+import sys
+import threading
+import time
+from pathlib import Path
+
+import msgspec
+import numpy as np
+import viser
+import zstandard
+from websockets.sync.client import connect
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from app.server import ViewerConfig, run  # noqa: E402
+
+BOXES = re.compile(rb"boxes: (\d+)")
+
+
+class Listener:
+    """A websocket client that records when each "boxes: N" label arrives."""
+
+    def __init__(self, port: int) -> None:
+        self.ws = connect(
+            f"ws://127.0.0.1:{port}",
+            subprotocols=[f"viser-v{viser.__version__}"],
+            max_size=None,
+            open_timeout=30,
+        )
+        self.dctx = zstandard.ZstdDecompressor()
+        self.events: list[tuple[float, bytes]] = []
+        self.cond = threading.Condition()
+        self.thread = threading.Thread(target=self._loop, daemon=True)
+        self.thread.start()
+
+    def _loop(self) -> None:
+        try:
+            for frame in self.ws:
+                t = time.perf_counter()
+                size = int.from_bytes(frame[0:8], "little")
+                clen = int.from_bytes(frame[8:16], "little")
+                inner = self.dctx.decompress(frame[16 : 16 + clen], max_output_size=size)
+                msgs = msgspec.msgpack.decode(inner)["messages"]
+                text = msgspec.json.encode(msgs)
+                with self.cond:
+                    for m in BOXES.finditer(text):
+                        self.events.append((t, m.group(0)))
+                    self.cond.notify_all()
+        except Exception:  # noqa: BLE001 - closed at the end of the run
+            pass
+
+    def wait_for(self, label: bytes, after: float, timeout: float = 120.0) -> float:
+        """Arrival time of the first ``label`` received after ``after``."""
+        deadline = time.perf_counter() + timeout
+        with self.cond:
+            while True:
+                for t, lab in self.events:
+                    if t >= after and lab == label:
+                        return t
+                left = deadline - time.perf_counter()
+                if left <= 0:
+                    raise TimeoutError(f"{label!r} never arrived")
+                self.cond.wait(left)
+
+    def close(self) -> None:
+        self.ws.close()
+
+
+def bench(n_points: int, trials: int) -> dict:
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    app = run(ViewerConfig(n_points=n_points), server)
+    listener = Listener(server.get_port())
+    try:
+        time.sleep(1.0)  # let the client receive the initial scene
+        handle = app.gui.params[("decomposition", "volume_ratio")]
+        # alternate between two ratios with different part counts, so that every change re-runs
+        # the whole pipeline and changes the "boxes: N" label the client waits for
+        ratios = (0.5, 0.9)
+        cb, rx, pipe = [], [], []
+        for k in range(trials + 1):
+            r = ratios[k % 2]
+            t0 = time.perf_counter()
+            handle.value = r
+            t1 = time.perf_counter()
+            s = app.controller.state
+            assert s.error == "", s.error
+            label = f"boxes: {app.scene.n_boxes}".encode()
+            t2 = listener.wait_for(label, after=t0)
+            if k == 0:
+                n_first = app.scene.n_boxes
+                continue  # warm-up
+            if k == 1 and app.scene.n_boxes == n_first:
+                raise SystemExit(f"volume ratios {ratios} give the same part count at {n_points}")
+            cb.append(t1 - t0)
+            rx.append(t2 - t0)
+            pipe.append(sum(s.result.timings.get(st, 0.0) for st in s.result.timings))
+        return {
+            "points": n_points,
+            "boxes": app.scene.n_boxes,
+            "pool": len(app.controller.state.result.pool),
+            "pipeline": statistics.median(pipe),
+            "callback": statistics.median(cb),
+            "received": statistics.median(rx),
+            "min": min(rx),
+            "max": max(rx),
+        }
+    finally:
+        listener.close()
+        app.close()
+        server.stop()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--points", type=int, nargs="+", default=[20000, 200000])
+    ap.add_argument("--trials", type=int, default=7)
+    args = ap.parse_args()
+    print(
+        f"# {platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}, "
+        f"viser {viser.__version__}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}"
+    )
+    print(f"# {args.trials} threshold changes per row (volume ratio 0.5 <-> 0.9), medians in ms")
+    print()
+    print("| points | boxes | pool | pipeline (ms) | callback (ms) | received (ms) | min | max |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for n in args.points:
+        r = bench(n, args.trials)
+        print(
+            f"| {r['points']:,} | {r['boxes']} | {r['pool']} | {r['pipeline'] * 1e3:.0f} | "
+            f"{r['callback'] * 1e3:.0f} | {r['received'] * 1e3:.0f} | {r['min'] * 1e3:.0f} | "
+            f"{r['max'] * 1e3:.0f} |",
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()
