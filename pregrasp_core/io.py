@@ -49,6 +49,10 @@ MIN_POINTS: int = 10
 MAX_POINTS: int = 10_000_000
 """Most points ``n_points`` may ask for (memory guard)."""
 
+MAX_COORDINATE: float = 1e9
+"""Largest coordinate magnitude accepted (metres, after scaling): beyond it the file is surely
+not in metres (and squares of the coordinates could overflow)."""
+
 MILLIMETRE_EXTENT: float = 5.0
 """A cloud whose bounding box is longer than this (metres) probably is in millimetres: warn."""
 
@@ -334,7 +338,15 @@ def _finish(
             nrm = nrm / length[:, None]
     s = 1.0 if scale is None else float(scale)
     if s != 1.0:
-        pts = pts * s
+        with np.errstate(over="ignore"):  # an overflow is reported just below
+            pts = pts * s
+    largest = float(np.abs(pts).max())  # finite unless the scaling overflowed
+    if not largest <= MAX_COORDINATE:
+        raise InputError(
+            f"{source}: coordinates reach {largest:.3g} m (after scale {s:g}), beyond "
+            f"{MAX_COORDINATE:.0e} m; the file is not in metres or is corrupt: check it, or "
+            "pass a scale"
+        )
     if n_points is not None and pts.shape[0] > n_points:
         rng = np.random.default_rng(seed)
         keep = np.sort(rng.choice(pts.shape[0], size=int(n_points), replace=False))
@@ -353,7 +365,7 @@ def _check_geometry(pts: np.ndarray, source: str, warns: list[str]) -> None:
     centered = pts - pts.mean(axis=0)
     cov = centered.T @ centered / pts.shape[0]  # (3, 3)
     _, vecs = np.linalg.eigh(cov)  # ascending eigenvalues; columns are principal axes
-    spread = np.ptp(centered @ vecs, axis=0)  # (3,) extent along each principal axis, ascending
+    spread = np.sort(np.ptp(centered @ vecs, axis=0))  # (3,) extents along principal axes
     if spread[2] < FLAT_EXTENT:
         raise DegenerateGeometryError(
             f"{source}: all {pts.shape[0]} points are identical (spread {spread[2]:.2e} m); "

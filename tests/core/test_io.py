@@ -15,6 +15,7 @@ import pytest
 import trimesh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 from pregrasp_core.errors import DegenerateGeometryError, InputError, PregraspError
 from pregrasp_core.io import (
@@ -661,8 +662,35 @@ def test_from_array():
     assert c.n_points == len(pts) - 1 and c.normals.shape == (len(pts) - 1, 3)
 
 
+def test_huge_coordinates_refused():
+    pts, _ = known_cloud()
+    with pytest.raises(InputError, match=r"array: coordinates reach 4.99e\+11 m .* not in metres"):
+        PointCloud.from_array(pts * 1e13)
+    with pytest.raises(InputError, match=r"coordinates reach inf m \(after scale 1e\+300\)"):
+        load_point_cloud_bytes(_npy(pts * 1e10), "big.npy", scale=1e300)
+
+
 # ------------------------------------------------------------------------------------------------
 # Fuzzing: nothing but a PregraspError ever escapes
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    arr=hnp.arrays(
+        np.float64,
+        st.tuples(st.integers(0, 40), st.just(3)),
+        elements=st.floats(allow_nan=True, allow_infinity=True, width=64),
+    ),
+    scale=st.one_of(st.none(), st.floats(1e-300, 1e300)),
+)
+def test_from_array_random_values_only_pregrasp_errors(arr, scale):
+    try:
+        c = PointCloud.from_array(arr, scale=scale)
+    except PregraspError as exc:
+        assert isinstance(exc, InputError | DegenerateGeometryError)
+    else:
+        assert np.isfinite(c.points).all() and c.n_points >= MIN_POINTS
+
 
 _EXTS = list(SUPPORTED_EXTENSIONS)
 _FUZZ = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
