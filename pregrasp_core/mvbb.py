@@ -51,12 +51,21 @@ class MvbbParams:
     steps (the pattern search starts at ``step_start`` and covers the gaps)."""
     max_normals: int = 400
     """At most this many distinct hull-face normals are swept (the largest faces first)."""
+    sweep_batch: int = 48
+    """Candidate normals swept per batch (step 2)."""
+    sweep_slack: float = 0.05
+    """The sweep stops when the lower bound of the remaining normals exceeds the best volume so
+    far by this fraction (the bound is exact, so only candidates that are this much worse than
+    the best are skipped)."""
     n_refine: int = 4
     """Distinct candidates polished by the pattern search (step 3)."""
     step_start: float = np.deg2rad(3.0)
     """First rotation step of the pattern search, radians."""
     step_min: float = np.deg2rad(0.005)
     """The pattern search stops when its step falls below this, radians."""
+    active_reach: float = 4.0
+    """The pattern search rebuilds its active point set after moves totalling this many steps
+    (a larger reach means fewer rebuilds but larger sets; any value is exact)."""
     max_iterations: int = 200
     """Upper bound on pattern-search iterations (a safeguard; typical runs need 20 to 40)."""
     refine_restart_level: int = 4
@@ -110,8 +119,9 @@ def minimum_volume_box(points: np.ndarray, params: MvbbParams = DEFAULT_PARAMS) 
         raise InputError(
             f"{bad} of {n} points contain NaN or inf: drop those rows before fitting a box"
         )
-    origin = pts.mean(axis=0)
-    PT = np.ascontiguousarray((pts - origin).T)  # (3, N): reductions along axis 1 are fast
+    PT = np.ascontiguousarray(pts.T)  # (3, N): reductions along axis 1 are fast
+    origin = PT.mean(axis=1)
+    PT -= origin[:, None]
 
     # Principal frame and degeneracy tests.
     _, vecs = np.linalg.eigh(PT @ PT.T)
@@ -191,7 +201,7 @@ def _kernel_mask(q: np.ndarray, lo: np.ndarray, ext: np.ndarray, grid: int) -> n
 def _face_areas(S: np.ndarray, simplices: np.ndarray) -> np.ndarray:
     """(F,) areas of the hull triangles ``simplices`` (F, 3) over points ``S`` (3, m)."""
     a, b, c = S[:, simplices[:, 0]], S[:, simplices[:, 1]], S[:, simplices[:, 2]]
-    return 0.5 * np.linalg.norm(np.cross(b - a, c - a, axis=0), axis=0)
+    return 0.5 * np.linalg.norm(_cross(b - a, c - a), axis=0)
 
 
 def _frames_from_normals(normals: np.ndarray) -> np.ndarray:
@@ -200,10 +210,17 @@ def _frames_from_normals(normals: np.ndarray) -> np.ndarray:
     # Helper axis: the world axis least aligned with n.
     helper = np.zeros_like(n)
     helper[np.arange(len(n)), np.argmin(np.abs(n), axis=1)] = 1.0
-    u = np.cross(helper, n)
+    u = _cross(helper.T, n.T).T
     u /= np.linalg.norm(u, axis=1, keepdims=True)
-    v = np.cross(n, u)
+    v = _cross(n.T, u.T).T
     return np.stack([u, v, n], axis=2)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Column-wise cross product of (3, K) arrays (np.cross is slow on small arrays)."""
+    return np.stack(
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    )
 
 
 def _rot_z(angles: np.ndarray) -> np.ndarray:
@@ -291,19 +308,40 @@ def _search(
     with small steps, so that the final choice is made on the true volumes."""
     Vf = np.ascontiguousarray(Q[:, fine])
     cand = np.concatenate([np.eye(3), _candidate_normals(normals, areas, p.max_normals)])
-    R, vol = _sweep(V, cand, p.n_angles)
+    # Lower bound of every box with third axis n: height(n) * shadow area of the hull on the
+    # plane normal to n (0.5 * sum of |n . face area vector|; the rectangle contains the shadow).
+    # Candidates are swept in increasing order of the bound, in batches, until the bound exceeds
+    # the best volume found so far by more than `sweep_slack`.
+    height = np.ptp(cand @ V, axis=1)  # (K,)
+    shadow = 0.5 * (np.abs(cand @ normals.T) @ areas)  # (K,)
+    order = np.argsort(height * shadow, kind="stable")
+    bound = (height * shadow)[order]
+    Rs, vols, best_vol = [], [], np.inf
+    for start in range(0, len(order), p.sweep_batch):
+        if bound[start] > best_vol * (1.0 + p.sweep_slack):
+            break
+        Rb, vb = _sweep(V, cand[order[start : start + p.sweep_batch]], p.n_angles)
+        Rs.append(Rb)
+        vols.append(vb)
+        best_vol = min(best_vol, float(vb.min()))
+    R, vol = np.concatenate(Rs), np.concatenate(vols)
 
     # Keep the best n_refine candidates that are not the same box.
-    best = np.argsort(vol, kind="stable")[: 8 * p.n_refine]
-    starts: list[np.ndarray] = []
-    for i in best:
-        if all(_rotation_gap(R[i], s) > 2.0 * p.step_start for s in starts):
-            starts.append(R[i])
-        if len(starts) == p.n_refine:
+    top = R[np.argsort(vol, kind="stable")[: 8 * p.n_refine]]  # (B, 3, 3), best first
+    # same[i, j]: boxes i and j are within 2 steps (every axis of i has an axis of j within
+    # that angle, axis order and signs ignored).
+    cosines = np.abs(np.einsum("iab,jac->ijbc", top, top)).max(axis=3).min(axis=2)  # (B, B)
+    same = cosines >= np.cos(2.0 * p.step_start)
+    chosen: list[int] = []
+    for i in range(len(top)):
+        if not any(same[i, j] for j in chosen):
+            chosen.append(i)
+        if len(chosen) == p.n_refine:
             break
+    starts = top[chosen]
     n_levels = _n_levels(p)
     mid = min(p.refine_restart_level, n_levels - 1)
-    cur = _pattern_search(np.stack(starts), Vf, p, 0, mid)  # (T, 3, 3), steps >= level mid
+    cur = _pattern_search(starts, Vf, p, 0, mid)  # (T, 3, 3), steps >= level mid
     # Only the best box on the whole cloud goes on to the fine steps.
     cur = cur[[int(np.argmin(_volumes(cur, Q)))]]  # (1, 3, 3)
     # The kernel may miss points that matter for this orientation: add the points of the cloud
@@ -349,56 +387,36 @@ def _pattern_search(
     stencils = _rodrigues((steps[:, None, None] * _STENCIL_DIRS[None]).reshape(-1, 3))
     stencils = stencils.reshape(n_levels, -1, 3, 3)  # (L, 26, 3, 3)
     level = np.full(len(cur), start, dtype=np.int64)  # per-candidate step level
+    active, spent, budget = Vf, 0.0, -1.0
     for _ in range(p.max_iterations):
         live = np.flatnonzero(level < n_levels)
         if len(live) == 0:
             break
         C, lv = cur[live], level[live]  # (T', 3, 3), (T',)
-        # Active set: a rotation by `step` moves a coordinate by at most radius * step, so only
-        # points within 2 * radius * step of a face of some current box can become extreme.
-        proj = (C.transpose(0, 2, 1).reshape(-1, 3) @ Vf).reshape(len(live), 3, -1)  # (T', 3, f)
-        margin = 2.0 * radius * steps[lv][:, None, None] * (1.0 + 1e-9)
-        near = (proj >= proj.max(axis=2, keepdims=True) - margin) | (
-            proj <= proj.min(axis=2, keepdims=True) + margin
-        )
-        active = Vf[:, near.any(axis=(0, 1))]  # (3, a)
+        step = float(steps[lv].max())
+        if spent + step > budget:
+            # Active set: rotations of total angle <= budget move a coordinate by at most
+            # radius * budget, so only points within 2 * radius * budget of a face of a current
+            # box can become extreme before the set is rebuilt.
+            budget, spent = p.active_reach * step, 0.0
+            proj = (C.transpose(0, 2, 1).reshape(-1, 3) @ Vf).reshape(len(live), 3, -1)
+            margin = 2.0 * radius * budget * (1.0 + 1e-9)
+            near = (proj >= proj.max(axis=2, keepdims=True) - margin) | (
+                proj <= proj.min(axis=2, keepdims=True) + margin
+            )
+            active = Vf[:, near.any(axis=(0, 1))]  # (3, a)
         trial = C[:, None] @ stencils[lv]  # (T', 26, 3, 3)
         tv = _volumes(trial.reshape(-1, 3, 3), active).reshape(len(live), -1)
         j = np.argmin(tv, axis=1)
         tbest = tv[np.arange(len(live)), j]
         better = tbest < cur_vol[live] * (1.0 - 1e-12)
-        up = live[better]
-        cur[up] = trial[better, j[better]]
-        cur_vol[up] = tbest[better]
+        if np.any(better):
+            spent += step
+            up = live[better]
+            cur[up] = trial[better, j[better]]
+            cur_vol[up] = tbest[better]
         level[live[~better]] += 1
     return cur
-
-
-def _exact_in_plane(R: np.ndarray, V: np.ndarray) -> np.ndarray:
-    """For each axis of ``R`` (3, 3) in turn, replace the other two by the exact minimum-area
-    rectangle of the points ``V`` (3, f) projected on the plane normal to it; keep improvements."""
-    best_vol = float(_volumes(R[None], V)[0])
-    for k in range(3):
-        Rk = np.roll(R, -(k + 1), axis=1)  # columns (a, b, axis k): still a proper rotation
-        q = Rk.T @ V  # (3, f)
-        try:
-            hull = ConvexHull(q[:2].T)
-        except QhullError:
-            continue
-        theta = _min_area_rect_angle(q[:2, hull.vertices])
-        c, s = np.cos(theta), np.sin(theta)
-        cand = Rk @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        v = float(_volumes(cand[None], V)[0])
-        if v < best_vol:
-            R, best_vol = cand, v
-    return R
-
-
-def _rotation_gap(A: np.ndarray, B: np.ndarray) -> float:
-    """Smallest angle (radians) between the boxes of rotations A and B (axis order and signs
-    ignored): the largest angle between an axis of A and its best-matching axis of B."""
-    c = np.abs(A.T @ B)  # (3, 3) |cos| between axes
-    return float(np.arccos(np.clip(c.max(axis=1).min(), -1.0, 1.0)))
 
 
 def _flat_rotation(q2: np.ndarray, R_pca: np.ndarray) -> np.ndarray:
