@@ -1,0 +1,680 @@
+"""The slicing contact planner: pre-grasp -> approach -> per-finger slicing and closing -> 3D
+verification -> contacts -> quality, with a trace for every pre-grasp (see ``docs/planner.md``).
+
+For each pre-grasp of the pool (DESIGN section 8, after arXiv 1907.09142):
+
+1. **Approach.** The open hand moves along its approach (hand +z) until one of its collision
+   boxes (palm, knuckles or a finger link, at the preshape) comes within
+   ``PlannerParams.approach_clearance`` of a cloud point: an exact ray/slab computation for every
+   (point, box) pair near the sweep. The support plane, when given, also stops the hand (its
+   boxes stay ``approach_clearance`` above it). Nothing ahead within ``max_approach``: rejected.
+2. **Slicing and closing.** For each finger the grasp type uses, the cloud points within half a
+   finger width of the finger's flexion plane, in that plane's 2D frame, go to the hand's planar
+   closing model (:meth:`pregrasp_core.hand.Hand.close_finger`, vectorised over points and
+   closing steps), which returns the flexion angles and the touching links.
+3. **3D verification.** At the final pose and joint angles: every cloud point's depth inside
+   every link box (exact box distance); a finger that holds a point deeper than
+   ``penetration_tol`` is opened back along its closing path until it holds none (corrected),
+   else the pre-grasp is rejected; then python-fcl checks the links against each other
+   (:meth:`Hand.self_collisions`) and against the support half-space.
+4. **Contacts.** Every link with a cloud point within ``contact_distance`` of its box makes one
+   contact: the nearest such cloud point, its normal (from :mod:`pregrasp_core.normals`,
+   negated so that it points **into the object**), and the link. The first friction-cone edge
+   is the link box's y axis (the finger's flexion-plane normal), fixed to the hand, so the
+   scores do not depend on the world frame.
+5. **Quality.** :func:`pregrasp_core.quality.grasp_quality` (Ferrari-Canny epsilon L1 and
+   wrench-hull volume). Kept grasps are ranked by epsilon, then volume, then number of contacts.
+
+Every pre-grasp yields one :class:`Grasp` (kept, with scores and rank, or rejected with a
+reason from :data:`REJECTION_REASONS`), so the whole trace is in the result file.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import fcl
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .normals import NormalParams, estimate_normals
+from .quality import GraspQuality, QualityParams, grasp_quality
+from .tolerances import CONTACT_DISTANCE, GEOM_EPS, PENETRATION_TOL
+
+logger = logging.getLogger(__name__)
+
+REJECTION_REASONS: dict[str, str] = {
+    "nothing_ahead": "the hand meets no cloud point within max_approach along its approach",
+    "no_contact": "after closing, no link is within contact_distance of the cloud",
+    "penetration": "a link holds cloud points deeper than penetration_tol and opening its "
+    "finger does not clear them (or the palm/knuckle does)",
+    "self_collision": "two links of the closed hand intersect (python-fcl)",
+    "support_collision": "a link of the closed hand goes below the support plane (python-fcl)",
+}
+"""Why a pre-grasp can be rejected (keys used in ``Grasp.rejection`` and the result file)."""
+
+APPROACH_STOPS: tuple[str, ...] = ("object", "support", "start")
+"""What ended the approach: a cloud point, the support plane, or already close at the start."""
+
+
+@dataclass(frozen=True)
+class PlannerParams:
+    """Parameters of the slicing contact planner (lengths in metres)."""
+
+    approach_clearance: float = 0.002
+    """The approach stops when a hand box is this close to a cloud point (or the support)."""
+    max_approach: float = 0.15
+    """Farthest the hand travels along its approach from the pre-grasp pose."""
+    closing_margin: float = 0.001
+    """A finger link touches a slice point when within this distance (planar closing model)."""
+    closing_steps: int = 48
+    """Samples per closing phase of the closing model (refined by bisection)."""
+    slice_resolution: float = 0.0005
+    """A slice keeps one point per square cell of this side in its plane (0: every point); the
+    contact found by the planar model moves by at most 0.71 of it (the 3D check is exact)."""
+    contact_distance: float = CONTACT_DISTANCE
+    """A link makes a contact when a cloud point lies within this distance of its box."""
+    penetration_tol: float = PENETRATION_TOL
+    """Largest depth a cloud point may have inside a link of the final hand."""
+    quality: QualityParams = field(default_factory=QualityParams)
+    """Friction coefficient, cone edges and torque scale of the quality measure."""
+    normals: NormalParams = field(default_factory=NormalParams)
+    """Normal estimation (computed once per cloud)."""
+
+    def __post_init__(self) -> None:
+        for name in ("approach_clearance", "closing_margin", "penetration_tol"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0.0):
+                raise ValueError(f"{name} must be a finite length >= 0, got {v}")
+        if not self.max_approach > 0.0:
+            raise ValueError(f"max_approach must be > 0, got {self.max_approach}")
+        if not self.contact_distance >= self.closing_margin:
+            raise ValueError(
+                f"contact_distance ({self.contact_distance}) must be >= closing_margin "
+                f"({self.closing_margin}) so that a finger stopped by a point touches it"
+            )
+        if not (np.isfinite(self.slice_resolution) and self.slice_resolution >= 0.0):
+            raise ValueError(f"slice_resolution must be >= 0, got {self.slice_resolution}")
+        if int(self.closing_steps) != self.closing_steps or self.closing_steps < 2:
+            raise ValueError(f"closing_steps must be an integer >= 2, got {self.closing_steps}")
+
+
+@dataclass(frozen=True)
+class Contact:
+    """One hand-object contact of a planned grasp."""
+
+    point: np.ndarray
+    """(3,) float64, metres, world frame: the touched cloud point."""
+    normal: np.ndarray
+    """(3,) float64 unit, world: the surface normal pointing INTO the object (force direction)."""
+    link: str
+    """The touching hand link (e.g. ``f1_distal``, ``palm``)."""
+    point_index: int
+    """Index of the touched point in the cloud."""
+    distance: float
+    """Signed distance (metres) from the link's box to the point (< 0: inside by that much)."""
+    tangent: np.ndarray
+    """(3,) float64 unit, world: first friction-cone edge direction (the link box's y axis)."""
+
+
+@dataclass(frozen=True)
+class FingerTrace:
+    """What the closing model did with one finger."""
+
+    finger: str
+    """Finger name."""
+    n_slice: int
+    """Cloud points in the finger's slice."""
+    q: np.ndarray
+    """(2,) final flexion angles (radians) after any correction."""
+    links_touched: tuple[str, ...]
+    """Links the planar closing model stopped on (middle first, then distal)."""
+    palm_stop: bool
+    """A link reached the palm and stopped there."""
+    at_limits: bool
+    """The finger closed to its limits without touching anything."""
+    corrected: bool
+    """The finger was opened back along its path to clear a 3D penetration."""
+
+
+@dataclass(frozen=True)
+class Grasp:
+    """The planner's outcome for one pre-grasp: a scored grasp or a rejection, with its trace."""
+
+    pregrasp: int
+    """Index of the pre-grasp in the pool."""
+    grasp_type: str
+    """The pre-grasp's grasp type."""
+    T_world_hand: np.ndarray
+    """(4, 4) float64: the hand pose at the end of the approach (pose of the grasp)."""
+    approach_distance: float
+    """Metres travelled along the approach from the pre-grasp pose."""
+    approach_stop: str
+    """What ended the approach (:data:`APPROACH_STOPS`; '' when nothing did)."""
+    q: np.ndarray
+    """(J,) float64, radians: final joint positions (``Hand.joint_names`` order)."""
+    fingers: tuple[FingerTrace, ...]
+    """Per closed finger, what the closing model did."""
+    contacts: tuple[Contact, ...]
+    """The contacts (empty for most rejections)."""
+    epsilon: float
+    """Ferrari-Canny epsilon L1 (0: not force closure or rejected)."""
+    volume: float
+    """Wrench-hull volume (0 when degenerate or rejected)."""
+    rank: int | None
+    """0 = best among the kept grasps; None when rejected."""
+    rejection: str | None
+    """None when kept, else a key of :data:`REJECTION_REASONS`."""
+    detail: str = ""
+    """Human-readable detail of the rejection or of the quality ('' if nothing to say)."""
+
+    @property
+    def n_contacts(self) -> int:
+        """Number of contacts."""
+        return len(self.contacts)
+
+    @property
+    def kept(self) -> bool:
+        """True when the grasp was not rejected."""
+        return self.rejection is None
+
+
+@dataclass(frozen=True)
+class GraspSet:
+    """Every pre-grasp's outcome, in pool order, and the ranking of the kept ones."""
+
+    grasps: tuple[Grasp, ...]
+    """One per pre-grasp of the pool (``grasps[i].pregrasp == i``)."""
+    ranking: np.ndarray
+    """(K,) int64: indices into ``grasps`` of the kept grasps, best first."""
+    joint_names: tuple[str, ...]
+    """Names of the joints of ``Grasp.q``."""
+    rejected: dict[str, int]
+    """Number of rejected pre-grasps per reason (every key of :data:`REJECTION_REASONS`)."""
+
+    def __len__(self) -> int:
+        return len(self.grasps)
+
+    @property
+    def best(self) -> int | None:
+        """Index into ``grasps`` of the best grasp, or None when every pre-grasp was rejected."""
+        return int(self.ranking[0]) if len(self.ranking) else None
+
+    def top(self, k: int) -> list[Grasp]:
+        """The ``k`` best kept grasps."""
+        return [self.grasps[i] for i in self.ranking[: max(int(k), 0)]]
+
+    @property
+    def n_force_closure(self) -> int:
+        """Number of kept grasps with epsilon > 0."""
+        return int(sum(g.epsilon > 0.0 for g in self.grasps))
+
+
+# ------------------------------------------------------------------------------ geometry
+
+
+def box_signed_distance(p: np.ndarray, T_boxes: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """(M, L) exact signed distance from points ``p`` (M, 3) to boxes with poses ``T_boxes``
+    (L, 4, 4) (same frame as ``p``) and half extents ``half`` (L, 3); negative inside (minus the
+    depth to the nearest face)."""
+    R = T_boxes[:, :3, :3]  # (L, 3, 3)
+    L = R.shape[0]
+    local = (p @ R.transpose(1, 0, 2).reshape(3, 3 * L)).reshape(-1, L, 3)
+    local -= np.einsum("li,lij->lj", T_boxes[:, :3, 3], R)[None]
+    q = np.abs(local) - half[None]  # (M, L, 3)
+    outside = np.linalg.norm(np.maximum(q, 0.0), axis=2)
+    inside = np.minimum(q.max(axis=2), 0.0)
+    return outside + inside
+
+
+def sweep_hit(
+    p: np.ndarray, T_boxes: np.ndarray, half: np.ndarray, direction: np.ndarray
+) -> tuple[float, int]:
+    """First travel ``s >= 0`` at which boxes moving by ``s * direction`` touch a point.
+
+    p: (M, 3) points, T_boxes: (L, 4, 4) box poses, half: (L, 3) half extents (already grown by
+    any clearance), direction: (3,) unit, all in one frame. Returns ``(s, box index)``, or
+    ``(inf, -1)`` when no point is ever touched. Exact slab intersection per (point, box).
+    """
+    if len(p) == 0:
+        return np.inf, -1
+    R = T_boxes[:, :3, :3]
+    L = R.shape[0]
+    a = (p @ R.transpose(1, 0, 2).reshape(3, 3 * L)).reshape(-1, L, 3)
+    a -= np.einsum("li,lij->lj", T_boxes[:, :3, 3], R)[None]  # (M, L, 3) box coordinates
+    d = np.einsum("i,lij->lj", direction, R)  # (L, 3): the motion in box coordinates
+    # relative to the box a point moves by -s d: |a - s d| <= half on every axis
+    small = np.abs(d) < 1e-12
+    d_safe = np.where(small, 1.0, d)
+    t1 = (a - half) / d_safe
+    t2 = (a + half) / d_safe
+    lo = np.minimum(t1, t2)
+    hi = np.maximum(t1, t2)
+    inside_axis = np.abs(a) <= half
+    lo = np.where(small, np.where(inside_axis, -np.inf, np.inf), lo)
+    hi = np.where(small, np.where(inside_axis, np.inf, -np.inf), hi)
+    s_in = lo.max(axis=2)  # (M, L)
+    s_out = hi.min(axis=2)
+    hit = (s_in <= s_out) & (s_out >= 0.0)
+    s = np.where(hit, np.maximum(s_in, 0.0), np.inf)
+    k = int(np.argmin(s))
+    s_min = float(s.flat[k])
+    return (s_min, k % L) if np.isfinite(s_min) else (np.inf, -1)
+
+
+# ------------------------------------------------------------------------------ planner
+
+
+class _Context:
+    """Per-call data shared by every pre-grasp (cloud, hand geometry caches)."""
+
+    def __init__(self, points, normals, hand, params: PlannerParams, support) -> None:
+        self.points = points
+        self.normals = normals
+        self.tree = cKDTree(points)
+        self.hand = hand
+        self.params = params
+        self.support = support
+        self.link_names = tuple(hand.link_names)
+        self.half = np.asarray(hand.link_box_half, dtype=np.float64)
+        self.link_index = {n: i for i, n in enumerate(self.link_names)}
+        self._planes: dict[tuple[str, float], Any] = {}
+        self._boxes: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        # reach: half side of a cube about the palm origin that holds every link box at any
+        # configuration (palm half diagonal, or first joint + middle + distal at any flexion)
+        reach = np.linalg.norm(self.half[self.link_index["palm"]])
+        for f in hand.fingers:
+            base = np.linalg.norm(hand.flexion_plane(f, 0.0).origin)
+            tip = f.middle_length + f.distal_length + np.hypot(0.5 * f.thickness, 0.5 * f.width)
+            reach = max(reach, base + tip)
+        self.reach = float(reach)
+
+    def plane(self, finger, spread: float):
+        key = (finger.name, round(float(spread), 12))
+        if key not in self._planes:
+            self._planes[key] = self.hand.flexion_plane(finger, spread)
+        return self._planes[key]
+
+    def boxes(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Box poses (L, 4, 4) and their hand-frame AABBs lo, hi (L, 3) at ``q`` (cached)."""
+        key = q.tobytes()
+        if key not in self._boxes:
+            Tb = self.hand.box_poses(q)
+            corners = _box_corners(Tb, self.half).reshape(-1, 8, 3)
+            self._boxes[key] = (Tb, corners.min(axis=1), corners.max(axis=1))
+            if len(self._boxes) > 4096:  # a bound for pools of arbitrary preshapes
+                self._boxes.pop(next(iter(self._boxes)))
+        return self._boxes[key]
+
+
+def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray, p_h: np.ndarray) -> tuple[float, str]:
+    """Travel along hand +z until a box is ``approach_clearance`` from the cloud/support.
+
+    p_h: (M, 3) cloud points in the frame of the hand at the pre-grasp pose."""
+    prm = ctx.params
+    c = prm.approach_clearance
+    S = prm.max_approach
+    Tb, lo, hi = ctx.boxes(q)
+    ez = np.array([0.0, 0.0, 1.0])
+    s_obj = np.inf
+    # per link: only the points in front of it within its footprint across the approach
+    x, y, z = p_h[:, 0], p_h[:, 1], p_h[:, 2]
+    for j in range(len(ctx.link_names)):  # loop over the ~10 links
+        sel = (
+            (x >= lo[j, 0] - c)
+            & (x <= hi[j, 0] + c)
+            & (y >= lo[j, 1] - c)
+            & (y <= hi[j, 1] + c)
+            & (z >= lo[j, 2] - c)
+            & (z <= hi[j, 2] + c + min(S, s_obj))
+        )
+        if sel.any():
+            s_j, _ = sweep_hit(p_h[sel], Tb[j : j + 1], ctx.half[j : j + 1] + c, ez)
+            s_obj = min(s_obj, s_j)
+    s_sup = np.inf
+    if ctx.support is not None:
+        n = np.asarray(ctx.support.normal, dtype=np.float64)
+        corners = _box_corners(Tb, ctx.half) @ T0[:3, :3].T + T0[:3, 3]  # (8L, 3) world
+        heights = corners @ n - (ctx.support.height + c)
+        rate = float(n @ T0[:3, 2])  # height change per metre of approach
+        s_sup = max(float(heights.min()), 0.0) / -rate if rate < -GEOM_EPS else np.inf
+    s = min(s_obj, s_sup)
+    if not np.isfinite(s) or s > S:
+        return np.inf, ""
+    if s <= 0.0:
+        return 0.0, "start"
+    return float(s), "object" if s_obj <= s_sup else "support"
+
+
+def _box_corners(Tb: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """(8 L, 3) corners of boxes with poses ``Tb`` (L, 4, 4) and half extents ``half`` (L, 3)."""
+    k = np.arange(8)
+    signs = np.stack([(k >> 0) & 1, (k >> 1) & 1, (k >> 2) & 1], axis=1) * 2.0 - 1.0
+    local = signs[None] * half[:, None, :]  # (L, 8, 3)
+    return (np.einsum("lij,lkj->lki", Tb[:, :3, :3], local) + Tb[:, None, :3, 3]).reshape(-1, 3)
+
+
+def _support_collision(ctx: _Context, T: np.ndarray, q: np.ndarray) -> str | None:
+    """The first link whose box reaches below the support plane by > penetration_tol (fcl)."""
+    if ctx.support is None:
+        return None
+    n = np.asarray(ctx.support.normal, dtype=np.float64)
+    table = fcl.CollisionObject(
+        fcl.Halfspace(n, float(ctx.support.height) - ctx.params.penetration_tol), fcl.Transform()
+    )
+    Tb = T @ ctx.boxes(q)[0]  # (L, 4, 4) world
+    req = fcl.CollisionRequest()
+    for i, name in enumerate(ctx.link_names):  # loop over the ~10 links
+        obj = fcl.CollisionObject(
+            fcl.Box(*(2.0 * ctx.half[i])), fcl.Transform(Tb[i, :3, :3], Tb[i, :3, 3])
+        )
+        if fcl.collide(obj, table, req, fcl.CollisionResult()) > 0:
+            return name
+    return None
+
+
+def _link_distances(
+    ctx: _Context, T: np.ndarray, q: np.ndarray, reach: float
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Per link: cloud indices of the points within ``reach`` of its box (candidates from the
+    k-d tree: the box's circumscribed ball grown by ``reach``) and their exact signed distances
+    to the box, for the hand at pose ``T`` and configuration ``q``."""
+    Tb = T @ ctx.boxes(q)[0]  # (L, 4, 4) world
+    radius = np.linalg.norm(ctx.half, axis=1) + reach
+    lists = ctx.tree.query_ball_point(Tb[:, :3, 3], radius, return_sorted=False)
+    ids, dists = [], []
+    for j, lst in enumerate(lists):  # loop over the ~10 links
+        sel = np.asarray(lst, dtype=np.int64)
+        ids.append(sel)
+        dists.append(box_signed_distance(ctx.points[sel], Tb[j : j + 1], ctx.half[j : j + 1])[:, 0])
+    return ids, dists
+
+
+def _thin_2d(p2: np.ndarray, cell: float) -> np.ndarray:
+    """One point of ``p2`` (M, 2) per occupied square cell of side ``cell`` (0: all points).
+
+    A slice projects a 3D band of the surface (one finger width thick) onto its plane, where
+    many points fall within a fraction of a millimetre of each other."""
+    if cell <= 0.0 or len(p2) < 2:
+        return p2
+    c = np.floor(p2 / cell).astype(np.int64)
+    c -= c.min(axis=0)
+    key = c[:, 0] * (int(c[:, 1].max()) + 1) + c[:, 1]
+    _, first = np.unique(key, return_index=True)
+    return p2[np.sort(first)]
+
+
+def _plan_one(ctx: _Context, pool: Any, i: int) -> Grasp:
+    hand, prm = ctx.hand, ctx.params
+    gt = str(pool.grasp_type[i])
+    T0 = np.asarray(pool.T_world_hand[i], dtype=np.float64)
+    q0 = np.asarray(pool.q[i], dtype=np.float64)
+    spread = float(pool.spread[i])
+
+    def rejected(reason: str, detail: str, T=T0, s=0.0, stop="", q=q0, fingers=()) -> Grasp:
+        return Grasp(i, gt, T, s, stop, q, tuple(fingers), (), 0.0, 0.0, None, reason, detail)
+
+    # the cloud in the frame of the hand at the pre-grasp pose, culled to the region the hand
+    # can reach during the approach and the closing
+    p_all = (ctx.points - T0[:3, 3]) @ T0[:3, :3]  # (N, 3)
+    r = ctx.reach + prm.contact_distance
+    keep = np.flatnonzero(
+        (np.abs(p_all[:, 0]) <= r)
+        & (np.abs(p_all[:, 1]) <= r)
+        & (p_all[:, 2] >= -r)
+        & (p_all[:, 2] <= r + prm.max_approach)
+    )
+    p_h0 = p_all[keep]
+
+    # 1. approach
+    s, stop = _approach(ctx, T0, q0, p_h0)
+    if not np.isfinite(s):
+        return rejected("nothing_ahead", f"no cloud point within {prm.max_approach:.3f} m ahead")
+    T = T0.copy()
+    T[:3, 3] += s * T0[:3, 2]
+    p_h = p_h0 - np.array([0.0, 0.0, s])  # points in the frame of the hand after the approach
+    in_reach = np.flatnonzero(p_h[:, 2] <= r)
+    p_h = p_h[in_reach]
+
+    # 2. slicing and closing, per finger of the grasp type
+    q = q0.copy()
+    closings = []
+    for f in hand.fingers_for(gt):  # loop over <= 3 fingers
+        plane = ctx.plane(f, spread)
+        p2, off = plane.to_plane(p_h)
+        in_slice = (np.abs(off) <= 0.5 * f.width) & (np.hypot(p2[:, 0], p2[:, 1]) <= ctx.reach)
+        cl = hand.close_finger(
+            f,
+            _thin_2d(p2[in_slice], prm.slice_resolution),
+            q0[list(f.flex_index)],
+            n_steps=prm.closing_steps,
+            margin=prm.closing_margin,
+        )
+        q[list(f.flex_index)] = cl.q
+        closings.append((f, cl, int(np.count_nonzero(in_slice))))
+
+    # 3. verification in 3D: depth of the nearby points in every link
+    reach = max(prm.contact_distance, prm.penetration_tol)
+    ids, dists = _link_distances(ctx, T, q, reach)
+    corrected = {f.name: False for f, _, _ in closings}
+    bad = {ctx.link_names[j] for j, d in enumerate(dists) if np.any(d < -prm.penetration_tol)}
+    if bad:
+        for f, cl, _ in closings:
+            cols = [ctx.link_index[n] for n in (f.links[1], f.links[2])]
+            if not bad & {f.links[1], f.links[2]}:
+                continue
+            # open the finger back along its closing path until its links hold no point
+            ok_q = None
+            for q_flex in cl.path[::-1]:  # loop over closing steps (<= ~2 n_steps)
+                qq = q.copy()
+                qq[list(f.flex_index)] = q_flex
+                Tq = hand.box_poses(qq)[cols]
+                d = box_signed_distance(p_h, Tq, ctx.half[cols])
+                if not np.any(d < -prm.penetration_tol):
+                    ok_q = q_flex
+                    break
+            if ok_q is not None:
+                q[list(f.flex_index)] = ok_q
+                corrected[f.name] = True
+        ids, dists = _link_distances(ctx, T, q, reach)
+    fingers = tuple(
+        FingerTrace(
+            f.name,
+            n,
+            q[list(f.flex_index)].copy(),
+            tuple(c.link for c in cl.contacts),
+            bool(cl.palm_stop),
+            bool(cl.at_limits),
+            corrected[f.name],
+        )
+        for f, cl, n in closings
+    )
+    depth = np.array([-d.min() if len(d) else -np.inf for d in dists])
+    if depth.max() > prm.penetration_tol:
+        j = int(np.argmax(depth))
+        return rejected(
+            "penetration",
+            f"{ctx.link_names[j]} holds a point {depth[j] * 1e3:.1f} mm deep",
+            T, s, stop, q, fingers,
+        )  # fmt: skip
+    pairs = hand.self_collisions(q)
+    if pairs:
+        detail = f"{pairs[0][0]} and {pairs[0][1]}"
+        return rejected("self_collision", detail, T, s, stop, q, fingers)
+    below = _support_collision(ctx, T, q)
+    if below is not None:
+        detail = f"{below} below the support plane"
+        return rejected("support_collision", detail, T, s, stop, q, fingers)
+
+    # 4. contacts: one per link, the nearest cloud point within contact_distance
+    links, local, dist = [], [], []
+    for j, (sel, d) in enumerate(zip(ids, dists, strict=True)):  # loop over the ~10 links
+        if len(d) and d.min() <= prm.contact_distance:
+            k = int(np.argmin(d))
+            links.append(j)
+            local.append(sel[k])
+            dist.append(float(d[k]))
+    if not links:
+        return rejected("no_contact", "", T, s, stop, q, fingers)
+    pid = np.asarray(local, dtype=np.int64)
+    Tb = ctx.boxes(q)[0]
+    tangents = Tb[links, :3, 1] @ T[:3, :3].T  # link box y axes in the world
+    normals_in = -ctx.normals[pid]
+    contacts = tuple(
+        Contact(
+            ctx.points[p].copy(), normals_in[k].copy(), ctx.link_names[j], int(p), dist[k],
+            tangents[k].copy(),
+        )
+        for k, (j, p) in enumerate(zip(links, pid, strict=True))
+    )  # fmt: skip
+    # 5. quality
+    qual: GraspQuality = grasp_quality(ctx.points[pid], normals_in, prm.quality, tangents=tangents)
+    return Grasp(
+        i, gt, T, s, stop, q, fingers, contacts, qual.epsilon, qual.volume, None, None, qual.reason
+    )
+
+
+def rank_grasps(grasps: list[Grasp] | tuple[Grasp, ...]) -> np.ndarray:
+    """(K,) indices of the kept grasps, best first: epsilon, then volume, then contacts (all
+    descending), ties by pre-grasp index."""
+    kept = [k for k, g in enumerate(grasps) if g.kept]
+    if not kept:
+        return np.zeros(0, dtype=np.int64)
+    eps = np.array([grasps[k].epsilon for k in kept])
+    vol = np.array([grasps[k].volume for k in kept])
+    nc = np.array([grasps[k].n_contacts for k in kept])
+    order = np.lexsort((np.array(kept), -nc, -vol, -eps))
+    return np.asarray(kept, dtype=np.int64)[order]
+
+
+def plan_grasps(
+    points: np.ndarray,
+    normals: np.ndarray,
+    pool: Any,
+    hand: Any,
+    params: PlannerParams | None = None,
+    support: Any = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> GraspSet:
+    """Plan every pre-grasp of ``pool`` against the cloud.
+
+    points: (N, 3) metres, world; normals: (N, 3) unit outward normals of the cloud (see
+    :func:`cloud_normals`); pool: a ``PreGraspPool`` (``T_world_hand`` (P, 4, 4), ``q`` (P, J),
+    ``spread`` (P,), ``grasp_type`` (P,)); hand: ``pregrasp_core.hand.Hand``; support: the
+    ``SupportPlane`` (normal, height) or None; progress: called as ``progress(done, total)``.
+    """
+    prm = PlannerParams() if params is None else params
+    pts = np.asarray(points, dtype=np.float64)
+    nrm = np.asarray(normals, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points must have shape (N, 3), got {pts.shape}")
+    if nrm.shape != pts.shape:
+        raise ValueError(f"normals must have shape {pts.shape}, got {nrm.shape}")
+    P = len(pool)
+    joint_names = tuple(hand.joint_names)
+    if P and np.shape(pool.q)[1] != len(joint_names):
+        raise ValueError(
+            f"pool.q has {np.shape(pool.q)[1]} joints, the hand has {len(joint_names)}"
+        )
+    ctx = _Context(pts, nrm, hand, prm, support)
+    grasps: list[Grasp] = []
+    step = max(1, P // 100)
+    # one pre-grasp at a time: each has its own point sets, closing and hull; every step inside
+    # is vectorised over points, links and closing steps
+    for i in range(P):
+        grasps.append(_plan_one(ctx, pool, i))
+        if progress is not None and ((i + 1) % step == 0 or i + 1 == P):
+            progress(i + 1, P)
+    order = rank_grasps(grasps)
+    ranked = list(grasps)
+    for r, k in enumerate(order):
+        g = ranked[k]
+        ranked[k] = Grasp(**{**g.__dict__, "rank": r})
+    rejected = {key: 0 for key in REJECTION_REASONS}
+    for g in ranked:
+        if g.rejection is not None:
+            rejected[g.rejection] += 1
+    logger.info(
+        "planned %d pre-grasps: %d kept, %d force closure, rejected %s",
+        P,
+        len(order),
+        sum(g.epsilon > 0 for g in ranked),
+        rejected,
+    )
+    return GraspSet(tuple(ranked), order, joint_names, rejected)
+
+
+def cloud_normals(cloud: Any, params: NormalParams | None = None) -> np.ndarray:
+    """(N, 3) outward unit normals of a ``PointCloud`` by local PCA, oriented by its own normals
+    when it has them (mesh-sampled clouds), else by propagation (:mod:`pregrasp_core.normals`)."""
+    prm = NormalParams() if params is None else params
+    return estimate_normals(cloud.points, prm, reference=cloud.normals).normals
+
+
+# ------------------------------------------------------------------------------ result file
+
+
+def grasp_to_dict(g: Grasp, hand: Any) -> dict[str, Any]:
+    """One grasp as a JSON-ready dict (see ``docs/result-schema.md``, "grasps")."""
+    return {
+        "pregrasp": g.pregrasp,
+        "grasp_type": g.grasp_type,
+        "status": "kept" if g.kept else "rejected",
+        "rejection": g.rejection,
+        "detail": g.detail,
+        "rank": g.rank,
+        "epsilon": g.epsilon,
+        "volume": g.volume,
+        "n_contacts": g.n_contacts,
+        "T_world_hand": g.T_world_hand.tolist(),
+        "approach_distance": g.approach_distance,
+        "approach_stop": g.approach_stop,
+        "joints": hand.full_cfg(g.q),
+        "fingers": [
+            {
+                "finger": f.finger,
+                "n_slice": f.n_slice,
+                "q": f.q.tolist(),
+                "links_touched": list(f.links_touched),
+                "palm_stop": f.palm_stop,
+                "at_limits": f.at_limits,
+                "corrected": f.corrected,
+            }
+            for f in g.fingers
+        ],
+        "contacts": [
+            {
+                "link": c.link,
+                "point": c.point.tolist(),
+                "normal": c.normal.tolist(),
+                "point_index": c.point_index,
+                "distance": c.distance,
+            }
+            for c in g.contacts
+        ],
+    }
+
+
+def grasps_sections(gs: GraspSet, hand: Any, params: PlannerParams | None = None) -> dict:
+    """The ``grasps`` and ``best`` top-level sections of the result file."""
+    prm = PlannerParams() if params is None else params
+    best = gs.best
+    return {
+        "grasps": {
+            "n_pregrasps": len(gs),
+            "n_kept": int(len(gs.ranking)),
+            "n_force_closure": gs.n_force_closure,
+            "rejected": dict(gs.rejected),
+            "ranking": gs.ranking.tolist(),
+            "quality": {
+                "mu": prm.quality.mu,
+                "n_edges": prm.quality.n_edges,
+                "torque_scale": prm.quality.torque_scale,
+            },
+            "items": [grasp_to_dict(g, hand) for g in gs.grasps],
+        },
+        "best": best,
+    }

@@ -1,0 +1,323 @@
+"""The slicing contact planner on analytic objects: a cylinder in a cylindrical grasp, a flat box
+pinched with the three fingertips, penetration and contact checks with the hand's own
+point-in-link query (an implementation independent of the planner's box distances), rigid-motion
+invariance, rejections, ranking and the result-file sections."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from pregrasp_core.facemask import SupportPlane
+from pregrasp_core.hand import load_hand
+from pregrasp_core.normals import estimate_normals
+from pregrasp_core.planner import (
+    REJECTION_REASONS,
+    PlannerParams,
+    box_signed_distance,
+    grasps_sections,
+    plan_grasps,
+    rank_grasps,
+    sweep_hit,
+)
+from pregrasp_core.sampling import PreGraspPool
+
+
+@pytest.fixture(scope="module")
+def hand():
+    return load_hand()
+
+
+def _cloud(mesh: trimesh.Trimesh, n: int = 12000, seed: int = 0):
+    pts, face = trimesh.sample.sample_surface(mesh, n, seed=seed)
+    normals = estimate_normals(pts, reference=mesh.face_normals[face]).normals
+    return np.asarray(pts), normals
+
+
+def _pose(hand, gt, approach, closing, centre, back):
+    """Hand pose whose +z is ``approach``, +y is ``closing`` (made orthogonal), with the
+    preshape's grasp centre on the line through ``centre`` along the approach, ``back`` metres
+    before it."""
+    z = np.asarray(approach, float) / np.linalg.norm(approach)
+    y = np.asarray(closing, float) - z * (z @ closing)
+    y /= np.linalg.norm(y)
+    x = np.cross(y, z)
+    T = np.eye(4)
+    T[:3, :3] = np.c_[x, y, z]
+    T[:3, 3] = centre - T[:3, :3] @ hand.grasp_center(gt) - back * z
+    return T
+
+
+def _pool(hand, Ts, gt):
+    P = len(Ts)
+    Ts = np.asarray(Ts)
+    return PreGraspPool(
+        T_world_hand=Ts,
+        approach=Ts[:, :3, 2].copy(),
+        grasp_type=np.full(P, gt, dtype="<U16"),
+        spread=np.full(P, hand.spread_for(gt)),
+        q=np.tile(hand.preshape(gt), (P, 1)),
+        node=np.zeros(P, dtype=np.int64),
+        face=np.zeros(P, dtype=np.int64),
+        subface=np.zeros(P, dtype=np.int64),
+        surface=np.zeros(P, dtype=np.int64),
+        joint_names=tuple(hand.joint_names),
+    )
+
+
+def _cylinder_scene(hand, n_dirs=6):
+    """A 0.06 m x 0.15 m cylinder along z; side approaches, fingers closing across the axis."""
+    mesh = trimesh.creation.cylinder(radius=0.03, height=0.15)
+    angles = np.linspace(0.0, 2 * np.pi, n_dirs, endpoint=False)
+    Ts = [
+        _pose(hand, "cylindrical", [np.cos(a), np.sin(a), 0.0], [-np.sin(a), np.cos(a), 0.0],
+              np.array([0.0, 0.0, 0.01 * k]), 0.06)
+        for k, a in enumerate(angles)
+    ]  # fmt: skip
+    return mesh, _pool(hand, Ts, "cylindrical")
+
+
+def _flat_box_scene(hand, n_dirs=6):
+    """A 0.16 x 0.16 x 0.02 m plate (thin along z, longer than the fingers); approaches in the
+    xy plane, fingers closing along z (across the thin dimension)."""
+    mesh = trimesh.creation.box(extents=[0.16, 0.16, 0.02])
+    angles = np.linspace(0.0, 2 * np.pi, n_dirs, endpoint=False)
+    Ts = [
+        _pose(hand, "three_finger_tip", [np.cos(a), np.sin(a), 0.0], [0.0, 0.0, 1.0],
+              -0.08 * np.array([np.cos(a), np.sin(a), 0.0]), 0.04)
+        for a in angles
+    ]  # fmt: skip
+    return mesh, _pool(hand, Ts, "three_finger_tip")
+
+
+@pytest.fixture(scope="module")
+def cylinder_plan(hand):
+    mesh, pool = _cylinder_scene(hand)
+    pts, nrm = _cloud(mesh)
+    return pts, nrm, pool, plan_grasps(pts, nrm, pool, hand)
+
+
+@pytest.fixture(scope="module")
+def box_plan(hand):
+    mesh, pool = _flat_box_scene(hand)
+    pts, nrm = _cloud(mesh)
+    return pts, nrm, pool, plan_grasps(pts, nrm, pool, hand)
+
+
+def test_cylinder_cylindrical_grasp_has_contacts_on_both_sides_and_positive_epsilon(
+    hand, cylinder_plan
+):
+    pts, _, pool, gs = cylinder_plan
+    assert len(gs) == len(pool)
+    for g in gs.grasps:
+        assert g.kept, (g.rejection, g.detail)
+        assert g.epsilon > 0.0
+        links = {c.link for c in g.contacts}
+        assert links & {"thumb_middle", "thumb_distal"}
+        assert links & {"f1_middle", "f1_distal"} and links & {"f2_middle", "f2_distal"}
+        # the thumb pushes towards hand +y, f1/f2 towards -y: contacts on both sides of the axis
+        y_hand = g.T_world_hand[:3, 1]
+        for c in g.contacts:
+            side = np.dot(c.point[:2], y_hand[:2])
+            if c.link.startswith("thumb"):
+                assert side < -0.01
+            elif c.link.startswith(("f1", "f2")):
+                assert side > 0.01
+            # the force points into the cylinder: against the radial outward direction
+            radial = c.point[:2] / np.linalg.norm(c.point[:2])
+            if abs(c.point[2]) < 0.07:  # on the curved side, not a cap
+                assert np.dot(c.normal[:2], radial) < -0.9
+
+
+def test_flat_box_three_finger_tip_pinches_opposite_faces(hand, box_plan):
+    _, _, pool, gs = box_plan
+    for g in gs.grasps:
+        assert g.kept, (g.rejection, g.detail)
+        tips = {c.link: c for c in g.contacts if c.link.endswith("_distal")}
+        assert set(tips) == {"thumb_distal", "f1_distal", "f2_distal"}
+        # the thumb tip on the bottom face z = -0.01, the two finger tips on the top face
+        assert tips["thumb_distal"].point[2] == pytest.approx(-0.01, abs=1e-6)
+        assert tips["f1_distal"].point[2] == pytest.approx(0.01, abs=1e-6)
+        assert tips["f2_distal"].point[2] == pytest.approx(0.01, abs=1e-6)
+        assert np.allclose(tips["thumb_distal"].normal, [0, 0, 1], atol=0.05)
+        assert np.allclose(tips["f1_distal"].normal, [0, 0, -1], atol=0.05)
+
+
+@pytest.mark.parametrize("scene", ["cylinder_plan", "box_plan"])
+def test_final_hand_holds_no_point_deeper_than_tolerance(hand, scene, request):
+    pts, _, _, gs = request.getfixturevalue(scene)
+    tol = PlannerParams().penetration_tol
+    for g in gs.grasps:
+        if not g.kept:
+            continue
+        p_hand = (pts - g.T_world_hand[:3, 3]) @ g.T_world_hand[:3, :3]
+        # the hand's own query, boxes shrunk by the tolerance: nothing inside
+        assert not hand.points_in_hand(p_hand, g.q, margin=-tol).any()
+        assert hand.within_limits(g.q)
+        assert not hand.self_collision(g.q)
+
+
+@pytest.mark.parametrize("scene", ["cylinder_plan", "box_plan"])
+def test_every_contact_is_a_cloud_point_within_contact_distance_of_its_link(hand, scene, request):
+    pts, nrm, _, gs = request.getfixturevalue(scene)
+    d_max = PlannerParams().contact_distance
+    n_contacts = 0
+    for g in gs.grasps:
+        for c in g.contacts:
+            n_contacts += 1
+            assert np.array_equal(c.point, pts[c.point_index])
+            assert np.allclose(c.normal, -nrm[c.point_index])
+            p_hand = (c.point - g.T_world_hand[:3, 3]) @ g.T_world_hand[:3, :3]
+            inside = hand.points_in_links(p_hand[None], g.q, margin=d_max + 1e-9)[0]
+            assert inside[hand.link_names.index(c.link)]
+            assert -PlannerParams().penetration_tol <= c.distance <= d_max
+    assert n_contacts >= 4 * len(gs)
+
+
+def test_scores_and_contacts_unchanged_by_a_rigid_motion(hand):
+    mesh, pool = _cylinder_scene(hand, n_dirs=3)
+    pts, nrm = _cloud(mesh, n=8000)
+    base = plan_grasps(pts, nrm, pool, hand)
+    rng = np.random.default_rng(8)
+    M = np.eye(4)
+    M[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+    M[:3, 3] = rng.uniform(-0.5, 0.5, size=3)
+    moved_pool = _pool(hand, M @ pool.T_world_hand, "cylindrical")
+    moved = plan_grasps(pts @ M[:3, :3].T + M[:3, 3], nrm @ M[:3, :3].T, moved_pool, hand)
+    for a, b in zip(base.grasps, moved.grasps, strict=True):
+        assert a.rejection == b.rejection
+        assert a.epsilon == pytest.approx(b.epsilon, abs=1e-6)
+        assert a.volume == pytest.approx(b.volume, rel=1e-6, abs=1e-12)
+        assert [(c.link, c.point_index) for c in a.contacts] == [
+            (c.link, c.point_index) for c in b.contacts
+        ]
+        assert np.allclose(M @ a.T_world_hand, b.T_world_hand, atol=1e-9)
+        assert np.allclose(a.q, b.q, atol=1e-6)
+
+
+def test_rejections_and_support_stop(hand):
+    mesh = trimesh.creation.box(extents=[0.05, 0.08, 0.02])
+    pts, nrm = _cloud(mesh, n=4000)
+    gt = "three_finger_tip"
+    away = _pose(hand, gt, [1.0, 0.0, 0.0], [0, 0, 1.0], np.array([0.0, 0.3, 0.0]), 0.06)
+    towards = _pose(hand, gt, [1.0, 0.0, 0.0], [0, 0, 1.0], np.zeros(3), 0.06)
+    gs = plan_grasps(pts, nrm, _pool(hand, [away, towards], gt), hand)
+    assert gs.grasps[0].rejection == "nothing_ahead" and gs.grasps[0].rank is None
+    assert gs.grasps[1].kept and gs.best == 1 and gs.grasps[1].rank == 0
+    assert gs.rejected == {**{k: 0 for k in REJECTION_REASONS}, "nothing_ahead": 1}
+    # top-down over the box standing on a table at its bottom face: the open fingers reach
+    # the table before the palm reaches the box, so the table stops the approach
+    down = _pose(hand, "cylindrical", [0, 0, -1.0], [0, 1.0, 0], np.zeros(3), 0.15)
+    support = SupportPlane(normal=np.array([0.0, 0.0, 1.0]), height=-0.01)
+    gs2 = plan_grasps(pts, nrm, _pool(hand, [down], "cylindrical"), hand, support=support)
+    g = gs2.grasps[0]
+    assert g.approach_stop == "support"
+    clearance = PlannerParams().approach_clearance
+
+    def lowest(q):
+        v = hand.collision_mesh(q).vertices @ g.T_world_hand[:3, :3].T + g.T_world_hand[:3, 3]
+        return v[:, 2].min()
+
+    assert lowest(hand.preshape("cylindrical")) == pytest.approx(-0.01 + clearance, abs=1e-9)
+    if g.kept:
+        assert lowest(g.q) >= -0.01 - PlannerParams().penetration_tol
+    else:
+        assert g.rejection == "support_collision"
+
+
+def test_support_collision_check_uses_fcl_half_space(hand):
+    """The closed hand's boxes against the table: fcl's box/half-space test."""
+    from pregrasp_core.planner import _Context, _support_collision
+
+    q = hand.preshape("cylindrical")
+    lowest = hand.collision_mesh(q).vertices[:, 2].min()  # hand frame = world here
+    tol = PlannerParams().penetration_tol
+    pts = np.zeros((20, 3))
+    for height, expect in ((lowest + tol - 1e-4, None), (lowest + tol + 1e-4, "some link")):
+        ctx = _Context(
+            pts,
+            pts,
+            hand,
+            PlannerParams(),
+            SupportPlane(normal=np.array([0.0, 0.0, 1.0]), height=height),
+        )
+        got = _support_collision(ctx, np.eye(4), q)
+        assert (got is None) == (expect is None)
+        if got is not None:
+            assert got in hand.link_names
+
+
+def test_ranking_by_epsilon_then_volume(cylinder_plan, box_plan):
+    for _, _, _, gs in (cylinder_plan, box_plan):
+        eps = [gs.grasps[k].epsilon for k in gs.ranking]
+        assert eps == sorted(eps, reverse=True)
+        assert [gs.grasps[k].rank for k in gs.ranking] == list(range(len(gs.ranking)))
+        assert gs.best == gs.ranking[0]
+        assert np.array_equal(rank_grasps(gs.grasps), gs.ranking)
+
+
+def test_result_sections_are_json_ready(hand, box_plan):
+    _, _, pool, gs = box_plan
+    sec = grasps_sections(gs, hand)
+    doc = json.loads(json.dumps(sec))
+    assert doc["best"] == gs.best
+    items = doc["grasps"]["items"]
+    assert len(items) == len(pool)
+    best = items[gs.best]
+    assert best["rank"] == 0 and best["status"] == "kept"
+    assert set(best["joints"]) >= set(hand.joint_names)
+    assert best["contacts"][0].keys() >= {"link", "point", "normal", "point_index", "distance"}
+    assert np.asarray(best["T_world_hand"]).shape == (4, 4)
+
+
+def test_sweep_hit_against_stepping():
+    """First touch of moving oriented boxes, against a brute-force march in 0.1 mm steps."""
+    rng = np.random.default_rng(4)
+    for _ in range(5):
+        T = np.tile(np.eye(4), (2, 1, 1))
+        T[:, :3, :3] = Rotation.random(2, random_state=rng).as_matrix()
+        T[:, :3, 3] = rng.uniform(-0.02, 0.02, size=(2, 3))
+        half = rng.uniform(0.005, 0.02, size=(2, 3))
+        p = rng.uniform(-0.04, 0.04, size=(200, 3)) + [0.0, 0.0, 0.06]
+        d = np.array([0.0, 0.0, 1.0])
+        s, box = sweep_hit(p, T, half, d)
+        steps = np.arange(0.0, 0.2, 1e-4)
+        first = None
+        for st in steps:  # brute force over steps (test only)
+            Ts = T.copy()
+            Ts[:, :3, 3] += st * d
+            if (box_signed_distance(p, Ts, half) <= 0).any():
+                first = st
+                break
+        if first is None:
+            assert not np.isfinite(s)
+        else:
+            assert s == pytest.approx(first, abs=1.1e-4)
+            assert box in (0, 1)
+
+
+def test_box_signed_distance_matches_trimesh():
+    rng = np.random.default_rng(6)
+    T = np.eye(4)
+    T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+    T[:3, 3] = [0.01, -0.02, 0.03]
+    half = np.array([0.03, 0.02, 0.01])
+    mesh = trimesh.creation.box(extents=2 * half, transform=T)
+    p = rng.normal(scale=0.04, size=(300, 3)) + T[:3, 3]
+    ours = box_signed_distance(p, T[None], half[None])[:, 0]
+    theirs = -trimesh.proximity.signed_distance(mesh, p)  # trimesh: positive inside
+    assert np.allclose(ours, theirs, atol=1e-9)
+
+
+def test_parameter_and_shape_checks(hand):
+    with pytest.raises(ValueError, match="contact_distance"):
+        PlannerParams(contact_distance=0.0005, closing_margin=0.001)
+    with pytest.raises(ValueError, match="max_approach"):
+        PlannerParams(max_approach=0.0)
+    mesh, pool = _flat_box_scene(hand, n_dirs=1)
+    with pytest.raises(ValueError, match=r"normals must have shape \(10, 3\)"):
+        plan_grasps(np.zeros((10, 3)), np.zeros((9, 3)), pool, hand)
