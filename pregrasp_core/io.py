@@ -25,6 +25,7 @@ from __future__ import annotations
 import io as _io
 import logging
 import math
+import warnings
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -400,12 +401,15 @@ def _load_mesh(data: bytes, fmt: str, source: str, path: Path | None) -> Any:
     import trimesh
 
     try:
-        if fmt == "gltf" and path is not None:
-            # A .gltf on disk may reference .bin/.png files beside it: let trimesh resolve them.
-            scene = trimesh.load_scene(str(path), file_type="gltf")
-        else:
-            scene = trimesh.load_scene(_io.BytesIO(data), file_type=fmt)
-        mesh = scene.to_mesh()
+        # Numeric warnings from trimesh on absurd values: the checks after loading report them.
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)
+            if fmt == "gltf" and path is not None:
+                # A .gltf on disk may reference .bin/.png files beside it: let trimesh find them.
+                scene = trimesh.load_scene(str(path), file_type="gltf")
+            else:
+                scene = trimesh.load_scene(_io.BytesIO(data), file_type=fmt)
+            mesh = scene.to_mesh()
     except Exception as exc:  # noqa: BLE001 - any parser failure is the input's fault
         hint = (
             "; a GLTF uploaded alone must embed its buffers, export it as .glb"
@@ -443,6 +447,14 @@ def _sample_mesh(
         )
         faces = faces[keep]
         verts = np.where(bad_vert[:, None], 0.0, verts)
+    s = 1.0 if scale is None else float(scale)
+    largest = float(np.abs(verts).max()) * s if len(verts) else 0.0
+    if not largest <= MAX_COORDINATE:
+        raise InputError(
+            f"{source}: vertex coordinates reach {largest:.3g} m (after scale {s:g}), beyond "
+            f"{MAX_COORDINATE:.0e} m; the file is not in metres or is corrupt: check it, or "
+            "pass a scale"
+        )
     tri = verts[faces]  # (F, 3, 3)
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # (F, 3)
     area2 = np.linalg.norm(cross, axis=1)  # (F,) twice the areas
@@ -467,7 +479,6 @@ def _sample_mesh(
             f"{source}: {n_flipped} closed part(s) of the mesh are wound inside-out; "
             "their normals were flipped outwards",
         )
-    s = 1.0 if scale is None else float(scale)
     info = {
         "format": fmt,
         "kind": "mesh",
@@ -543,10 +554,8 @@ def _loadtxt(lines: list[str] | str, source: str, what: str) -> np.ndarray:
     text = lines if isinstance(lines, str) else "\n".join(lines)
     text = text.replace(",", " ")
     try:
-        import warnings as _warnings
-
-        with _warnings.catch_warnings():
-            _warnings.simplefilter("ignore")  # "input contained no data" -> handled below
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "input contained no data" -> handled below
             arr = np.loadtxt(_io.StringIO(text), dtype=np.float64, comments="#", ndmin=2)
     except ValueError as exc:
         msg = str(exc)

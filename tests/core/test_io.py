@@ -668,6 +668,9 @@ def test_huge_coordinates_refused():
         PointCloud.from_array(pts * 1e13)
     with pytest.raises(InputError, match=r"coordinates reach inf m \(after scale 1e\+300\)"):
         load_point_cloud_bytes(_npy(pts * 1e10), "big.npy", scale=1e300)
+    obj = b"v 0 0 0\nv 1e200 0 0\nv 0 1e200 0\nf 1 2 3\n"
+    with pytest.raises(InputError, match=r"huge\.obj: vertex coordinates reach 1e\+200 m"):
+        load_point_cloud_bytes(obj, "huge.obj")
 
 
 # ------------------------------------------------------------------------------------------------
