@@ -66,6 +66,11 @@ class MvbbParams:
     active_reach: float = 4.0
     """The pattern search rebuilds its active point set after moves totalling this many steps
     (a larger reach means fewer rebuilds but larger sets; any value is exact)."""
+    snap_angle: float = np.deg2rad(0.5)
+    """Hull facets whose normal is within this angle of an axis of the polished box are tried as
+    exact flush faces (final snap), radians."""
+    snap_max: int = 12
+    """At most this many facet normals are tried by the final snap."""
     max_iterations: int = 200
     """Upper bound on pattern-search iterations (a safeguard; typical runs need 20 to 40)."""
     refine_restart_level: int = 4
@@ -364,7 +369,67 @@ def _search(
         fine = np.union1d(fine, near)
         Vf = np.ascontiguousarray(Q[:, fine])
         cur = _pattern_search(cur, Vf, p, mid, n_levels)
-    return cur[0]
+    return _snap(cur[0], Q, radius, p)
+
+
+def _snap(R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams) -> np.ndarray:
+    """Snap the polished box ``R`` (3, 3) onto the exact hull faces near its faces.
+
+    The pattern search ends within ``step_min`` of a local optimum. When that optimum has a face
+    flush with a hull face (the usual case, and the only one face-normal methods consider), this
+    step makes it exact: the hull of the cloud points ``Q`` (3, N) near the box faces is built,
+    and for every hull facet whose normal is within ``snap_angle`` of a box axis, the box flush
+    with that facet is completed by the exact minimum-area rectangle of the projected hull
+    (rotating calipers over the projected silhouette edges). The best of these and ``R`` wins.
+    """
+    proj = R.T @ Q  # (3, N)
+    lo, hi = proj.min(axis=1), proj.max(axis=1)
+    margin = 2.0 * radius * np.sin(p.snap_angle) * 2.0
+    near = np.any((proj >= hi[:, None] - margin) | (proj <= lo[:, None] + margin), axis=0)
+    Z = Q[:, near]  # (3, z)
+    try:
+        hull = ConvexHull(Z.T)
+    except QhullError:
+        return R
+    normals = hull.equations[:, :3]  # (F, 3)
+    close = np.abs(normals @ R).max(axis=1) >= np.cos(p.snap_angle)  # (F,)
+    if not np.any(close):
+        return R
+    cand = _candidate_normals(normals[close], np.ones(int(close.sum())), p.snap_max)
+    W = Z[:, hull.vertices]  # (3, h)
+    # Hull edges as (facet, neighbour) pairs: the edge of facet f opposite its vertex i is shared
+    # with neighbours[f, i].
+    simp, nb = hull.simplices, hull.neighbors  # (F, 3) each
+    f_idx = np.repeat(np.arange(len(simp)), 3)
+    g_idx = nb.reshape(-1)
+    e0 = simp[:, [1, 2, 0]].reshape(-1)
+    e1 = simp[:, [2, 0, 1]].reshape(-1)
+    edge = Z[:, e1] - Z[:, e0]  # (3, 3F)
+    snapped = [R]
+    for n in cand:  # a few facets: small loop
+        s_f, s_g = normals[f_idx] @ n, normals[g_idx] @ n
+        sil = s_f * s_g <= 0.0  # silhouette edges bound the projected hull
+        frame = _frames_from_normals(n[None])[0]
+        eu, ev = frame[:, 0] @ edge[:, sil], frame[:, 1] @ edge[:, sil]
+        keep = np.hypot(eu, ev) > 0.0
+        theta = np.mod(np.arctan2(ev[keep], eu[keep]), 0.5 * np.pi)  # (s,)
+        # Only in-plane angles near the polished box's: the near points Z decide those boxes.
+        r = R[:, int(np.argmin(np.abs(R.T @ n)))]  # a box axis in the facet plane
+        phi = np.mod(np.arctan2(frame[:, 1] @ r, frame[:, 0] @ r), 0.5 * np.pi)
+        gap = np.abs(np.mod(theta - phi + 0.25 * np.pi, 0.5 * np.pi) - 0.25 * np.pi)
+        theta = theta[gap <= 4.0 * p.snap_angle]
+        if len(theta) == 0:
+            continue
+        w = frame.T @ W  # (3, h)
+        c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
+        x = c * w[0] + s * w[1]  # (s, h)
+        y = c * w[1] - s * w[0]
+        k = int(np.argmin((x.max(axis=1) - x.min(axis=1)) * (y.max(axis=1) - y.min(axis=1))))
+        ck, sk = float(c[k, 0]), float(s[k, 0])
+        snapped.append(frame @ np.array([[ck, -sk, 0.0], [sk, ck, 0.0], [0.0, 0.0, 1.0]]))
+    Rs = np.stack(snapped)  # (1 + k, 3, 3): true volumes on the whole cloud decide
+    best_R = Rs[int(np.argmin(_volumes(Rs, Q)))]
+    return best_R
 
 
 def _n_levels(p: MvbbParams) -> int:
