@@ -48,9 +48,12 @@ POOL_CONTROLS: tuple[tuple[str, str, str, float, float, float], ...] = (
 
 def _fmt_mask(mask: np.ndarray) -> str:
     """A 6 x 5 face mask as a markdown table (rows: face f with its l, d, r, u neighbours)."""
+    from pregrasp_core.facemask import FACE_NAMES
+
     rows = ["| face | f | l | d | r | u |", "|---|---|---|---|---|---|"]
     for f in range(mask.shape[0]):
-        rows.append(f"| {f} | " + " | ".join(str(int(x)) for x in mask[f]) + " |")
+        cells = " | ".join(str(int(x)) for x in mask[f])
+        rows.append(f"| {f} ({FACE_NAMES[f]}) | {cells} |")
     return "\n".join(rows)
 
 

@@ -60,6 +60,14 @@ def test_threshold_change_changes_the_boxes(page, live_app, shots_dir):
     page.get_by_text(f"boxes: {expected}", exact=True).wait_for(timeout=LOAD_TIMEOUT_MS)
     assert _boxes_in_page(page) == expected == _scene_box_count(live_app)
     assert live_app.controller.state.params.decomposition.volume_ratio == float(ratio)
+    # a second browser sees the same shared state (docs/app.md: one state per server)
+    other = page.context.new_page()
+    try:
+        other.goto(page.url)
+        other.get_by_text(f"boxes: {expected}", exact=True).wait_for(timeout=LOAD_TIMEOUT_MS)
+        assert other.get_by_label("volume ratio", exact=True).input_value() == ratio
+    finally:
+        other.close()
 
 
 def test_plan_shows_ranked_table_and_pick_a_grasp(page, live_app, shots_dir):

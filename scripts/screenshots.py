@@ -1,0 +1,118 @@
+"""Take the documentation screenshots from the real app in headless Chromium.
+
+Starts the app on a free port (default object unless INPUT is given), opens it in Debian's
+Chromium through Python playwright, sets up each view through the app's controller (the same
+actions the GUI runs) and saves ``docs/screenshots/{decomposition,face_masks,pregrasps,
+grasp}.png``.
+
+    .venv/bin/python scripts/screenshots.py [INPUT] [--out docs/screenshots] [--points 20000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+    "--disable-sync",
+]
+
+
+def _settle(page, app) -> None:
+    """Wait until the page shows the scene's box count and two frames have been drawn."""
+    page.get_by_text(f"boxes: {app.scene.n_boxes}", exact=True).wait_for(timeout=120_000)
+    page.wait_for_load_state("networkidle")
+    for _ in range(3):
+        page.evaluate(
+            "() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))"
+        )
+
+
+def _close_notifications(page) -> None:
+    """Close the browser's notifications (e.g. 'software WebGL') so they do not cover the view."""
+    for btn in page.locator(".mantine-Notification-root button").all():
+        try:
+            btn.click(timeout=2000)
+        except Exception:  # noqa: BLE001 - a notification may close by itself meanwhile
+            pass
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description="documentation screenshots of the real app")
+    ap.add_argument("input", nargs="?", type=Path, help="object to show (default: the mug)")
+    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "screenshots")
+    ap.add_argument("--points", type=int, default=20000)
+    ap.add_argument("--chromium", default="/usr/bin/chromium")
+    args = ap.parse_args()
+
+    import viser
+    from playwright.sync_api import sync_playwright
+
+    from app.server import ViewerConfig, run
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    app = run(ViewerConfig(input=args.input, n_points=args.points), server)
+    c = app.controller
+    try:
+        with sync_playwright() as p:
+            ctx = p.chromium.launch_persistent_context(
+                user_data_dir=tempfile.mkdtemp(prefix="pregrasp-shots-"),
+                executable_path=args.chromium,
+                headless=True,
+                args=CHROMIUM_ARGS,
+                viewport={"width": 1600, "height": 900},
+            )
+            page = ctx.new_page()
+            page.goto(f"http://127.0.0.1:{server.get_port()}")
+            page.get_by_text(re.compile(r"^boxes: \d+$")).wait_for(timeout=120_000)
+            _close_notifications(page)
+
+            def shot(name: str) -> None:
+                _settle(page, app)
+                _close_notifications(page)
+                path = args.out / f"{name}.png"
+                page.screenshot(path=str(path))
+                print(f"wrote {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}")
+
+            c.set_ghosts_visible(False)
+            c.set_face_masks_visible(False)
+            shot("decomposition")
+
+            c.set_face_masks_visible(True)
+            s = c.state
+            c.select_node(max(s.tree.leaves(), key=lambda i: len(s.tree.node(i).indices)))
+            shot("face_masks")
+
+            c.set_face_masks_visible(False)
+            c.select_node(None)
+            c.set_ghosts_visible(True)
+            shot("pregrasps")
+
+            c.set_ghosts_visible(False)
+            c.plan()
+            if c.state.view.selected_grasp is None:
+                print("no grasp was planned: grasp.png not written", file=sys.stderr)
+                return 1
+            c.set_anim_t(1.0)
+            shot("grasp")
+            ctx.close()
+    finally:
+        app.close()
+        server.stop()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
