@@ -198,6 +198,17 @@ class GraspSet:
     def __len__(self) -> int:
         return len(self.grasps)
 
+    def __iter__(self):
+        return iter(self.grasps)
+
+    def __getitem__(self, i: int) -> Grasp:
+        return self.grasps[i]
+
+    @property
+    def ranked(self) -> list[Grasp]:
+        """The kept grasps, best first."""
+        return [self.grasps[i] for i in self.ranking]
+
     @property
     def best(self) -> int | None:
         """Index into ``grasps`` of the best grasp, or None when every pre-grasp was rejected."""
@@ -239,30 +250,45 @@ def sweep_hit(
     any clearance), direction: (3,) unit, all in one frame. Returns ``(s, box index)``, or
     ``(inf, -1)`` when no point is ever touched. Exact slab intersection per (point, box).
     """
-    if len(p) == 0:
+    p = np.asarray(p, dtype=np.float64)
+    T = np.asarray(T_boxes, dtype=np.float64)
+    if len(p) == 0 or len(T) == 0:
         return np.inf, -1
-    R = T_boxes[:, :3, :3]
-    L = R.shape[0]
-    a = (p @ R.transpose(1, 0, 2).reshape(3, 3 * L)).reshape(-1, L, 3)
-    a -= np.einsum("li,lij->lj", T_boxes[:, :3, 3], R)[None]  # (M, L, 3) box coordinates
-    d = np.einsum("i,lij->lj", direction, R)  # (L, 3): the motion in box coordinates
-    # relative to the box a point moves by -s d: |a - s d| <= half on every axis
+    # rotate everything so that the motion is along +z, then test every (point, box) pair
+    z = np.asarray(direction, dtype=np.float64) / np.linalg.norm(direction)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    F = np.stack([x, np.cross(z, x), z])  # rows: the new frame's axes
+    Tz = T.copy()
+    Tz[:, :3, :3] = F @ T[:, :3, :3]
+    Tz[:, :3, 3] = T[:, :3, 3] @ F.T
+    ip, il = np.divmod(np.arange(len(p) * len(T)), len(T))
+    s, k = _sweep_pairs(p[ip] @ F.T, Tz[il], np.asarray(half, dtype=np.float64)[il])
+    return (s, int(il[k])) if np.isfinite(s) else (np.inf, -1)
+
+
+def _sweep_pairs(p: np.ndarray, T: np.ndarray, half: np.ndarray) -> tuple[float, int]:
+    """First travel along +z (the frame's z axis) at which box k (pose ``T[k]``, half extents
+    ``half[k]``) touches point ``p[k]``, minimised over the K pairs: ``(s, k)``, or
+    ``(inf, -1)`` if never."""
+    R = T[:, :3, :3]  # (K, 3, 3)
+    a = np.einsum("ki,kij->kj", p - T[:, :3, 3], R)  # (K, 3) box coordinates
+    d = R[:, 2, :]  # (K, 3) = R^T e_z: the motion in box coordinates
     small = np.abs(d) < 1e-12
     d_safe = np.where(small, 1.0, d)
     t1 = (a - half) / d_safe
     t2 = (a + half) / d_safe
-    lo = np.minimum(t1, t2)
-    hi = np.maximum(t1, t2)
     inside_axis = np.abs(a) <= half
-    lo = np.where(small, np.where(inside_axis, -np.inf, np.inf), lo)
-    hi = np.where(small, np.where(inside_axis, np.inf, -np.inf), hi)
-    s_in = lo.max(axis=2)  # (M, L)
-    s_out = hi.min(axis=2)
+    lo = np.where(small, np.where(inside_axis, -np.inf, np.inf), np.minimum(t1, t2))
+    hi = np.where(small, np.where(inside_axis, np.inf, -np.inf), np.maximum(t1, t2))
+    s_in, s_out = lo.max(axis=1), hi.min(axis=1)
     hit = (s_in <= s_out) & (s_out >= 0.0)
+    if not hit.any():
+        return np.inf, -1
     s = np.where(hit, np.maximum(s_in, 0.0), np.inf)
     k = int(np.argmin(s))
-    s_min = float(s.flat[k])
-    return (s_min, k % L) if np.isfinite(s_min) else (np.inf, -1)
+    return float(s[k]), k
 
 
 # ------------------------------------------------------------------------------ planner
@@ -318,22 +344,14 @@ def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray, p_h: np.ndarray) -> 
     c = prm.approach_clearance
     S = prm.max_approach
     Tb, lo, hi = ctx.boxes(q)
-    ez = np.array([0.0, 0.0, 1.0])
-    s_obj = np.inf
-    # per link: only the points in front of it within its footprint across the approach
-    x, y, z = p_h[:, 0], p_h[:, 1], p_h[:, 2]
-    for j in range(len(ctx.link_names)):  # loop over the ~10 links
-        sel = (
-            (x >= lo[j, 0] - c)
-            & (x <= hi[j, 0] + c)
-            & (y >= lo[j, 1] - c)
-            & (y <= hi[j, 1] + c)
-            & (z >= lo[j, 2] - c)
-            & (z <= hi[j, 2] + c + min(S, s_obj))
-        )
-        if sel.any():
-            s_j, _ = sweep_hit(p_h[sel], Tb[j : j + 1], ctx.half[j : j + 1] + c, ez)
-            s_obj = min(s_obj, s_j)
+    # (point, link) pairs: the point lies in front of the link, within its footprint across the
+    # approach (the hand-frame AABB of its box grown by the clearance)
+    inside = (
+        (p_h[:, None, :2] >= lo[None, :, :2] - c) & (p_h[:, None, :2] <= hi[None, :, :2] + c)
+    ).all(axis=2)
+    inside &= (p_h[:, None, 2] >= lo[None, :, 2] - c) & (p_h[:, None, 2] <= hi[None, :, 2] + c + S)
+    ip, il = np.nonzero(inside)  # (K,) point and link of each candidate pair
+    s_obj = _sweep_pairs(p_h[ip], Tb[il], ctx.half[il] + c)[0] if len(ip) else np.inf
     s_sup = np.inf
     if ctx.support is not None:
         n = np.asarray(ctx.support.normal, dtype=np.float64)

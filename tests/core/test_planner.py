@@ -282,8 +282,9 @@ def test_sweep_hit_against_stepping():
         T[:, :3, :3] = Rotation.random(2, random_state=rng).as_matrix()
         T[:, :3, 3] = rng.uniform(-0.02, 0.02, size=(2, 3))
         half = rng.uniform(0.005, 0.02, size=(2, 3))
-        p = rng.uniform(-0.04, 0.04, size=(200, 3)) + [0.0, 0.0, 0.06]
-        d = np.array([0.0, 0.0, 1.0])
+        d = rng.normal(size=3) + [0.0, 0.0, 2.0]
+        d /= np.linalg.norm(d)
+        p = rng.uniform(-0.04, 0.04, size=(200, 3)) + 0.06 * d
         s, box = sweep_hit(p, T, half, d)
         steps = np.arange(0.0, 0.2, 1e-4)
         first = None
