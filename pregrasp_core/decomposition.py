@@ -210,6 +210,10 @@ def best_cut(p_box: np.ndarray, min_points: int) -> tuple[int, int, np.ndarray, 
     """
     p = _as_points(p_box, "p_box")
     n = p.shape[0]
+    if isinstance(min_points, bool) or not isinstance(min_points, (int, np.integer)):
+        raise ValueError(f"min_points must be an integer >= 1, got {min_points!r}")
+    if min_points < 1:
+        raise ValueError(f"min_points must be an integer >= 1, got {min_points!r}")
     if n < 2 * min_points:
         return None
     best: tuple[int, int, np.ndarray, float] | None = None

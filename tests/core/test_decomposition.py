@@ -283,6 +283,9 @@ def test_best_cut_none_when_no_valid_cut():
     assert best_cut(p, min_points=5) is None
     same = np.zeros((20, 3))  # all coordinates equal: no cut between distinct values
     assert best_cut(same, min_points=2) is None
+    for bad in (0, 1.5):
+        with pytest.raises(ValueError, match="min_points must be an integer >= 1"):
+            best_cut(p, min_points=bad)
 
 
 def test_tree_navigation():
