@@ -287,8 +287,9 @@ def grasp_table(s: AppState) -> str:
         "| # | type | node | contacts | epsilon | volume |",
         "|---|---|---|---|---|---|",
     ]
+    pool = getattr(s.result, "pool", None)
     for k, g in enumerate(ranked[:TABLE_ROWS]):
-        node = getattr(g, "node", "")
+        node = "" if pool is None else int(np.asarray(pool.node)[int(g.pregrasp)])
         rows.append(
             f"| {k + 1} | {_type_of(g)} | {node} | {len(contact_arrays(g)[0])} | "
             f"{float(g.epsilon):.4f} | {float(getattr(g, 'volume', 0.0)):.2e} |"
