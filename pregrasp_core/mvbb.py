@@ -76,7 +76,7 @@ class MvbbParams:
     refine_restart_level: int = 4
     """After adding the cloud points near the polished boxes, the pattern search restarts at
     step ``step_start / 2**refine_restart_level``."""
-    polish_grid: int = 32
+    polish_grid: int = 16
     """Columns per side of the grid that thins the cloud points added for the final polish."""
     max_rounds: int = 2
     """Rounds of adding cloud points and re-polishing (stops early when nothing is added)."""
@@ -377,7 +377,8 @@ def _snap(R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams) -> np.ndar
 
     The pattern search ends within ``step_min`` of a local optimum. When that optimum has a face
     flush with a hull face (the usual case, and the only one face-normal methods consider), this
-    step makes it exact: the hull of the cloud points ``Q`` (3, N) near the box faces is built,
+    step makes it exact: the hull of the cloud points ``Q`` (3, N) near the box faces (thinned to
+    the extremes of a ``polish_grid`` grid of columns in the box frame) is built,
     and for every hull facet whose normal is within ``snap_angle`` of a box axis, the box flush
     with that facet is completed by the exact minimum-area rectangle of the projected hull
     (rotating calipers over the projected silhouette edges). The best of these and ``R`` wins.
@@ -385,7 +386,10 @@ def _snap(R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams) -> np.ndar
     proj = R.T @ Q  # (3, N)
     lo, hi = proj.min(axis=1), proj.max(axis=1)
     margin = 2.0 * radius * np.sin(p.snap_angle) * 2.0
-    near = np.any((proj >= hi[:, None] - margin) | (proj <= lo[:, None] + margin), axis=0)
+    near = np.flatnonzero(
+        np.any((proj >= hi[:, None] - margin) | (proj <= lo[:, None] + margin), axis=0)
+    )
+    near = near[_kernel_mask(proj[:, near], lo, hi - lo, p.polish_grid)]  # thinned
     Z = Q[:, near]  # (3, z)
     try:
         hull = ConvexHull(Z.T)
