@@ -6,11 +6,12 @@ Python, which runs exactly the callback a browser's edit runs (re-run the decomp
 everything downstream, redraw, update the GUI), and stops the clock when the client has received
 the frame carrying the new "boxes: N" label, which the app sends after the scene update.
 
-Columns: points; pipeline = the pipeline stages re-run by the change (decompose, classify, face
-masks, pool; from the result's timings); callback = the whole callback on the server (pipeline +
-scene + GUI); received = threshold change to the client holding the new scene (median, min and
-max over the trials). Timings are wall-clock on one machine; under load they are noisy, so the
-rows of one run are compared with each other.
+Rows: a volume-ratio change (re-runs the decomposition and everything downstream) and a level
+slider change (no pipeline stage: boxes, colours and face masks redrawn). Columns: pipeline =
+the pipeline stages the change re-ran (from the result's timings, reused stages excluded);
+callback = the whole callback on the server (pipeline + scene + GUI); received = the change
+until the client has received the new scene (median, min and max over the trials). Timings
+are wall-clock on one machine; under load they are noisy, so compare rows of one run.
 
     .venv/bin/python benchmarks/bench_app.py [--points 20000 200000] [--trials 7]
 """
@@ -88,44 +89,58 @@ class Listener:
         self.ws.close()
 
 
-def bench(n_points: int, trials: int) -> dict:
+def _trials(app, listener, handle, values, trials: int) -> dict:
+    """Alternate ``handle`` between ``values`` (two settings with different box counts); time
+    each change until the client has received the new "boxes: N" label."""
+    cb, rx, pipe = [], [], []
+    counts = set()
+    for k in range(trials + 1):
+        before = app.controller.state.result
+        t0 = time.perf_counter()
+        handle.value = values[k % 2]
+        t1 = time.perf_counter()
+        s = app.controller.state
+        assert s.error == "", s.error
+        counts.add(app.scene.n_boxes)
+        t2 = listener.wait_for(f"boxes: {app.scene.n_boxes}".encode(), after=t0)
+        if k == 0:
+            continue  # warm-up
+        cb.append(t1 - t0)
+        rx.append(t2 - t0)
+        ran = s.result is not before  # a view change keeps the result: no stage ran
+        pipe.append(
+            sum(t for st, t in s.result.timings.items() if st not in s.result.reused) if ran else 0
+        )
+    if len(counts) < 2:
+        raise SystemExit(f"{values} give the same box count; the client would wait forever")
+    return {
+        "pipeline": statistics.median(pipe),
+        "callback": statistics.median(cb),
+        "received": statistics.median(rx),
+        "min": min(rx),
+        "max": max(rx),
+    }
+
+
+def bench(n_points: int, trials: int) -> list[dict]:
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     app = run(ViewerConfig(n_points=n_points), server)
     listener = Listener(server.get_port())
     try:
         time.sleep(1.0)  # let the client receive the initial scene
-        handle = app.gui.params[("decomposition", "volume_ratio")]
-        # alternate between two ratios with different part counts, so that every change re-runs
-        # the whole pipeline and changes the "boxes: N" label the client waits for
-        ratios = (0.5, 0.9)
-        cb, rx, pipe = [], [], []
-        for k in range(trials + 1):
-            r = ratios[k % 2]
-            t0 = time.perf_counter()
-            handle.value = r
-            t1 = time.perf_counter()
-            s = app.controller.state
-            assert s.error == "", s.error
-            label = f"boxes: {app.scene.n_boxes}".encode()
-            t2 = listener.wait_for(label, after=t0)
-            if k == 0:
-                n_first = app.scene.n_boxes
-                continue  # warm-up
-            if k == 1 and app.scene.n_boxes == n_first:
-                raise SystemExit(f"volume ratios {ratios} give the same part count at {n_points}")
-            cb.append(t1 - t0)
-            rx.append(t2 - t0)
-            pipe.append(sum(s.result.timings.get(st, 0.0) for st in s.result.timings))
-        return {
-            "points": n_points,
-            "boxes": app.scene.n_boxes,
-            "pool": len(app.controller.state.result.pool),
-            "pipeline": statistics.median(pipe),
-            "callback": statistics.median(cb),
-            "received": statistics.median(rx),
-            "min": min(rx),
-            "max": max(rx),
-        }
+        rows = []
+        # volume ratio 0.5 <-> 0.9: two part counts on the mug, every change re-runs the whole
+        # pipeline (decomposition, classes, face masks, pool) and redraws everything
+        h = app.gui.params[("decomposition", "volume_ratio")]
+        r = _trials(app, listener, h, (0.5, 0.9), trials)
+        rows.append({"change": "volume ratio", **r})
+        # level slider root <-> leaves: no pipeline stage, redraw boxes, colours, face masks
+        n = app.controller.state.tree.n_splits
+        r = _trials(app, listener, app.gui.level, (0, n), trials)
+        rows.append({"change": "level slider", **r})
+        for row in rows:
+            row.update(points=n_points, pool=len(app.controller.state.result.pool))
+        return rows
     finally:
         listener.close()
         app.close()
@@ -141,18 +156,20 @@ def main() -> None:
         f"# {platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}, "
         f"viser {viser.__version__}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}"
     )
-    print(f"# {args.trials} threshold changes per row (volume ratio 0.5 <-> 0.9), medians in ms")
+    print(
+        f"# {args.trials} changes per row after one warm-up; medians in ms (min, max of received)"
+    )
     print()
-    print("| points | boxes | pool | pipeline (ms) | callback (ms) | received (ms) | min | max |")
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("| points | change | pool | pipeline (ms) | callback (ms) | received (ms) | min | max |")
+    print("|---:|---|---:|---:|---:|---:|---:|---:|")
     for n in args.points:
-        r = bench(n, args.trials)
-        print(
-            f"| {r['points']:,} | {r['boxes']} | {r['pool']} | {r['pipeline'] * 1e3:.0f} | "
-            f"{r['callback'] * 1e3:.0f} | {r['received'] * 1e3:.0f} | {r['min'] * 1e3:.0f} | "
-            f"{r['max'] * 1e3:.0f} |",
-            flush=True,
-        )
+        for r in bench(n, args.trials):
+            print(
+                f"| {r['points']:,} | {r['change']} | {r['pool']} | {r['pipeline'] * 1e3:.0f} | "
+                f"{r['callback'] * 1e3:.0f} | {r['received'] * 1e3:.0f} | {r['min'] * 1e3:.0f} | "
+                f"{r['max'] * 1e3:.0f} |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":
