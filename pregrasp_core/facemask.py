@@ -9,12 +9,14 @@ Conventions (``docs/conventions.md``, "Faces, adjacency and sub-faces"):
   are -right, -up, +right and +up.
 - The face mask of a box is a 6 x 5 matrix of 0 (free) and 1 (blocked); row ``f`` is
   ``[f, l(f), d(f), r(f), u(f)]``.
-- A face is blocked by a *blocker box* when the blocker penetrates by more than
-  ``overlap_tolerance`` the slab in front of the face (the face's rectangle pushed outwards by
-  ``clearance``), and by the support plane when that slab reaches more than
-  ``support_tolerance`` below the plane. The blockers of node ``n`` are the boxes of the current
-  decomposition (a cut of the tree, the leaves by default) that are neither ``n`` nor one of its
-  ancestors or descendants.
+- A face is blocked by *blocker boxes* when they penetrate the slab in front of the face (the
+  face's rectangle pushed outwards by ``clearance``) by more than ``overlap_tolerance`` and
+  together cover at least ``min_coverage`` of the face's area (probed on a grid). It is blocked
+  by the support plane when that slab reaches more than ``support_tolerance`` below the plane
+  (or below the box's own lowest corner, when that is lower: a tilted box pokes below the table
+  without facing it). The blockers of node ``n`` are the boxes of the current decomposition (a
+  cut of the tree, the leaves by default) that are neither ``n`` nor one of its ancestors or
+  descendants.
 - Each face is divided into a grid of sub-faces that depends on the grasp type
   (:data:`SUBFACE_SCHEMES`): cell ``(col, row)`` with ``col`` along ``right`` from the left edge
   and ``row`` along ``up`` from the bottom edge has index ``s = row * n_cols + col``. A cell
@@ -101,6 +103,10 @@ class FaceMaskParams:
     """Metres: a blocker must penetrate a face's slab deeper than this to block the face (boxes
     that merely touch the slab's border, e.g. a part sitting flush on top of the face's edge,
     do not block)."""
+    min_coverage: float = 0.05
+    """Fraction (0..1] of a face's area that boxes in front of it (within the clearance) must
+    cover for the face to be blocked; a blocker that only grazes a corner of the slab leaves
+    the face free (partial contact is left to the hand's collision test)."""
     support: bool = True
     """Whether a support plane (a table under the object) blocks faces."""
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
@@ -118,6 +124,12 @@ class FaceMaskParams:
             if not (np.isfinite(v) and v >= 0.0):
                 raise ValueError(f"{name} must be a length >= 0 in metres, got {v!r}")
             object.__setattr__(self, name, float(v))
+        mc = self.min_coverage
+        if isinstance(mc, bool) or not isinstance(mc, (int, float, np.floating, np.integer)):
+            raise ValueError(f"min_coverage must be a fraction in (0, 1], got {mc!r}")
+        if not (np.isfinite(mc) and 0.0 < mc <= 1.0):
+            raise ValueError(f"min_coverage must be a fraction in (0, 1], got {mc!r}")
+        object.__setattr__(self, "min_coverage", float(mc))
         up = np.asarray(self.up, dtype=np.float64)
         if up.shape != (3,) or not np.all(np.isfinite(up)) or np.linalg.norm(up) < GEOM_EPS:
             raise ValueError(f"up must be a non-zero finite 3-vector, got {self.up!r}")
@@ -234,6 +246,49 @@ def obb_penetration(
     return overlap.min(axis=-1)
 
 
+COVERAGE_GRID: int = 10
+"""Cells per side of the grid a face's coverage by blockers is measured on (1 % resolution)."""
+
+COVERAGE_DEPTHS: int = 3
+"""Depths (evenly spread through the clearance) the coverage grid is probed at."""
+
+
+def face_probe_points(box: OrientedBox, face: int, clearance: float) -> np.ndarray:
+    """(G * G, D, 3) world points probing the slab in front of ``face``: one column of
+    ``D = COVERAGE_DEPTHS`` points in front of the centre of each of the ``G x G`` cells
+    (``G = COVERAGE_GRID``) of the face."""
+    h = box.half_extents
+    G, D = COVERAGE_GRID, COVERAGE_DEPTHS
+    hr, hu = float(np.abs(FACE_RIGHT[face]) @ h), float(np.abs(FACE_UP[face]) @ h)
+    c = (np.arange(G) + 0.5) / G * 2.0 - 1.0  # (G,) cell centres in [-1, 1]
+    r, u = np.meshgrid(c * hr, c * hu, indexing="ij")
+    depth = h[FACE_AXIS[face]] + clearance * (np.arange(D) + 0.5) / D  # (D,)
+    p_box = (
+        r.reshape(-1, 1, 1) * FACE_RIGHT[face]
+        + u.reshape(-1, 1, 1) * FACE_UP[face]
+        + depth[None, :, None] * FACE_NORMAL[face]
+    )  # (G*G, D, 3)
+    return box.to_world(p_box.reshape(-1, 3)).reshape(G * G, D, 3)
+
+
+def face_coverage(
+    box: OrientedBox, face: int, blockers: Sequence[OrientedBox], clearance: float
+) -> np.ndarray:
+    """(B,) fraction of ``face``'s cells that each blocker covers within ``clearance`` in front
+    of the face, and, as the last entry, the fraction covered by any of them: shape (B + 1,)."""
+    probes = face_probe_points(box, face, clearance)  # (C, D, 3)
+    if not blockers:
+        return np.zeros(1)
+    Cb = np.stack([b.center for b in blockers])  # (B, 3)
+    Rb = np.stack([b.rotation for b in blockers])  # (B, 3, 3)
+    Hb = np.stack([b.half_extents for b in blockers])  # (B, 3)
+    local = (
+        np.einsum("cdj,bjk->bcdk", probes, Rb) - np.einsum("bj,bjk->bk", Cb, Rb)[:, None, None, :]
+    )  # (B, C, D, 3) probe points in each blocker's frame
+    inside = np.all(np.abs(local) <= Hb[:, None, None, :], axis=-1).any(axis=-1)  # (B, C)
+    return np.concatenate([inside.mean(axis=1), [inside.any(axis=0).mean()]])
+
+
 # ----------------------------------------------------------------------------- face masks
 
 
@@ -246,7 +301,8 @@ class FaceMasks:
     by_support: np.ndarray
     """(K, 6) bool: the support plane blocks face ``f`` of node ``k``."""
     blockers: tuple[tuple[tuple[int, ...], ...], ...]
-    """``blockers[k][f]``: ids of the boxes that block face ``f`` of node ``k`` (ascending)."""
+    """``blockers[k][f]``: ids of the boxes in front of face ``f`` of node ``k`` (ascending;
+    they block it when together they cover ``min_coverage`` of it)."""
     cut: tuple[int, ...]
     """Ids of the boxes of the current decomposition (the possible blockers)."""
     support: SupportPlane | None
@@ -280,7 +336,12 @@ def face_mask_matrix(blocked: np.ndarray) -> np.ndarray:
 def blocked_by_support(
     box: OrientedBox | Sequence[OrientedBox], support: SupportPlane, params: FaceMaskParams
 ) -> np.ndarray:
-    """(6,) or (K, 6) bool: whether the slab in front of each face reaches below the plane."""
+    """(6,) or (K, 6) bool: whether the slab in front of each face reaches below the plane.
+
+    The depth is measured from ``min(plane, lowest corner of the box)``: a box tilted against
+    the table has a corner below its lowest point, and only the faces whose slab reaches further
+    down than that (the faces that look at the table) are blocked.
+    """
     boxes = [box] if isinstance(box, OrientedBox) else list(box)
     out = np.zeros((len(boxes), 6), dtype=bool)
     for k, b in enumerate(boxes):  # loop over nodes
@@ -288,7 +349,8 @@ def blocked_by_support(
         # lowest point of each slab along the normal: centre minus the projected half extents
         proj = np.abs(b.rotation.T @ support.normal)  # (3,) |axis . up|
         lowest = centers @ support.normal - half @ proj  # (6,)
-        out[k] = lowest < support.height - params.support_tolerance
+        box_lowest = float(b.center @ support.normal - b.half_extents @ proj)
+        out[k] = lowest < min(support.height, box_lowest) - params.support_tolerance
     return out[0] if isinstance(box, OrientedBox) else out
 
 
@@ -338,10 +400,15 @@ def compute_face_masks(
             R[pb][:, None],
             H[pb][:, None],
         )
-        hit = depth > params.overlap_tolerance  # (P, 6)
-        for p, f in zip(*np.nonzero(hit), strict=True):
-            hits[pn[p]][f].append(int(pb[p]))
-        np.logical_or.at(blocked, pn, hit)
+        hit = depth > params.overlap_tolerance  # (P, 6) SAT: the slab is penetrated
+        # coverage of each (node, face) by its penetrating blockers, on a probe grid
+        for n, f in sorted({(int(pn[p]), int(f)) for p, f in zip(*np.nonzero(hit), strict=True)}):
+            cands = [int(pb[p]) for p in np.flatnonzero((pn == n) & hit[:, f])]
+            cov = face_coverage(
+                tree.nodes[n].box, f, [tree.nodes[c].box for c in cands], params.clearance
+            )
+            hits[n][f] = [c for c, v in zip(cands, cov[:-1], strict=True) if v > 0]
+            blocked[n, f] = cov[-1] >= params.min_coverage
     if support is not None:
         by_support = blocked_by_support([nd.box for nd in tree.nodes], support, params)
     else:
@@ -401,10 +468,10 @@ SUBFACE_SCHEMES: dict[str, SubfaceScheme] = {
     # side faces the fingers wrap towards, and the end strips to their cap); the caps (axial
     # approach) are one sub-face bound to all four side faces (the paper's Fig. 5d)
     "cylindrical": SubfaceScheme(grid=((1, 1), (1, 1), (3, 1), (3, 1), (3, 1), (3, 1))),
-    # flat part in the plane of axes 0, 1: the hand approaches the rim faces (0..3) in that plane;
-    # each rim face is three strips along the rim, bound to both flat faces (where the fingertips
-    # go) and the end strips to the neighbouring rim face
-    "three_finger_tip": SubfaceScheme(grid=((3, 1), (3, 1), (3, 1), (3, 1), (0, 0), (0, 0))),
+    # flat part in the plane of axes 0, 1: the hand approaches the rim faces (0..3) in that plane
+    # (the circle's samples all lie in the middle row); 3 x 3 like the sphere, so the middle row
+    # is bound only to the neighbouring rim faces and the outer rows to the flat faces as well
+    "three_finger_tip": SubfaceScheme(grid=((3, 3), (3, 3), (3, 3), (3, 3), (0, 0), (0, 0))),
 }
 """Sub-face scheme of each grasp type (keys are the :class:`~pregrasp_core.shape.GraspType`
 values)."""

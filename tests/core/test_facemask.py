@@ -223,6 +223,21 @@ def test_gap_within_clearance_blocks_and_beyond_does_not():
         assert fm.blocked[1].sum() == int(expect)
 
 
+def test_a_blocker_grazing_a_corner_of_the_slab_leaves_the_face_free():
+    a = aabb([0, 0, 0], [0.2, 0.1, 0.05])
+    # in front of the +x face, covering 0.01 x 0.02 of its 0.1 x 0.05 (4 %) or 0.03 x 0.05 (30 %)
+    for hi, cover in (([0.21, 0.01, 0.02], 0.04), ([0.21, 0.03, 0.05], 0.3)):
+        b = aabb([0.2, 0, 0], hi)
+        tree = tree_of(aabb([0, 0, 0], [0.21, 0.1, 0.05]), a, b)
+        fm = compute_face_masks(tree, None)
+        f = face_toward(a, [1, 0, 0])
+        assert fm.blockers[1][f] == (2,)  # in front of it either way
+        assert fm.blocked[1][f] == (cover >= 0.05)
+        # with a coverage threshold below it, the small one blocks too
+        fm = compute_face_masks(tree, None, FaceMaskParams(min_coverage=0.02))
+        assert fm.blocked[1][f]
+
+
 def test_support_plane_default_off_and_explicit():
     pts = np.array([[0, 0, 0.0], [0.1, 0.06, 0.05]])
     assert support_plane(pts, FaceMaskParams()).height == 0.0
@@ -238,18 +253,26 @@ def test_support_plane_default_off_and_explicit():
     # a table 0.1 m below: beyond the clearance, nothing blocked
     low = SupportPlane(UP, -0.1)
     assert not compute_face_masks(tree, low).blocked.any()
-    # a plane cutting the box at mid height: the bottom and all four sides are blocked
+    # a plane cutting the box at mid height: only the face looking at it (the box's part below
+    # the plane is not an obstacle for its own side faces)
     mid = SupportPlane(UP, 0.025)
-    assert blocked_dirs(box, compute_face_masks(tree, mid).blocked[0]) == {
-        (0, 0, -1),
-        (1, 0, 0),
-        (-1, 0, 0),
-        (0, 1, 0),
-        (0, -1, 0),
-    }
+    assert blocked_dirs(box, compute_face_masks(tree, mid).blocked[0]) == {(0, 0, -1)}
     # the plane along +x at the box's -x face blocks that face
     wall = SupportPlane(np.array([1.0, 0, 0]), 0.0)
     assert blocked_dirs(box, compute_face_masks(tree, wall).blocked[0]) == {(-1, 0, 0)}
+
+
+def test_a_tilted_box_on_the_table_blocks_only_the_faces_looking_at_it():
+    for tilt in (0.05, 0.2):  # radians about a horizontal axis
+        R = Rotation.from_rotvec([tilt, 0, 0]).as_matrix()
+        box = OrientedBox(np.zeros(3), R, np.array([0.2, 0.1, 0.06]))
+        box = OrientedBox(box.center - [0, 0, box.corners()[:, 2].min()], R, box.extents)
+        fm = compute_face_masks(tree_of(box), TABLE)
+        normals = FACE_NORMAL @ box.rotation.T
+        assert fm.blocked[0][np.argmin(normals[:, 2])]  # the bottom face
+        # side faces tilted by 0.05 rad stay free; at 0.2 rad the one turned down is blocked
+        expected = normals[:, 2] < (-0.5 if tilt < 0.1 else -0.1)
+        assert fm.blocked[0].tolist() == expected.tolist()
 
 
 def test_cut_limits_the_blockers_to_the_current_decomposition():
@@ -305,10 +328,16 @@ def test_subface_schemes_per_grasp_type():
     # the -x cap (face 1) borders the four side faces only, so it stays usable
     assert use[1].tolist() == [True]
     tip = subface_scheme("three_finger_tip")
-    assert tip.n_subfaces.tolist() == [3, 3, 3, 3, 0, 0]
+    assert tip.n_subfaces.tolist() == [9, 9, 9, 9, 0, 0]
     blocked = np.zeros(6, bool)
-    blocked[5] = True  # a flat face: every rim strip borders both flat faces
-    assert not any(u.any() for u in usable_subfaces(blocked, "three_finger_tip"))
+    blocked[5] = True  # a flat face (-z, 'd' of the rim faces): the bottom rows go
+    use = usable_subfaces(blocked, "three_finger_tip")
+    for f in range(4):
+        assert use[f].tolist() == [False] * 3 + [True] * 6
+    blocked[2] = True  # rim face +y: blocked itself, and the ends of its neighbours' rows
+    use = usable_subfaces(blocked, "three_finger_tip")
+    assert not use[2].any()
+    assert use[0].reshape(3, 3)[1].tolist() == [True, True, False]  # +y is r of face 0
     with pytest.raises(ValueError, match="unknown grasp type"):
         subface_scheme("fist")
 

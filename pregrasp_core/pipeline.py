@@ -1,0 +1,258 @@
+"""The staged pipeline: cloud -> tree -> shapes -> face masks -> traversal and pre-grasp pool.
+
+Each stage is a pure function of the previous stages' results and of its own parameters, so
+:func:`run_pipeline` can reuse the stages of a ``previous`` result whose inputs did not change
+(the app re-runs only what a threshold change affects). Stages, in order (:data:`STAGES`):
+
+========== ====================================== ==========================================
+stage      computes                               depends on
+========== ====================================== ==========================================
+decompose  ``tree`` (BoxTree)                     cloud, ``params.decomposition``
+classify   ``shapes`` (NodeShape per node)        decompose, ``params.shape``
+facemask   ``masks`` (FaceMasks, support plane)   decompose, ``params.facemask``
+pool       ``traversal`` and ``pool``             classify, facemask, ``params.sampling``, hand
+========== ====================================== ==========================================
+
+``timings`` holds the seconds each stage took when it was computed (a reused stage keeps the
+time it took then; ``reused`` names the stages taken from ``previous``).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .decomposition import BoxTree, DecompositionParams, decompose
+from .facemask import FaceMaskParams, FaceMasks, compute_face_masks, support_plane
+from .io import PointCloud
+from .sampling import PreGraspPool, SamplingParams, Traversal, build_pool, traverse
+from .shape import NodeShape, ShapeParams, classify_tree
+
+logger = logging.getLogger(__name__)
+
+STAGES: tuple[str, ...] = ("decompose", "classify", "facemask", "pool")
+"""The stages in order; ``run_pipeline(until=...)`` stops after the named one."""
+
+
+@dataclass(frozen=True)
+class PipelineParams:
+    """Parameters of every stage (each a frozen dataclass with documented defaults)."""
+
+    decomposition: DecompositionParams = field(default_factory=DecompositionParams)
+    """Fit-and-split decomposition."""
+    shape: ShapeParams = field(default_factory=ShapeParams)
+    """PCA shape classes (``small_size`` also decides which children are small)."""
+    facemask: FaceMaskParams = field(default_factory=FaceMaskParams)
+    """Face masks and the support plane."""
+    sampling: SamplingParams = field(default_factory=SamplingParams)
+    """Traversal policy and pre-grasp sampling."""
+
+    def as_dict(self) -> dict[str, Any]:
+        """Section name -> parameters dataclass (for the result file's ``parameters``)."""
+        return {
+            "decomposition": self.decomposition,
+            "shape": self.shape,
+            "facemask": self.facemask,
+            "sampling": self.sampling,
+        }
+
+
+@dataclass(frozen=True)
+class PipelineResult:
+    """What the pipeline computed; a stage not reached is ``None``."""
+
+    cloud: PointCloud
+    """The input cloud (world frame, metres)."""
+    params: PipelineParams
+    """The parameters of this run."""
+    tree: BoxTree | None = None
+    """The decomposition tree (stage ``decompose``)."""
+    shapes: tuple[NodeShape, ...] | None = None
+    """Shape class and grasp type per node id (stage ``classify``)."""
+    masks: FaceMasks | None = None
+    """Face masks of every node and the support plane (stage ``facemask``)."""
+    traversal: Traversal | None = None
+    """Candidate nodes and the reason for every node (stage ``pool``)."""
+    pool: PreGraspPool | None = None
+    """The pre-grasp pool (stage ``pool``)."""
+    timings: dict[str, float] = field(default_factory=dict)
+    """Seconds per stage (when it was computed)."""
+    reused: tuple[str, ...] = ()
+    """Stages taken unchanged from the ``previous`` result."""
+    hand: Any = None
+    """The hand the pool was built for (``pregrasp_core.hand.Hand``), or ``None``."""
+
+
+def _same_cloud(a: PointCloud, b: PointCloud) -> bool:
+    if a is b:
+        return True
+    pa, pb = np.asarray(a.points), np.asarray(b.points)
+    return pa.shape == pb.shape and bool(np.array_equal(pa, pb))
+
+
+def _stage_index(until: str) -> int:
+    if until not in STAGES:
+        raise ValueError(f"until must be one of {STAGES}, got {until!r}")
+    return STAGES.index(until)
+
+
+def run_pipeline(
+    cloud: PointCloud,
+    params: PipelineParams | None = None,
+    hand: Any = None,
+    until: str = "pool",
+    previous: PipelineResult | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> PipelineResult:
+    """Run the stages up to ``until`` (one of :data:`STAGES`), reusing those of ``previous``
+    whose inputs are unchanged.
+
+    hand: the ``pregrasp_core.hand.Hand`` (loaded with ``Hand.load()`` when ``None`` and the
+    ``pool`` stage runs). progress: called with the fraction of stages done (0..1).
+    """
+    params = PipelineParams() if params is None else params
+    last = _stage_index(until)
+    points = np.asarray(cloud.points, dtype=np.float64)
+    prev = previous
+    if prev is not None and not _same_cloud(prev.cloud, cloud):
+        prev = None
+    pp = prev.params if prev is not None else None
+    timings: dict[str, float] = {}
+    reused: list[str] = []
+    out: dict[str, Any] = {}
+
+    def stage(name: str, can_reuse: bool, fields: tuple[str, ...], compute: Callable[[], dict]):
+        """Reuse ``fields`` from ``prev`` when ``can_reuse``, else compute and time them."""
+        if can_reuse and all(getattr(prev, f) is not None for f in fields):
+            out.update({f: getattr(prev, f) for f in fields})
+            timings[name] = prev.timings.get(name, 0.0)
+            reused.append(name)
+            return True
+        t0 = time.perf_counter()
+        out.update(compute())
+        timings[name] = time.perf_counter() - t0
+        logger.info("stage %s: %.3f s", name, timings[name])
+        return False
+
+    def tick(i: int) -> None:
+        if progress is not None:
+            progress((i + 1) / (last + 1))
+
+    ok = stage(
+        "decompose",
+        pp is not None and pp.decomposition == params.decomposition,
+        ("tree",),
+        lambda: {"tree": decompose(points, params.decomposition)},
+    )
+    tick(0)
+    tree_same = ok
+    if last >= 1:
+        ok_cls = stage(
+            "classify",
+            tree_same and pp.shape == params.shape,
+            ("shapes",),
+            lambda: {"shapes": classify_tree(out["tree"], points, params.shape)},
+        )
+        tick(1)
+    if last >= 2:
+
+        def _masks() -> dict:
+            sp = support_plane(points, params.facemask)
+            return {"masks": compute_face_masks(out["tree"], sp, params.facemask)}
+
+        ok_fm = stage(
+            "facemask",
+            tree_same and pp.facemask == params.facemask,
+            ("masks",),
+            _masks,
+        )
+        tick(2)
+    if last >= 3:
+        if hand is None:
+            hand = prev.hand if prev is not None and prev.hand is not None else _load_hand()
+
+        def _pool() -> dict:
+            trav = traverse(out["tree"], out["shapes"], hand, params.sampling, params.shape)
+            pool = build_pool(
+                points,
+                out["tree"],
+                out["shapes"],
+                out["masks"],
+                hand,
+                params.sampling,
+                trav,
+                params.shape,
+            )
+            return {"traversal": trav, "pool": pool}
+
+        stage(
+            "pool",
+            ok_cls and ok_fm and pp.sampling == params.sampling and prev.hand is hand,
+            ("traversal", "pool"),
+            _pool,
+        )
+        tick(3)
+    return PipelineResult(
+        cloud=cloud,
+        params=params,
+        timings=timings,
+        reused=tuple(reused),
+        hand=hand if last >= 3 else (prev.hand if prev is not None else None),
+        **out,
+    )
+
+
+def _load_hand() -> Any:
+    from .hand import Hand
+
+    return Hand.load()
+
+
+def pool_section(result: PipelineResult) -> dict[str, Any]:
+    """The ``pool`` section of the result file: support plane, traversal and pre-grasps."""
+    if result.pool is None:
+        raise ValueError("the result has no pool: run the pipeline with until='pool'")
+    masks = result.masks
+    return {
+        "support_plane": None
+        if masks is None or masks.support is None
+        else masks.support.to_dict(),
+        "traversal": None if result.traversal is None else result.traversal.to_dict(),
+        **result.pool.to_dict(),
+    }
+
+
+def result_document(
+    result: PipelineResult,
+    params: PipelineParams | None = None,
+    include_indices: bool = False,
+    extra_timings: dict[str, float] | None = None,
+) -> dict[str, Any]:
+    """The ``pregrasp/1`` document of a pipeline result (tree with face masks, pool, timings).
+
+    extra_timings: stages run outside the pipeline (e.g. ``load``), listed first.
+    """
+    from .result import result_document as _doc
+
+    params = result.params if params is None else params
+    if result.tree is None:
+        raise ValueError("the result has no tree: run the pipeline at least to 'decompose'")
+    timings = {**(extra_timings or {}), **result.timings}
+    extra: dict[str, Any] = {}
+    if result.pool is not None:
+        extra["pool"] = pool_section(result)
+    return _doc(
+        result.cloud,
+        params.as_dict(),
+        timings,
+        result.tree,
+        result.shapes,
+        face_masks=None if result.masks is None else result.masks.masks,
+        include_indices=include_indices,
+        extra_sections=extra,
+    )

@@ -1,0 +1,424 @@
+"""Traversal, enclosing-surface sampling and the pre-grasp pool (DESIGN section 6)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from pregrasp_core.box import OrientedBox
+from pregrasp_core.decomposition import BoxNode, BoxTree
+from pregrasp_core.facemask import (
+    FACE_NORMAL,
+    FaceMaskParams,
+    SupportPlane,
+    compute_face_masks,
+    subface_scheme,
+    usable_subfaces,
+)
+from pregrasp_core.hand import load_hand
+from pregrasp_core.sampling import (
+    PreGraspPool,
+    SamplingParams,
+    TraversalPolicy,
+    build_pool,
+    grip_width,
+    hand_corners,
+    hand_hits_points,
+    sample_node,
+    traverse,
+)
+from pregrasp_core.shape import GRASP_TYPE_OF_CLASS, NodeShape, ShapeClass, ShapeParams
+
+UP = np.array([0.0, 0.0, 1.0])
+TYPES = ("cylindrical", "spherical", "three_finger_tip", "two_finger_tip")
+BOX = OrientedBox(
+    np.array([0.1, -0.2, 0.3]),
+    Rotation.from_euler("xyz", [0.4, -0.3, 1.1]).as_matrix(),
+    np.array([0.12, 0.07, 0.04]),
+)
+
+
+@pytest.fixture(scope="module")
+def hand():
+    return load_hand()
+
+
+def shape_of(cls: ShapeClass) -> NodeShape:
+    return NodeShape(np.array([3.0, 2.0, 1.0]), cls, GRASP_TYPE_OF_CLASS[cls])
+
+
+def box_surface_points(lo, hi, n: int, rng) -> np.ndarray:
+    """``n`` points uniformly on the surface of the axis-aligned box [lo, hi]."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    e = hi - lo
+    areas = np.array([e[1] * e[2], e[1] * e[2], e[0] * e[2], e[0] * e[2], e[0] * e[1], e[0] * e[1]])
+    face = rng.choice(6, size=n, p=areas / areas.sum())
+    p = lo + rng.uniform(size=(n, 3)) * e
+    axis, side = face // 2, face % 2
+    p[np.arange(n), axis] = np.where(side == 0, hi[axis], lo[axis])
+    return p
+
+
+def tree_from_parts(parts, rng, n_per_part=1500):
+    """A root over axis-aligned parts (given as (lo, hi)); two parts -> two leaf children.
+    Returns (tree, points)."""
+    pts = [box_surface_points(lo, hi, n_per_part, rng) for lo, hi in parts]
+    points = np.concatenate(pts)
+    idx = np.arange(len(points), dtype=np.int64)
+    root = OrientedBox.from_points_in_frame(points, np.eye(3))
+    kids = tuple(range(1, len(parts) + 1)) if len(parts) > 1 else ()
+    nodes = [BoxNode(0, -1, kids, 0, idx, root, 0)]
+    start = 0
+    for k, p in enumerate(pts if kids else []):
+        sub = idx[start : start + len(p)]
+        start += len(p)
+        nodes.append(
+            BoxNode(k + 1, 0, (), 1, sub, OrientedBox.from_points_in_frame(p, np.eye(3)), 1)
+        )
+    return BoxTree(tuple(nodes), len(points)), points
+
+
+# ----------------------------------------------------------------------------- sample_node
+
+
+@pytest.mark.parametrize("gt", TYPES)
+def test_every_approach_points_at_its_aim_and_starts_on_the_enclosing_surface(gt):
+    params = SamplingParams(interval=0.02, standoff=0.01)
+    s = sample_node(BOX, gt, params)
+    T = s.T_box_grasp
+    assert len(T) > 8
+    R = T[:, :3, :3]
+    assert np.allclose(np.einsum("nji,njk->nik", R, R), np.eye(3), atol=1e-12)
+    assert np.allclose(np.linalg.det(R), 1.0)
+    p, a = T[:, :3, 3], T[:, :3, 2]
+    to_aim = s.aim - p
+    # the approach line passes through the aim and the aim is ahead of the hand
+    assert np.allclose(np.cross(to_aim, a), 0.0, atol=1e-12)
+    assert np.all(np.einsum("ij,ij->i", to_aim, a) > 0)
+    h = BOX.half_extents
+    surf = np.array(["sphere", "cylinder_side", "cylinder_cap", "circle"])[s.surface]
+    if gt in ("spherical", "two_finger_tip"):
+        assert np.all(surf == "sphere") and np.allclose(s.aim, 0.0)
+        assert np.allclose(np.linalg.norm(p, axis=1), np.linalg.norm(h) + 0.01)
+    elif gt == "three_finger_tip":
+        assert np.all(surf == "circle") and np.allclose(p[:, 2], 0.0)
+        assert np.allclose(np.linalg.norm(p, axis=1), np.hypot(h[0], h[1]) + 0.01)
+        assert np.allclose(np.abs(T[:, :3, 1] @ [0, 0, 1]), 1.0)  # closes across the thickness
+    else:
+        side = surf == "cylinder_side"
+        assert side.sum() > 0 and (surf == "cylinder_cap").sum() == 8  # 2 caps x 4 rolls
+        # radial: perpendicular to the cylinder axis (box axis 0), aimed at the axis
+        assert np.allclose(a[side, 0], 0.0) and np.allclose(s.aim[side, 1:], 0.0)
+        assert np.allclose(np.hypot(p[side, 1], p[side, 2]), np.hypot(h[1], h[2]) + 0.01)
+        assert np.all(np.abs(p[side, 0]) <= h[0])
+        assert np.allclose(np.abs(T[side, 0, 0]), 1.0)  # hand x along the axis
+        # caps: axial approach through the centre
+        cap = ~side
+        assert np.allclose(np.abs(a[cap, 0]), 1.0) and np.allclose(s.aim[cap], 0.0)
+        assert np.allclose(np.abs(p[cap, 0]), h[0] + 0.01)
+
+
+def _exit_face_and_point(origin: np.ndarray, direction: np.ndarray, h: np.ndarray):
+    """Independent ray-box exit: the face hit leaving the box [-h, h] from ``origin``."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(direction != 0, (np.sign(direction) * h - origin) / direction, np.inf)
+    axis = np.argmin(t, axis=1)
+    tmin = t[np.arange(len(t)), axis]
+    side = direction[np.arange(len(t)), axis] < 0
+    return 2 * axis + side, origin + tmin[:, None] * direction
+
+
+@pytest.mark.parametrize("gt", ("spherical", "cylindrical", "three_finger_tip"))
+def test_face_and_subface_are_where_the_sample_projects_onto_the_box(gt):
+    s = sample_node(BOX, gt, SamplingParams(interval=0.015))
+    a = s.T_box_grasp[:, :3, 2]
+    face, hitp = _exit_face_and_point(s.aim, -a, BOX.half_extents)
+    assert np.array_equal(face, s.face)
+    scheme = subface_scheme(gt)
+    from pregrasp_core.facemask import FACE_RIGHT, FACE_UP
+
+    for f in np.unique(s.face):
+        m = s.face == f
+        hr = np.abs(FACE_RIGHT[f]) @ BOX.half_extents
+        hu = np.abs(FACE_UP[f]) @ BOX.half_extents
+        cell = scheme.cell(f, hitp[m] @ FACE_RIGHT[f], hitp[m] @ FACE_UP[f], hr, hu)
+        assert np.array_equal(cell, s.subface[m])
+
+
+def test_samples_are_spaced_at_the_interval():
+    big = OrientedBox(np.zeros(3), np.eye(3), np.array([0.3, 0.25, 0.2]))
+    for interval in (0.03, 0.05):
+        s = sample_node(big, "spherical", SamplingParams(interval=interval, standoff=0.0))
+        p = np.unique(s.T_box_grasp[:, :3, 3].round(12), axis=0)  # both rolls share positions
+        d = np.linalg.norm(p[:, None] - p[None], axis=2)
+        np.fill_diagonal(d, np.inf)
+        nn = d.min(axis=1)
+        assert 0.6 * interval < np.median(nn) < 1.2 * interval
+        assert nn.max() < 1.6 * interval
+
+
+@pytest.mark.parametrize("gt", TYPES)
+def test_samples_do_not_depend_on_the_signs_of_the_box_axes(gt):
+    """The same box given with two of its axes flipped yields the same world poses (as a set)."""
+    params = SamplingParams(interval=0.02)
+    flipped = OrientedBox(BOX.center, BOX.rotation @ np.diag([-1.0, -1.0, 1.0]), BOX.extents)
+    A = BOX.T_world_box @ sample_node(BOX, gt, params).T_box_grasp
+    B = flipped.T_world_box @ sample_node(flipped, gt, params).T_box_grasp
+    assert len(A) == len(B)
+    key = lambda T: np.round(T[:, :3, :].reshape(len(T), -1), 9)  # noqa: E731
+    assert np.array_equal(np.unique(key(A), axis=0), np.unique(key(B), axis=0))
+
+
+def test_only_usable_subfaces_are_sampled():
+    blocked = np.zeros(6, bool)
+    blocked[[4, 3]] = True
+    use = usable_subfaces(blocked, "spherical")
+    s = sample_node(BOX, "spherical", SamplingParams(interval=0.01), use)
+    every = sample_node(BOX, "spherical", SamplingParams(interval=0.01))
+    assert 0 < len(s.face) < len(every.face)
+    assert all(use[f][k] for f, k in zip(s.face, s.subface, strict=True))
+    assert not np.isin(s.face, [3, 4]).any()
+    # what was left out is exactly the samples on unusable sub-faces
+    unusable = [not use[f][k] for f, k in zip(every.face, every.subface, strict=True)]
+    assert len(every.face) - len(s.face) == sum(unusable)
+
+
+# ----------------------------------------------------------------------------- traversal
+
+
+def hand_built(root_ext, child_exts, classes):
+    root = OrientedBox(np.zeros(3), np.eye(3), np.asarray(root_ext, float))
+    idx = np.arange(1, dtype=np.int64)
+    kids = tuple(range(1, len(child_exts) + 1))
+    nodes = [BoxNode(0, -1, kids, 0, idx, root, 0)]
+    for k, e in zip(kids, child_exts, strict=True):
+        b = OrientedBox(np.array([0.1 * k, 0, 0]), np.eye(3), np.asarray(e, float))
+        nodes.append(BoxNode(k, 0, (), 1, idx, b, 1))
+    return BoxTree(tuple(nodes), 1), tuple(shape_of(c) for c in classes)
+
+
+def test_big_box_with_two_small_children_passes_them_on(hand):
+    tree, shapes = hand_built(
+        [0.3, 0.3, 0.3],
+        [[0.05, 0.05, 0.05]] * 2,
+        [ShapeClass.THREE_D_LARGE, ShapeClass.THREE_D_SMALL, ShapeClass.THREE_D_SMALL],
+    )
+    t = traverse(tree, shapes, hand)
+    assert t.candidates == (1, 2)
+    assert t.reasons[0].startswith("too big: spherical width 0.300 m")
+
+
+def test_a_small_child_makes_its_parent_a_candidate(hand):
+    classes = [ShapeClass.THREE_D_LARGE, ShapeClass.THREE_D_LARGE, ShapeClass.THREE_D_SMALL]
+    tree, shapes = hand_built([0.1, 0.08, 0.06], [[0.07, 0.06, 0.06], [0.04, 0.03, 0.03]], classes)
+    assert traverse(tree, shapes, hand).candidates == (0, 1, 2)
+    # no small child: the parent is not a candidate, the leaves are
+    classes = [ShapeClass.THREE_D_LARGE] * 3
+    tree, shapes = hand_built([0.1, 0.08, 0.06], [[0.07, 0.06, 0.06]] * 2, classes)
+    t = traverse(tree, shapes, hand)
+    assert t.candidates == (1, 2) and t.reasons[0] == "no small child"
+    # small_size decides what is small
+    t = traverse(tree, shapes, hand, shape_params=ShapeParams(small_size=0.07))
+    assert t.candidates == (0, 1, 2)
+
+
+def test_policies_and_aperture_scale(hand):
+    classes = [ShapeClass.THREE_D_LARGE, ShapeClass.THREE_D_LARGE, ShapeClass.THREE_D_SMALL]
+    tree, shapes = hand_built([0.3, 0.3, 0.3], [[0.14, 0.1, 0.1], [0.04, 0.03, 0.03]], classes)
+    assert traverse(tree, shapes, hand, SamplingParams(policy="all")).candidates == (0, 1, 2)
+    leaves = traverse(tree, shapes, hand, SamplingParams(policy=TraversalPolicy.LEAVES))
+    assert leaves.candidates == (1, 2) and leaves.reasons[0] == "not a leaf"
+    # a 0.14 m part fits the spherical aperture (0.148 m) only at full scale
+    assert traverse(tree, shapes, hand, SamplingParams(aperture_scale=0.9)).candidates == (2,)
+    with pytest.raises(ValueError, match="policy must be one of"):
+        SamplingParams(policy="random")
+
+
+def test_grip_width_per_type():
+    assert grip_width(BOX, "cylindrical") == pytest.approx(0.07)
+    assert grip_width(BOX, "spherical") == pytest.approx(0.12)
+    assert grip_width(BOX, "two_finger_tip") == pytest.approx(0.12)
+    assert grip_width(BOX, "three_finger_tip") == pytest.approx(0.04)
+
+
+# ----------------------------------------------------------------------------- the pool
+
+
+def test_batched_hand_collision_matches_the_hand_model(hand):
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-0.1, 0.1, (4000, 3))
+    G = 600
+    T = np.tile(np.eye(4), (G, 1, 1))
+    T[:, :3, :3] = Rotation.random(G, random_state=1).as_matrix()
+    T[:, :3, 3] = rng.uniform(-0.25, 0.25, (G, 3))
+    for gt in TYPES:
+        q = np.tile(hand.preshape(gt), (G, 1))
+        for margin in (0.0, 0.004):
+            ours = hand_hits_points(hand, T, np.full(G, gt), q, pts, margin=margin)
+            ref = hand.hands_hit_points(pts, T, q[0], margin)
+            assert np.array_equal(ours, ref)
+            assert 50 < ours.sum() < G - 50
+
+
+def box_on_table_pool(hand, **kw):
+    rng = np.random.default_rng(5)
+    tree, pts = tree_from_parts([([-0.04, -0.03, 0.0], [0.04, 0.03, 0.05])], rng, 3000)
+    shapes = (shape_of(ShapeClass.THREE_D_LARGE),)
+    masks = compute_face_masks(tree, SupportPlane(UP, 0.0), FaceMaskParams())
+    return tree, pts, masks, build_pool(pts, tree, shapes, masks, hand, SamplingParams(**kw))
+
+
+def test_box_on_the_table_gets_no_pregrasp_from_below_and_all_are_collision_free(hand):
+    tree, pts, masks, pool = box_on_table_pool(hand)
+    bottom = int(np.argmin(FACE_NORMAL @ tree.root.box.rotation.T @ UP))
+    assert masks.blocked[0].tolist() == [f == bottom for f in range(6)]
+    assert len(pool) > 0
+    assert bottom not in pool.face
+    assert np.all(pool.approach @ UP < 0.5)  # nothing approaches upwards from under the box
+    # nothing below the support plane: every corner of every link box above z = 0
+    for gt in np.unique(pool.grasp_type):
+        sel = pool.grasp_type == gt
+        c = hand_corners(hand, pool.q[sel][0])  # (C, 3)
+        z = np.einsum("pij,cj->pci", pool.T_world_hand[sel, :3, :3], c)[..., 2]
+        assert (z + pool.T_world_hand[sel, None, 2, 3]).min() >= -1e-12
+    # no cloud point inside the open hand (the hand model's own query)
+    for gt in np.unique(pool.grasp_type):
+        sel = pool.grasp_type == gt
+        assert not hand.hands_hit_points(pts, pool.T_world_hand[sel], pool.q[sel][0]).any()
+    # the drops were counted; the preshape is the hand's
+    assert pool.dropped["blocked_subface"] > 0 and pool.dropped["support"] > 0
+    assert np.allclose(pool.q, hand.preshape("spherical"))
+    assert np.allclose(pool.spread, hand.spread_for("spherical"))
+    assert np.all((pool.backoff >= 0) & (pool.backoff <= 0.06 + 1e-12))
+
+
+def test_without_back_off_the_hand_is_dropped_rather_than_moved(hand):
+    *_, moved = box_on_table_pool(hand)
+    *_, strict = box_on_table_pool(hand, max_backoff=0.0)
+    assert len(strict) < len(moved)
+    assert np.all(strict.backoff == 0)
+    assert sum(strict.dropped.values()) > sum(moved.dropped.values())
+
+
+def test_pool_only_on_the_small_children_of_a_big_box(hand):
+    rng = np.random.default_rng(1)
+    parts = [([0.0, 0.0, 0.0], [0.05, 0.05, 0.05]), ([0.25, 0.25, 0.25], [0.3, 0.3, 0.3])]
+    tree, pts = tree_from_parts(parts, rng, 1500)
+    assert np.allclose(tree.root.box.extents, 0.3 * np.sqrt([1, 1, 1]) * [1, 1, 1])
+    shapes = (
+        shape_of(ShapeClass.THREE_D_LARGE),
+        shape_of(ShapeClass.THREE_D_SMALL),
+        shape_of(ShapeClass.THREE_D_SMALL),
+    )
+    masks = compute_face_masks(tree, None)
+    pool = build_pool(pts, tree, shapes, masks, hand)
+    assert pool.candidates == (1, 2)
+    assert set(np.unique(pool.node)) == {1, 2}
+    assert set(np.unique(pool.grasp_type)) == {"two_finger_tip"}
+    assert pool.fallback == {}
+
+
+def test_pool_is_deterministic_and_moves_with_the_cloud(hand):
+    rng = np.random.default_rng(2)
+    # irregular sizes: no link face lands exactly on a face of the cloud (a knife edge)
+    parts = [
+        ([0.0, -0.0313, 0.0], [0.1217, 0.0291, 0.0407]),
+        ([0.0803, -0.0219, 0.0407], [0.1217, 0.0187, 0.1433]),
+    ]
+    tree, pts = tree_from_parts(parts, rng, 1500)
+    shapes = tuple(
+        shape_of(c) for c in (ShapeClass.THREE_D_LARGE, ShapeClass.ONE_D, ShapeClass.ONE_D)
+    )
+    params = SamplingParams(interval=0.02)
+    plane = SupportPlane(UP, 0.0)
+    masks = compute_face_masks(tree, plane)
+    a = build_pool(pts, tree, shapes, masks, hand, params)
+    b = build_pool(pts.copy(), tree, shapes, compute_face_masks(tree, plane), hand, params)
+    assert len(a) > 10
+    for name in ("T_world_hand", "approach", "q", "node", "face", "subface", "backoff"):
+        assert np.array_equal(getattr(a, name), getattr(b, name))
+    assert a.dropped == b.dropped
+    # a rigid motion of the cloud, its boxes and its table moves the pool with it
+    rot = Rotation.from_euler("xyz", [0.7, -0.4, 2.0]).as_matrix()
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = rot, [0.3, -1.2, 0.5]
+    moved = BoxTree(
+        tuple(
+            BoxNode(n.id, n.parent, n.children, n.depth, n.indices, n.box.transformed(T), 0)
+            for n in tree.nodes
+        ),
+        tree.n_points,
+    )
+    mplane = SupportPlane(rot @ UP, float((rot @ UP) @ T[:3, 3]))
+    c = build_pool(
+        pts @ rot.T + T[:3, 3], moved, shapes, compute_face_masks(moved, mplane), hand, params
+    )
+    assert len(c) == len(a) and c.dropped == a.dropped
+
+    # same set of (pose, node): every moved pre-grasp of a has exactly one match in c
+    fa = np.concatenate([(T @ a.T_world_hand)[:, :3, :].reshape(len(a), -1), a.node[:, None]], 1)
+    fc = np.concatenate([c.T_world_hand[:, :3, :].reshape(len(c), -1), c.node[:, None]], 1)
+    d = np.abs(fa[:, None, :] - fc[None, :, :]).max(axis=2)  # (P, P)
+    match = d.argmin(axis=1)
+    assert np.all(d.min(axis=1) < 1e-9) and len(set(match.tolist())) == len(a)
+
+
+def test_fallback_type_when_the_own_type_gives_nothing(hand):
+    rng = np.random.default_rng(3)
+    # a flat plate lying on the table: three-finger tip cannot get under it
+    tree, pts = tree_from_parts([([-0.05, -0.03, 0.0], [0.05, 0.03, 0.012])], rng, 3000)
+    shapes = (shape_of(ShapeClass.TWO_D),)
+    masks = compute_face_masks(tree, SupportPlane(UP, 0.0))
+    strict = build_pool(pts, tree, shapes, masks, hand, SamplingParams(fallback=False))
+    assert len(strict) == 0 and strict.dropped["support"] > 0
+    pool = build_pool(pts, tree, shapes, masks, hand)
+    assert len(pool) > 0
+    assert pool.fallback == {0: str(pool.grasp_type[0])}
+    assert pool.grasp_type[0] != "three_finger_tip"
+
+
+def test_pool_container(hand):
+    *_, pool = box_on_table_pool(hand)
+    P = len(pool)
+    g = pool[P - 1]
+    assert np.array_equal(g.T_world_hand, pool.T_world_hand[-1]) and g.node == 0
+    assert g.grasp_type == "spherical" and g.q.shape == (len(hand.joint_names),)
+    assert len(list(pool)) == P
+    sub = pool.filter(grasp_type="spherical", node=0)
+    assert len(sub) == P and len(pool.filter(node=5)) == 0
+    assert len(pool.filter(grasp_type="cylindrical")) == 0
+    with pytest.raises(IndexError, match="out of range"):
+        pool[P]
+    with pytest.raises(ValueError, match="unknown grasp type"):
+        pool.filter(grasp_type="fist")
+    d = json.loads(json.dumps(pool.to_dict()))
+    assert d["count"] == P and len(d["pregrasps"]) == P
+    assert set(d["pregrasps"][0]["preshape"]) == set(hand.joint_names)
+    assert d["per_type"] == {"spherical": P} and d["dropped"] == pool.dropped
+    empty = PreGraspPool.empty(hand.joint_names)
+    assert len(empty) == 0 and empty.to_dict()["count"] == 0
+    with pytest.raises(ValueError, match=r"PreGraspPool.q must have shape"):
+        PreGraspPool(
+            pool.T_world_hand,
+            pool.approach,
+            pool.grasp_type,
+            pool.spread,
+            pool.q[:, :2],
+            pool.node,
+            pool.face,
+            pool.subface,
+            pool.surface,
+            pool.joint_names,
+        )
+
+
+def test_params_validation():
+    with pytest.raises(ValueError, match="interval must be > 0"):
+        SamplingParams(interval=0.0)
+    with pytest.raises(ValueError, match="max_backoff must be >= 0"):
+        SamplingParams(max_backoff=-0.1)
+    with pytest.raises(ValueError, match="unknown grasp type"):
+        sample_node(BOX, "fist")
