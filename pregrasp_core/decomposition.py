@@ -72,9 +72,9 @@ class DecompositionParams:
         object.__setattr__(self, "max_depth", int(self.max_depth))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class BoxNode:
-    """One box of the decomposition tree."""
+    """One box of the decomposition tree (compared by identity: it holds arrays)."""
 
     id: int
     """Position of this node in ``BoxTree.nodes`` (root 0)."""
@@ -92,6 +92,16 @@ class BoxNode:
     """Index of the accepted split that created this node (root 0, then 1, 2, ...); the two
     children of one split share it."""
 
+    def __post_init__(self) -> None:
+        idx = np.asarray(self.indices)
+        if idx.ndim != 1 or not (idx.dtype.kind in "iu" or idx.size == 0):
+            raise ValueError(
+                f"indices must be a 1-D integer array, got shape {idx.shape} dtype {idx.dtype}"
+            )
+        view = idx.astype(np.int64, copy=False).view()
+        view.setflags(write=False)  # read-only: the tree is immutable
+        object.__setattr__(self, "indices", view)
+
     @property
     def n_points(self) -> int:
         """Number of points of this node."""
@@ -103,9 +113,10 @@ class BoxNode:
         return not self.children
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class BoxTree:
-    """A binary tree of oriented boxes over a cloud of ``n_points`` points."""
+    """A binary tree of oriented boxes over a cloud of ``n_points`` points (compared by
+    identity)."""
 
     nodes: tuple[BoxNode, ...]
     """All nodes; ``nodes[i].id == i``; breadth-first order, root first."""
@@ -302,8 +313,13 @@ def decompose(points: np.ndarray, params: DecompositionParams | None = None) -> 
         ratio = (b1.volume + b2.volume) / box.volume
         logger.debug(
             "node %d: best cut axis %d, %d | %d points, frame ratio %.3f, refit ratio %.3f",
-            k, axis, left.size, right.size, v_frame / box.volume, ratio,
-        )  # fmt: skip
+            k,
+            axis,
+            left.size,
+            right.size,
+            v_frame / box.volume,
+            ratio,
+        )
         if not ratio < params.volume_ratio:
             continue
         n_splits += 1

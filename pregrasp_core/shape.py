@@ -92,9 +92,9 @@ class ShapeParams:
         object.__setattr__(self, "small_size", float(v))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class NodeShape:
-    """PCA shape of one part (one node of the decomposition tree)."""
+    """PCA shape of one part (one node of the decomposition tree; compared by identity)."""
 
     eigenvalues: np.ndarray
     """(3,) float64, m^2, descending: eigenvalues l1 >= l2 >= l3 of the points' covariance."""
@@ -102,6 +102,13 @@ class NodeShape:
     """The PCA shape class."""
     grasp_type: GraspType
     """The grasp type assigned to ``shape_class``."""
+
+    def __post_init__(self) -> None:
+        ev = np.array(self.eigenvalues, dtype=np.float64)
+        if ev.shape != (3,):
+            raise ValueError(f"eigenvalues must have shape (3,), got {ev.shape}")
+        ev.setflags(write=False)
+        object.__setattr__(self, "eigenvalues", ev)
 
     @property
     def std(self) -> np.ndarray:
@@ -159,7 +166,7 @@ def classify_eigenvalues(
         cls = ShapeClass.THREE_D_SMALL
     else:
         cls = ShapeClass.THREE_D_LARGE
-    return NodeShape(eigenvalues=ev.copy(), shape_class=cls, grasp_type=GRASP_TYPE_OF_CLASS[cls])
+    return NodeShape(eigenvalues=ev, shape_class=cls, grasp_type=GRASP_TYPE_OF_CLASS[cls])
 
 
 def classify_points(

@@ -317,6 +317,10 @@ def test_box_tree_validation():
     bad = BoxNode(0, -1, (1,), 0, root.indices, root.box, 0)
     with pytest.raises(ValueError, match="0 or 2"):
         BoxTree(nodes=(bad,), n_points=20)
+    with pytest.raises(ValueError, match="1-D integer array"):
+        BoxNode(0, -1, (), 0, np.zeros(3), root.box, 0)
+    with pytest.raises(ValueError, match="read-only"):
+        root.indices[0] = 5  # the tree is immutable
 
 
 def test_deterministic():

@@ -168,6 +168,11 @@ def test_bad_input():
         classify_eigenvalues(np.ones(2), box)
     with pytest.raises(ValueError, match="descending"):
         classify_eigenvalues(np.array([1.0, 2.0, 0.5]), box)
+    with pytest.raises(ValueError, match=r"shape \(3,\)"):
+        NodeShape(np.ones(4), ShapeClass.ONE_D, GraspType.CYLINDRICAL)
+    shape = classify_points(np.random.default_rng(0).random((50, 3)), box)
+    with pytest.raises(ValueError, match="read-only"):
+        shape.eigenvalues[0] = 1.0
 
 
 def test_classify_tree_hammer_like():
