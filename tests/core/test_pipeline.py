@@ -1,0 +1,133 @@
+"""The staged pipeline up to the pool: stages, reuse of unchanged stages, the result document."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from pregrasp_core.decomposition import DecompositionParams
+from pregrasp_core.facemask import FaceMaskParams
+from pregrasp_core.hand import load_hand
+from pregrasp_core.io import PointCloud, load_point_cloud
+from pregrasp_core.paths import DEFAULT_OBJECT
+from pregrasp_core.pipeline import (
+    STAGES,
+    PipelineParams,
+    pool_section,
+    result_document,
+    run_pipeline,
+)
+from pregrasp_core.result import read_result, write_result
+from pregrasp_core.sampling import SamplingParams
+from pregrasp_core.shape import ShapeParams
+
+
+def l_shape_cloud(seed: int = 0) -> PointCloud:
+    """Points on the surface of an L: a bar on the table and a post on its end (metres)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for lo, hi, n in (
+        ([0.0, -0.03, 0.0], [0.16, 0.03, 0.04], 3000),
+        ([0.12, -0.02, 0.04], [0.16, 0.02, 0.15], 2000),
+    ):
+        lo, hi = np.array(lo), np.array(hi)
+        p = lo + rng.uniform(size=(n, 3)) * (hi - lo)
+        axis = rng.integers(0, 3, n)
+        p[np.arange(n), axis] = np.where(rng.uniform(size=n) < 0.5, lo[axis], hi[axis])
+        out.append(p)
+    return PointCloud.from_array(np.concatenate(out), source="l_shape")
+
+
+@pytest.fixture(scope="module")
+def hand():
+    return load_hand()
+
+
+@pytest.fixture(scope="module")
+def params():
+    return PipelineParams(decomposition=DecompositionParams(min_points=300))
+
+
+@pytest.fixture(scope="module")
+def first(hand, params):
+    return run_pipeline(l_shape_cloud(), params, hand)
+
+
+def test_all_stages_run_and_are_timed(first):
+    assert first.tree is not None and len(first.tree.leaves()) >= 2
+    assert len(first.shapes) == len(first.tree.nodes)
+    assert first.masks.blocked.shape == (len(first.tree.nodes), 6)
+    assert first.masks.support is not None and first.masks.support.height == pytest.approx(0.0)
+    assert first.traversal is not None and len(first.pool) > 0
+    assert set(first.timings) == set(STAGES) and all(v >= 0 for v in first.timings.values())
+    assert first.reused == ()
+
+
+def test_unchanged_stages_are_reused(first, hand, params):
+    again = run_pipeline(first.cloud, params, hand, previous=first)
+    assert again.reused == STAGES
+    assert again.tree is first.tree and again.pool is first.pool
+    # a new sampling interval re-runs only the pool
+    p2 = dataclasses.replace(params, sampling=SamplingParams(interval=0.05))
+    r2 = run_pipeline(first.cloud, p2, hand, previous=first)
+    assert r2.reused == ("decompose", "classify", "facemask")
+    assert r2.masks is first.masks and r2.pool is not first.pool
+    # a new clearance re-runs the masks and the pool, not the tree or the shapes
+    p3 = dataclasses.replace(params, facemask=FaceMaskParams(clearance=0.01))
+    r3 = run_pipeline(first.cloud, p3, hand, previous=first)
+    assert r3.reused == ("decompose", "classify")
+    # a new shape threshold: everything from classify on
+    p4 = dataclasses.replace(params, shape=ShapeParams(small_size=0.1))
+    assert run_pipeline(first.cloud, p4, hand, previous=first).reused == ("decompose", "facemask")
+    # another cloud: nothing is reused
+    other = l_shape_cloud(seed=1)
+    assert run_pipeline(other, params, hand, previous=first).reused == ()
+
+
+def test_until_stops_early_and_rejects_unknown_stages(first, params):
+    r = run_pipeline(first.cloud, params, until="decompose")
+    assert r.tree is not None and r.shapes is None and r.masks is None and r.pool is None
+    assert set(r.timings) == {"decompose"}
+    with pytest.raises(ValueError, match="until must be one of"):
+        run_pipeline(first.cloud, params, until="everything")
+
+
+def test_progress_reaches_one(first, hand, params):
+    seen: list[float] = []
+    run_pipeline(first.cloud, params, hand, previous=first, progress=seen.append)
+    assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) == len(STAGES)
+
+
+def test_support_off_frees_the_bottom(first, hand, params):
+    p = dataclasses.replace(params, facemask=FaceMaskParams(support=False))
+    r = run_pipeline(first.cloud, p, hand, previous=first)
+    assert r.masks.support is None and not r.masks.by_support.any()
+    assert first.masks.by_support[0].sum() == 1  # the root's bottom face, with the table
+
+
+def test_result_document_has_masks_and_pool(first, params, tmp_path):
+    doc = result_document(first, params, extra_timings={"load": 0.01})
+    assert list(doc["timings"])[0] == "load" and set(STAGES) <= set(doc["timings"])
+    nodes = doc["tree"]["nodes"] if isinstance(doc["tree"], dict) else doc["tree"]
+    assert all(np.shape(n["face_mask"]) == (6, 5) for n in nodes)
+    assert np.array_equal([n["face_mask"] for n in nodes], first.masks.masks)
+    pool = doc["pool"]
+    assert pool["count"] == len(first.pool) == len(pool["pregrasps"])
+    assert pool["support_plane"]["normal"] == [0.0, 0.0, 1.0]
+    assert pool["traversal"]["candidates"] == list(first.traversal.candidates)
+    assert set(doc["parameters"]) == {"decomposition", "shape", "facemask", "sampling"}
+    assert doc["parameters"]["sampling"]["policy"] == "paper"
+    out = write_result(doc, tmp_path / "r.json")
+    back = read_result(out)
+    assert back["pool"]["pregrasps"][0]["T_world_hand"] == first.pool.T_world_hand[0].tolist()
+    assert json.loads(json.dumps(pool_section(first)))["count"] == len(first.pool)
+
+
+def test_the_default_object_gets_a_pool(hand):
+    cloud = load_point_cloud(DEFAULT_OBJECT, n_points=6000, seed=0)
+    r = run_pipeline(cloud, PipelineParams(decomposition=DecompositionParams(min_points=150)), hand)
+    assert len(r.pool) > 0
+    assert set(np.unique(r.pool.node)) <= set(r.traversal.candidates)
