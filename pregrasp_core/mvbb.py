@@ -1,21 +1,25 @@
 """Minimum-volume oriented bounding boxes (MVBB) of point clouds.
 
-The search (see ``docs/mvbb.md``) works in four steps, everything vectorised over candidates:
+The search (details and complexity in ``docs/mvbb.md``), vectorised over candidates:
 
-1. **Kernel.** In the principal (PCA) frame the cloud is cut into ``kernel_grid`` x
+1. **Kernels.** In the principal (PCA) frame, the cloud is cut into ``kernel_grid`` x
    ``kernel_grid`` columns along each of the three axes and only the lowest and the highest point
-   of every column is kept: a few hundred points whose support function (the extent in any
-   direction) matches the cloud's to a fraction of a per cent. Cost O(N).
-2. **Candidates.** The convex hull of the kernel (scipy/qhull) gives its face normals; each
-   distinct normal, and each PCA axis, is a candidate first axis. For every candidate the
-   in-plane angle is swept on a grid of ``n_angles`` steps over 90 degrees and the volumes of
-   all (normal, angle) boxes are evaluated at once on the hull vertices.
-3. **Refinement.** The best ``n_refine`` distinct candidates are polished together by a pattern
-   search over small rotations about their own axes (26 directions of the 3 x 3 x 3 stencil,
-   step halved on failure from ``step_start`` down to ``step_min``); this also finds boxes that
-   are flush with no hull face, which face-normal methods (trimesh) miss.
-4. **Exact box.** The winner's axes are fitted tightly around *all* input points, so the box
-   always contains the cloud; its volume is the true volume of that orientation.
+   of every column is kept (O(N)); a ``coarse_grid`` kernel of that kernel is hulled by qhull.
+2. **Sweep.** Every distinct hull-face normal (up to sign) and every PCA axis is a candidate
+   axis; for each, the in-plane angle is tried on a grid of ``n_angles`` angles over 90 degrees,
+   all on the hull vertices at once. Candidates are swept in increasing order of an exact lower
+   bound (height times the hull's shadow area), and the sweep stops when the bound exceeds the
+   best volume by ``sweep_slack``.
+3. **Polish.** The best ``n_refine`` distinct boxes are polished on the fine kernel by a pattern
+   search over rotations about 26 stencil directions (per-candidate step halved on failure, an
+   active set of points near the faces); this reaches optima that are flush with no hull face,
+   which face-normal methods (trimesh) miss. The best box on the whole cloud then gets the cloud
+   points near its faces added and is polished down to ``step_min``.
+4. **Snap.** Hull facets of the points near the faces whose normals are within ``snap_angle`` of
+   a box axis are tried as exact flush faces, completed by the exact minimum-area rectangle
+   (rotating calipers over the projected silhouette edges); true volumes decide.
+5. **Exact box.** The winning axes are fitted tightly around *all* points, so the box always
+   contains the cloud and its volume is the true volume of that orientation.
 
 Coplanar input gives a flat box (extent 0 along the plane normal) from the exact 2D minimum-area
 rectangle (rotating calipers on the 2D hull). Fewer than 4 points, identical points and collinear
