@@ -131,9 +131,11 @@ class FingerTrace:
     q: np.ndarray
     """(2,) final flexion angles (radians) after any correction."""
     links_touched: tuple[str, ...]
-    """Links the planar closing model stopped on (middle first, then distal)."""
+    """Links the planar closing model stopped on cloud points (middle first, then distal)."""
     palm_stop: bool
     """A link reached the palm and stopped there."""
+    support_stop: bool
+    """A link reached the support plane and stopped there."""
     at_limits: bool
     """The finger closed to its limits without touching anything."""
     corrected: bool
@@ -411,6 +413,31 @@ def _link_distances(
     return ids, dists
 
 
+def _support_line_2d(ctx: _Context, T: np.ndarray, plane: Any, half_width: float) -> np.ndarray:
+    """(S, 2) points along the support plane's trace in a finger's flexion plane, spaced by
+    ``closing_margin`` within the finger's reach, so that the closing model stops a link on the
+    table as on the object. The trace is raised by ``half_width |n . plane normal|``: the link
+    box is that much lower at its side edges when the plane is tilted. Empty without a support
+    plane or when the flexion plane is parallel to it."""
+    if ctx.support is None:
+        return np.zeros((0, 2))
+    n_h = T[:3, :3].T @ np.asarray(ctx.support.normal, dtype=np.float64)  # hand frame
+    h_h = float(ctx.support.height) - float(np.asarray(ctx.support.normal) @ T[:3, 3])
+    a, b = float(n_h @ plane.u), float(n_h @ plane.v)
+    ab = np.hypot(a, b)
+    if ab < 1e-6:
+        return np.zeros((0, 2))
+    target = h_h + half_width * abs(float(n_h @ plane.normal)) - float(n_h @ plane.origin)
+    foot = target * np.array([a, b]) / ab**2  # nearest point of the line to the 2D origin
+    along = np.array([-b, a]) / ab
+    half_len = ctx.reach
+    if np.linalg.norm(foot) > ctx.reach:
+        return np.zeros((0, 2))
+    step = max(ctx.params.closing_margin, 1e-4)
+    t = np.arange(-half_len, half_len + step, step)
+    return foot + t[:, None] * along
+
+
 def _thin_2d(p2: np.ndarray, cell: float) -> np.ndarray:
     """One point of ``p2`` (M, 2) per occupied square cell of side ``cell`` (0: all points).
 
@@ -464,23 +491,28 @@ def _plan_one(ctx: _Context, pool: Any, i: int) -> Grasp:
         plane = ctx.plane(f, spread)
         p2, off = plane.to_plane(p_h)
         in_slice = (np.abs(off) <= 0.5 * f.width) & (np.hypot(p2[:, 0], p2[:, 1]) <= ctx.reach)
+        p_slice = _thin_2d(p2[in_slice], prm.slice_resolution)
+        n_obj = len(p_slice)
+        table = _support_line_2d(ctx, T, plane, 0.5 * f.width)
         cl = hand.close_finger(
             f,
-            _thin_2d(p2[in_slice], prm.slice_resolution),
+            np.concatenate([p_slice, table]),
             q0[list(f.flex_index)],
             n_steps=prm.closing_steps,
             margin=prm.closing_margin,
         )
         q[list(f.flex_index)] = cl.q
-        closings.append((f, cl, int(np.count_nonzero(in_slice))))
+        touched = tuple(c.link for c in cl.contacts if c.index < n_obj)
+        on_table = any(c.index >= n_obj for c in cl.contacts)
+        closings.append((f, cl, int(np.count_nonzero(in_slice)), touched, on_table))
 
     # 3. verification in 3D: depth of the nearby points in every link
     reach = max(prm.contact_distance, prm.penetration_tol)
     ids, dists = _link_distances(ctx, T, q, reach)
-    corrected = {f.name: False for f, _, _ in closings}
+    corrected = {f.name: False for f, *_ in closings}
     bad = {ctx.link_names[j] for j, d in enumerate(dists) if np.any(d < -prm.penetration_tol)}
     if bad:
-        for f, cl, _ in closings:
+        for f, cl, *_ in closings:
             cols = [ctx.link_index[n] for n in (f.links[1], f.links[2])]
             if not bad & {f.links[1], f.links[2]}:
                 continue
@@ -503,12 +535,13 @@ def _plan_one(ctx: _Context, pool: Any, i: int) -> Grasp:
             f.name,
             n,
             q[list(f.flex_index)].copy(),
-            tuple(c.link for c in cl.contacts),
+            touched,
             bool(cl.palm_stop),
+            on_table,
             bool(cl.at_limits),
             corrected[f.name],
         )
-        for f, cl, n in closings
+        for f, cl, n, touched, on_table in closings
     )
     depth = np.array([-d.min() if len(d) else -np.inf for d in dists])
     if depth.max() > prm.penetration_tol:
@@ -658,6 +691,7 @@ def grasp_to_dict(g: Grasp, hand: Any) -> dict[str, Any]:
                 "q": f.q.tolist(),
                 "links_touched": list(f.links_touched),
                 "palm_stop": f.palm_stop,
+                "support_stop": f.support_stop,
                 "at_limits": f.at_limits,
                 "corrected": f.corrected,
             }

@@ -223,14 +223,15 @@ def test_rejections_and_support_stop(hand):
         return v[:, 2].min()
 
     assert lowest(hand.preshape("cylindrical")) == pytest.approx(-0.01 + clearance, abs=1e-9)
-    if g.kept:
-        assert lowest(g.q) >= -0.01 - PlannerParams().penetration_tol
-    else:
-        assert g.rejection == "support_collision"
+    # closing lowers the open fingertips: the table (in every slice) stops them on it
+    assert any(f.support_stop for f in g.fingers)
+    assert lowest(g.q) >= -0.01 - PlannerParams().penetration_tol
+    assert g.rejection in (None, "no_contact")
 
 
 def test_support_collision_check_uses_fcl_half_space(hand):
-    """The closed hand's boxes against the table: fcl's box/half-space test."""
+    """The closed hand's boxes against the table: fcl's box/half-space test (the last line of
+    defence: the closing model already stops links on the table)."""
     from pregrasp_core.planner import _Context, _support_collision
 
     q = hand.preshape("cylindrical")
