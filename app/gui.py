@@ -65,6 +65,8 @@ class Gui:
         self.controller = controller
         self.scene = scene
         self._local = threading.local()
+        self._timers: dict[Any, threading.Timer] = {}  # pending debounced edit per control
+        self._timers_lock = threading.Lock()
         c, gui = controller, server.gui
         gui.configure_theme(control_width="large", dark_mode=False, show_logo=False)
 
@@ -158,7 +160,37 @@ class Gui:
         self.params[(section, name)] = h
 
     def _param_cb(self, section: str, name: str) -> Callable[[Any], Any]:
-        return lambda e: self._do(e, self.controller.set_param, section, name, e.target.value)
+        c = self.controller
+        return lambda e: self._debounced(
+            e, (section, name), c.set_param, section, name, e.target.value
+        )
+
+    def _debounced(self, event: Any, key: Any, fn: Callable[..., Any], *args: Any) -> None:
+        """Like :meth:`_do`, but a browser's edits of one control are applied only once they
+        have rested for :data:`PARAM_DEBOUNCE_S` (a number input sends every keystroke: typing
+        500 would otherwise run the pipeline for 5, 50 and 500). Edits from Python (tests,
+        scripts) have no client and apply at once."""
+        if getattr(self._local, "syncing", False):
+            return
+        client = getattr(event, "client", None)
+        if client is None:
+            self.controller.act(None, fn, *args)
+            return
+        timer = threading.Timer(PARAM_DEBOUNCE_S, self.controller.act, args=(client, fn, *args))
+        timer.daemon = True
+        with self._timers_lock:
+            old = self._timers.pop(key, None)
+            if old is not None:
+                old.cancel()
+            self._timers[key] = timer
+            timer.start()
+
+    def close(self) -> None:
+        """Cancel the pending debounced edits."""
+        with self._timers_lock:
+            for t in self._timers.values():
+                t.cancel()
+            self._timers.clear()
 
     # ------------------------------------------------------------------ mirror the state
     def _set(self, key: str, handle: Any, attr: str, value: Any) -> None:
@@ -247,6 +279,9 @@ class Gui:
         self._set("phase", self.phase, "value", round(float(min(s.view.anim_t, 1.0)), 2))
         self._set("speed", self.speed, "value", float(s.view.speed))
 
+
+PARAM_DEBOUNCE_S = 0.3
+"""A browser's edit of a threshold is applied once the control has rested this long (seconds)."""
 
 TABLE_ROWS = 20
 """Rows of the ranked grasp table and options of the grasp chooser."""

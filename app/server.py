@@ -76,6 +76,7 @@ class App:
     def close(self) -> None:
         """Stop the animation thread (the caller stops its server)."""
         self._stop.set()
+        self.gui.close()
         self._thread.join(timeout=2.0)
 
 

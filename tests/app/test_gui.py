@@ -7,6 +7,7 @@ from the app."""
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import numpy as np
 import pytest
@@ -154,3 +155,29 @@ def test_bad_threshold_is_reported_and_reverted(app):
     assert h.value == s0.params.decomposition.volume_ratio  # the input shows the state again
     app.gui.level.value = 0  # the app still works
     assert app.controller.state.shown_level == 0
+
+
+def test_browser_edits_of_a_threshold_are_debounced(app):
+    """A number input sends every keystroke; only the value the user stops at is applied."""
+    from viser._gui_handles import GuiEvent
+
+    from app.gui import PARAM_DEBOUNCE_S
+
+    class Client:  # stands in for a browser (edits from a browser carry their client)
+        def add_notification(self, *a, **k):
+            raise AssertionError(f"unexpected notification {a}")
+
+    results = []
+    app.controller.subscribe(lambda s: results.append(s.result))
+    h = app.gui.params[("decomposition", "min_points")]
+    for typed in (3, 30, 300):  # "300" typed key by key: min points 3, 30, then 300
+        h._impl.value = typed  # what viser stores before it runs the callbacks
+        for cb in h._impl.update_cb:
+            cb(GuiEvent(client=Client(), client_id=1, target=h))
+    assert app.controller.state.params.decomposition.min_points == 500  # nothing applied yet
+    deadline = time.monotonic() + 30
+    while app.controller.state.params.decomposition.min_points != 300:
+        assert time.monotonic() < deadline, "the debounced edit was never applied"
+        time.sleep(PARAM_DEBOUNCE_S / 3)
+    assert app.controller.state.params.decomposition.min_points == 300
+    assert len({id(r) for r in results}) == 1  # one pipeline run, for 300 only
