@@ -24,6 +24,9 @@ from pregrasp_core.result import read_result, write_result
 from pregrasp_core.sampling import SamplingParams
 from pregrasp_core.shape import ShapeParams
 
+POOL_STAGES = STAGES[: STAGES.index("pool") + 1]
+"""The stages up to the pool (later stages, e.g. planning, are not run here)."""
+
 
 def l_shape_cloud(seed: int = 0) -> PointCloud:
     """Points on the surface of an L: a bar on the table and a post on its end (metres)."""
@@ -53,7 +56,7 @@ def params():
 
 @pytest.fixture(scope="module")
 def first(hand, params):
-    return run_pipeline(l_shape_cloud(), params, hand)
+    return run_pipeline(l_shape_cloud(), params, hand, until="pool")
 
 
 def test_all_stages_run_and_are_timed(first):
@@ -62,29 +65,32 @@ def test_all_stages_run_and_are_timed(first):
     assert first.masks.blocked.shape == (len(first.tree.nodes), 6)
     assert first.masks.support is not None and first.masks.support.height == pytest.approx(0.0)
     assert first.traversal is not None and len(first.pool) > 0
-    assert set(first.timings) == set(STAGES) and all(v >= 0 for v in first.timings.values())
+    assert set(first.timings) == set(POOL_STAGES) and all(v >= 0 for v in first.timings.values())
     assert first.reused == ()
 
 
 def test_unchanged_stages_are_reused(first, hand, params):
-    again = run_pipeline(first.cloud, params, hand, previous=first)
-    assert again.reused == STAGES
+    again = run_pipeline(first.cloud, params, hand, previous=first, until="pool")
+    assert again.reused == POOL_STAGES
     assert again.tree is first.tree and again.pool is first.pool
     # a new sampling interval re-runs only the pool
     p2 = dataclasses.replace(params, sampling=SamplingParams(interval=0.05))
-    r2 = run_pipeline(first.cloud, p2, hand, previous=first)
+    r2 = run_pipeline(first.cloud, p2, hand, previous=first, until="pool")
     assert r2.reused == ("decompose", "classify", "facemask")
     assert r2.masks is first.masks and r2.pool is not first.pool
     # a new clearance re-runs the masks and the pool, not the tree or the shapes
     p3 = dataclasses.replace(params, facemask=FaceMaskParams(clearance=0.01))
-    r3 = run_pipeline(first.cloud, p3, hand, previous=first)
+    r3 = run_pipeline(first.cloud, p3, hand, previous=first, until="pool")
     assert r3.reused == ("decompose", "classify")
     # a new shape threshold: everything from classify on
     p4 = dataclasses.replace(params, shape=ShapeParams(small_size=0.1))
-    assert run_pipeline(first.cloud, p4, hand, previous=first).reused == ("decompose", "facemask")
+    assert run_pipeline(first.cloud, p4, hand, previous=first, until="pool").reused == (
+        "decompose",
+        "facemask",
+    )
     # another cloud: nothing is reused
     other = l_shape_cloud(seed=1)
-    assert run_pipeline(other, params, hand, previous=first).reused == ()
+    assert run_pipeline(other, params, hand, previous=first, until="pool").reused == ()
 
 
 def test_until_stops_early_and_rejects_unknown_stages(first, params):
@@ -97,20 +103,20 @@ def test_until_stops_early_and_rejects_unknown_stages(first, params):
 
 def test_progress_reaches_one(first, hand, params):
     seen: list[float] = []
-    run_pipeline(first.cloud, params, hand, previous=first, progress=seen.append)
-    assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) == len(STAGES)
+    run_pipeline(first.cloud, params, hand, previous=first, progress=seen.append, until="pool")
+    assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) == len(POOL_STAGES)
 
 
 def test_support_off_frees_the_bottom(first, hand, params):
     p = dataclasses.replace(params, facemask=FaceMaskParams(support=False))
-    r = run_pipeline(first.cloud, p, hand, previous=first)
+    r = run_pipeline(first.cloud, p, hand, previous=first, until="pool")
     assert r.masks.support is None and not r.masks.by_support.any()
     assert first.masks.by_support[0].sum() == 1  # the root's bottom face, with the table
 
 
 def test_result_document_has_masks_and_pool(first, params, tmp_path):
     doc = result_document(first, params, extra_timings={"load": 0.01})
-    assert list(doc["timings"])[0] == "load" and set(STAGES) <= set(doc["timings"])
+    assert list(doc["timings"])[0] == "load" and set(POOL_STAGES) <= set(doc["timings"])
     nodes = doc["tree"]["nodes"] if isinstance(doc["tree"], dict) else doc["tree"]
     assert all(np.shape(n["face_mask"]) == (6, 5) for n in nodes)
     assert np.array_equal([n["face_mask"] for n in nodes], first.masks.masks)
@@ -118,7 +124,7 @@ def test_result_document_has_masks_and_pool(first, params, tmp_path):
     assert pool["count"] == len(first.pool) == len(pool["pregrasps"])
     assert pool["support_plane"]["normal"] == [0.0, 0.0, 1.0]
     assert pool["traversal"]["candidates"] == list(first.traversal.candidates)
-    assert set(doc["parameters"]) == {"decomposition", "shape", "facemask", "sampling"}
+    assert {"decomposition", "shape", "facemask", "sampling"} <= set(doc["parameters"])
     assert doc["parameters"]["sampling"]["policy"] == "paper"
     out = write_result(doc, tmp_path / "r.json")
     back = read_result(out)
@@ -128,6 +134,13 @@ def test_result_document_has_masks_and_pool(first, params, tmp_path):
 
 def test_the_default_object_gets_a_pool(hand):
     cloud = load_point_cloud(DEFAULT_OBJECT, n_points=6000, seed=0)
-    r = run_pipeline(cloud, PipelineParams(decomposition=DecompositionParams(min_points=150)), hand)
+    r = run_pipeline(
+        cloud, PipelineParams(decomposition=DecompositionParams(min_points=150)), hand, until="pool"
+    )
     assert len(r.pool) > 0
     assert set(np.unique(r.pool.node)) <= set(r.traversal.candidates)
+    # every pre-grasp of a real object is collision-free for the hand model's own query
+    for gt in np.unique(r.pool.grasp_type):
+        sel = r.pool.grasp_type == gt
+        hits = hand.hands_hit_points(cloud.points, r.pool.T_world_hand[sel], r.pool.q[sel][0])
+        assert not hits.any()
