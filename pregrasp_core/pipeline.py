@@ -2,7 +2,7 @@
 
 Each stage is a pure function of the previous stages' results and of its own parameters, so
 :func:`run_pipeline` can reuse the stages of a ``previous`` result whose inputs did not change
-(the app re-runs only what a threshold change affects). Stages, in order (:data:`STAGES`):
+(the app re-runs only what a threshold change affects). Stages, in order (:data:`ALL_STAGES`):
 
 ========== ====================================== ==========================================
 stage      computes                               depends on
@@ -11,6 +11,8 @@ decompose  ``tree`` (BoxTree)                     cloud, ``params.decomposition`
 classify   ``shapes`` (NodeShape per node)        decompose, ``params.shape``
 facemask   ``masks`` (FaceMasks, support plane)   decompose, ``params.facemask``
 pool       ``traversal`` and ``pool``             classify, facemask, ``params.sampling``, hand
+grasps     ``normals`` and ``grasps`` (GraspSet)  pool, ``params.planner`` (normals: cloud and
+                                                  ``params.planner.normals`` only)
 ========== ====================================== ==========================================
 
 ``timings`` holds the seconds each stage took when it was computed (a reused stage keeps the
@@ -30,13 +32,18 @@ import numpy as np
 from .decomposition import BoxTree, DecompositionParams, decompose
 from .facemask import FaceMaskParams, FaceMasks, compute_face_masks, support_plane
 from .io import PointCloud
+from .planner import GraspSet, PlannerParams, cloud_normals, grasps_sections, plan_grasps
 from .sampling import PreGraspPool, SamplingParams, Traversal, build_pool, traverse
 from .shape import NodeShape, ShapeParams, classify_tree
 
 logger = logging.getLogger(__name__)
 
 STAGES: tuple[str, ...] = ("decompose", "classify", "facemask", "pool")
-"""The stages in order; ``run_pipeline(until=...)`` stops after the named one."""
+"""The stages up to the pre-grasp pool, in order (``run_pipeline``'s default ``until``)."""
+
+ALL_STAGES: tuple[str, ...] = (*STAGES, "grasps")
+"""Every stage, the planner's ``grasps`` last; ``run_pipeline(until=...)`` stops after the
+named one."""
 
 
 @dataclass(frozen=True)
@@ -51,6 +58,8 @@ class PipelineParams:
     """Face masks and the support plane."""
     sampling: SamplingParams = field(default_factory=SamplingParams)
     """Traversal policy and pre-grasp sampling."""
+    planner: PlannerParams = field(default_factory=PlannerParams)
+    """Slicing contact planner, quality measure and cloud normals."""
 
     def as_dict(self) -> dict[str, Any]:
         """Section name -> parameters dataclass (for the result file's ``parameters``)."""
@@ -59,6 +68,7 @@ class PipelineParams:
             "shape": self.shape,
             "facemask": self.facemask,
             "sampling": self.sampling,
+            "planner": self.planner,
         }
 
 
@@ -80,6 +90,10 @@ class PipelineResult:
     """Candidate nodes and the reason for every node (stage ``pool``)."""
     pool: PreGraspPool | None = None
     """The pre-grasp pool (stage ``pool``)."""
+    normals: np.ndarray | None = None
+    """(N, 3) outward unit normals of the cloud (stage ``grasps``)."""
+    grasps: GraspSet | None = None
+    """Every pre-grasp planned: kept grasps ranked, rejections with reasons (stage ``grasps``)."""
     timings: dict[str, float] = field(default_factory=dict)
     """Seconds per stage (when it was computed)."""
     reused: tuple[str, ...] = ()
@@ -96,9 +110,9 @@ def _same_cloud(a: PointCloud, b: PointCloud) -> bool:
 
 
 def _stage_index(until: str) -> int:
-    if until not in STAGES:
-        raise ValueError(f"until must be one of {STAGES}, got {until!r}")
-    return STAGES.index(until)
+    if until not in ALL_STAGES:
+        raise ValueError(f"until must be one of {ALL_STAGES}, got {until!r}")
+    return ALL_STAGES.index(until)
 
 
 def run_pipeline(
@@ -109,7 +123,7 @@ def run_pipeline(
     previous: PipelineResult | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> PipelineResult:
-    """Run the stages up to ``until`` (one of :data:`STAGES`), reusing those of ``previous``
+    """Run the stages up to ``until`` (one of :data:`ALL_STAGES`), reusing those of ``previous``
     whose inputs are unchanged.
 
     hand: the ``pregrasp_core.hand.Hand`` (loaded with ``Hand.load()`` when ``None`` and the
@@ -197,6 +211,44 @@ def run_pipeline(
             _pool,
         )
         tick(3)
+    if last >= 4:
+        # normals depend on the cloud only (computed once per cloud; timed as "normals")
+        if (
+            prev is not None
+            and prev.normals is not None
+            and pp.planner.normals == params.planner.normals
+        ):
+            out["normals"] = prev.normals
+            timings["normals"] = prev.timings.get("normals", 0.0)
+        else:
+            t0 = time.perf_counter()
+            out["normals"] = cloud_normals(cloud, params.planner.normals)
+            timings["normals"] = time.perf_counter() - t0
+
+        def _plan_progress(done: int, total: int) -> None:
+            if progress is not None:
+                progress((4 + done / max(total, 1)) / (last + 1))
+
+        def _grasps() -> dict:
+            masks = out["masks"]
+            gs = plan_grasps(
+                points,
+                out["normals"],
+                out["pool"],
+                hand,
+                params.planner,
+                support=None if masks is None else masks.support,
+                progress=_plan_progress,
+            )
+            return {"grasps": gs}
+
+        stage(
+            "grasps",
+            "pool" in reused and pp.planner == params.planner,
+            ("grasps",),
+            _grasps,
+        )
+        tick(4)
     return PipelineResult(
         cloud=cloud,
         params=params,
@@ -246,6 +298,8 @@ def result_document(
     extra: dict[str, Any] = {}
     if result.pool is not None:
         extra["pool"] = pool_section(result)
+    if result.grasps is not None:
+        extra.update(grasps_sections(result.grasps, result.hand, params.planner))
     return _doc(
         result.cloud,
         params.as_dict(),
