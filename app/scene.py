@@ -427,7 +427,7 @@ class SceneRenderer:
                 point_shape="circle",
                 precision="float32",
             )
-            mu = float(getattr(state.params, "mu", None) or _nested(state.params, "mu", 0.5))
+            mu = friction_coefficient(state.params)
             self._handles["cones"] = self.server.scene.add_line_segments(
                 NAMES["cones"],
                 points=friction_cone_segments(pts, nrm, mu).astype(np.float32),
@@ -482,14 +482,10 @@ def _get(obj: Any, name: str) -> Any:
     return None if obj is None else getattr(obj, name, None)
 
 
-def _nested(params: Any, name: str, default: Any) -> Any:
-    """``params.<section>.<name>`` for the first section that has it, else ``default``."""
-    if params is None:
-        return default
-    for sec in vars(params).values() if hasattr(params, "__dict__") else ():
-        if hasattr(sec, name):
-            return getattr(sec, name)
-    return default
+def friction_coefficient(params: Any, default: float = 0.5) -> float:
+    """The friction coefficient of the quality measure (``params.planner.quality.mu``)."""
+    q = getattr(getattr(params, "planner", None), "quality", None)
+    return float(getattr(q, "mu", default))
 
 
 def _enum_value(x: Any) -> Any:
