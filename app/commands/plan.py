@@ -1,16 +1,346 @@
-"""`pregrasp plan` (PLACEHOLDER until issue 5 lands: replace this whole module)."""
+"""`pregrasp plan`: the whole pipeline (decomposition, shapes, face masks, pre-grasp pool,
+slicing contact planner, quality) on one object or on every object of a folder.
+
+One object: ``-o OUT.json`` writes the ``pregrasp/1`` result (tree, pool, grasps, best, timings
+per stage); ``-o -`` prints the JSON; without ``-o`` a readable summary (parts, pool size, the
+best grasps with type, contacts and epsilon).
+
+A folder: every mesh or cloud in it (sorted by name) is planned in turn with a text progress bar
+on stderr; ``--report report.csv`` writes one row per object (object, points, parts, pool, kept,
+force closure, best type, contacts, epsilon, volume, seconds, error), else the CSV goes to
+stdout; ``-o DIR`` also writes ``DIR/<object>.json`` per object.
+"""
 
 from __future__ import annotations
 
 import argparse
+import csv
+import dataclasses
+import io
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any, TextIO
 
-from pregrasp_core.errors import PregraspError
+from pregrasp_core.errors import InputError, PregraspError
+from pregrasp_core.io import SUPPORTED_EXTENSIONS, load_point_cloud
+from pregrasp_core.planner import PlannerParams
+from pregrasp_core.quality import QualityParams
+from pregrasp_core.result import to_jsonable, write_result
+
+from . import common, pregrasps
+
+_PP = PlannerParams()
+_QP = QualityParams()
+
+REPORT_COLUMNS: tuple[str, ...] = (
+    "object",
+    "points",
+    "parts",
+    "pool",
+    "kept",
+    "force_closure",
+    "best_type",
+    "best_contacts",
+    "best_epsilon",
+    "best_volume",
+    "seconds",
+    "error",
+)
+"""Columns of the batch report (CSV)."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("plan", help="(not built yet: issue 5)")
+    p = sub.add_parser(
+        "plan",
+        help="plan grasps: decomposition, pre-grasp pool, slicing planner, quality",
+        description="Run the whole pipeline on INPUT (a file, or a folder of objects) and rank "
+        "the grasps by Ferrari-Canny epsilon (L1), then wrench-hull volume. Writes the "
+        "pregrasp/1 JSON with -o, else prints a summary; on a folder writes a CSV report.",
+    )
+    common.add_input_args(p)
+    common.add_decomposition_args(p)
+    common.add_shape_args(p)
+    pregrasps.add_pool_args(p)
+    add_planner_args(p)
+    g = p.add_argument_group("output")
+    g.add_argument(
+        "--top", type=int, default=5, metavar="K", help="grasps listed in the summary (default 5)"
+    )
+    g.add_argument(
+        "-o",
+        "--output",
+        metavar="OUT",
+        default=None,
+        help="result JSON file ('-' = stdout); for a folder INPUT, a directory for one JSON "
+        "per object",
+    )
+    g.add_argument(
+        "--report",
+        metavar="CSV",
+        default=None,
+        help="folder INPUT: write the per-object CSV report here (default: stdout)",
+    )
+    g.add_argument("--include-indices", action="store_true", help="store each node's point indices")
     p.set_defaults(func=run)
 
 
+def add_planner_args(p: argparse.ArgumentParser) -> None:
+    """Options of the planner and the quality measure (defaults of ``PlannerParams``)."""
+    g = p.add_argument_group("planner and quality")
+    g.add_argument(
+        "--mu",
+        type=float,
+        default=_QP.mu,
+        metavar="MU",
+        help="friction coefficient (default %(default)s)",
+    )
+    g.add_argument(
+        "--cone-edges",
+        type=int,
+        default=_QP.n_edges,
+        metavar="M",
+        help="edges of each linearised friction cone (default %(default)s)",
+    )
+    g.add_argument(
+        "--clearance",
+        type=float,
+        default=_PP.approach_clearance,
+        metavar="D",
+        help="the approach stops this far from the cloud, metres (default %(default)s)",
+    )
+    g.add_argument(
+        "--contact-distance",
+        type=float,
+        default=_PP.contact_distance,
+        metavar="D",
+        help="a link within D metres of the cloud makes a contact (default %(default)s)",
+    )
+    g.add_argument(
+        "--penetration-tol",
+        type=float,
+        default=_PP.penetration_tol,
+        metavar="D",
+        help="largest depth of a cloud point inside the final hand, metres (default %(default)s)",
+    )
+
+
+def planner_params(args: argparse.Namespace) -> PlannerParams:
+    """The ``PlannerParams`` of the parsed options; bad values become a ``PregraspError``."""
+    try:
+        return PlannerParams(
+            approach_clearance=args.clearance,
+            contact_distance=args.contact_distance,
+            penetration_tol=args.penetration_tol,
+            quality=QualityParams(mu=args.mu, n_edges=args.cone_edges),
+        )
+    except ValueError as exc:
+        raise PregraspError(f"invalid planner option: {exc}") from exc
+
+
+def pipeline_params(args: argparse.Namespace) -> Any:
+    """``PipelineParams`` with every stage's options from ``args``."""
+    return dataclasses.replace(pregrasps.pipeline_params(args), planner=planner_params(args))
+
+
+def plan_one(path: str | Path, args: argparse.Namespace, hand: Any) -> tuple[Any, dict]:
+    """Load and plan one object: (PipelineResult, timings with ``load`` first)."""
+    from pregrasp_core.pipeline import run_pipeline
+
+    t0 = time.perf_counter()
+    cloud = load_point_cloud(path, n_points=args.points, seed=args.seed, scale=args.scale)
+    t_load = time.perf_counter() - t0
+    result = run_pipeline(cloud, pipeline_params(args), hand, until="grasps")
+    return result, {"load": t_load, **result.timings}
+
+
+def result_doc(result: Any, timings: dict, args: argparse.Namespace) -> dict:
+    """The ``pregrasp/1`` document of a planned result."""
+    from pregrasp_core.pipeline import result_document
+
+    return result_document(
+        result,
+        include_indices=args.include_indices,
+        extra_timings={"load": timings["load"]},
+    )
+
+
 def run(args: argparse.Namespace) -> int:
-    raise PregraspError("'pregrasp plan' is not built yet (issue 5)")
+    from pregrasp_core.hand import load_hand
+
+    if args.top < 0:
+        raise PregraspError(f"--top must be >= 0, got {args.top}")
+    path = Path(common.input_path(args))
+    pipeline_params(args)  # validate every option before any work
+    hand = load_hand()
+    if path.is_dir():
+        return run_batch(path, args, hand)
+    if args.report is not None:
+        raise PregraspError("--report is for a folder INPUT; use -o OUT.json for one object")
+    result, timings = plan_one(path, args, hand)
+    if args.output is None:
+        print(summary(result, timings, args.top))
+        return 0
+    doc = result_doc(result, timings, args)
+    if args.output == "-":
+        json.dump(to_jsonable(doc), sys.stdout, indent=1)
+        sys.stdout.write("\n")
+        return 0
+    out = write_result(doc, args.output)
+    gs = result.grasps
+    best = gs.best
+    tail = (
+        f", best {gs.grasps[best].grasp_type} epsilon {gs.grasps[best].epsilon:.4f}"
+        if best is not None
+        else ", no grasp kept"
+    )
+    print(f"wrote {out}: {len(result.pool)} pre-grasps, {len(gs.ranking)} grasps kept{tail}")
+    return 0
+
+
+# ------------------------------------------------------------------------------ summary
+
+
+def summary(result: Any, timings: dict, top: int) -> str:
+    """A readable summary of a planned result."""
+    cloud, tree, pool, gs = result.cloud, result.tree, result.pool, result.grasps
+    lines = [
+        f"object: {cloud.source} ({len(cloud.points)} points)",
+        f"parts: {len(tree.leaves())} (tree of {len(tree.nodes)} nodes)",
+        f"pool: {len(pool)} pre-grasps"
+        + (f" (dropped {_counts(pool.dropped)})" if any(pool.dropped.values()) else ""),
+        f"planned: {len(gs.ranking)} kept, {gs.n_force_closure} force closure"
+        + (f"; rejected {_counts(gs.rejected)}" if any(gs.rejected.values()) else ""),
+    ]
+    best = gs.top(top)
+    if best:
+        lines.append(f"best {len(best)} grasps (rank by epsilon, then volume):")
+        lines.append(
+            f"  {'rank':>4}  {'type':<17} {'node':>4} {'pre':>5} {'contacts':>8} "
+            f"{'epsilon':>8} {'volume':>10}  links"
+        )
+        for g in best:
+            links = ",".join(c.link for c in g.contacts)
+            lines.append(
+                f"  {g.rank:>4}  {g.grasp_type:<17} {int(pool.node[g.pregrasp]):>4} "
+                f"{g.pregrasp:>5} {g.n_contacts:>8} {g.epsilon:>8.4f} {g.volume:>10.3e}  {links}"
+            )
+    else:
+        lines.append("no grasp kept")
+    total = sum(timings.values())
+    lines.append(
+        "timings: " + ", ".join(f"{k} {v:.3f} s" for k, v in timings.items()) + f"; total "
+        f"{total:.3f} s"
+    )
+    return "\n".join(lines)
+
+
+def _counts(d: dict) -> str:
+    return ", ".join(f"{k} {v}" for k, v in d.items() if v)
+
+
+# ------------------------------------------------------------------------------ batch
+
+
+def objects_in(folder: Path) -> list[Path]:
+    """The files of ``folder`` that ``load_point_cloud`` reads, sorted by name."""
+    files = sorted(
+        p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in SUPPORTED_EXTENSIONS
+    )
+    if not files:
+        raise InputError(
+            f"{folder}: no point cloud or mesh files (expected one of "
+            f"{', '.join(SUPPORTED_EXTENSIONS)})"
+        )
+    return files
+
+
+def report_row(name: str, result: Any, seconds: float) -> dict[str, Any]:
+    """One CSV row of the batch report for a planned result."""
+    gs = result.grasps
+    row: dict[str, Any] = {
+        "object": name,
+        "points": len(result.cloud.points),
+        "parts": len(result.tree.leaves()),
+        "pool": len(result.pool),
+        "kept": len(gs.ranking),
+        "force_closure": gs.n_force_closure,
+        "best_type": "",
+        "best_contacts": 0,
+        "best_epsilon": 0.0,
+        "best_volume": 0.0,
+        "seconds": round(seconds, 4),
+        "error": "",
+    }
+    if gs.best is not None:
+        g = gs.grasps[gs.best]
+        row.update(
+            best_type=g.grasp_type,
+            best_contacts=g.n_contacts,
+            best_epsilon=round(g.epsilon, 6),
+            best_volume=float(f"{g.volume:.6g}"),
+        )
+    return row
+
+
+class ProgressBar:
+    """A text progress bar on a stream (stderr): redrawn in place on a terminal, one line per
+    update otherwise (logs stay readable)."""
+
+    def __init__(self, total: int, stream: TextIO | None = None, width: int = 30) -> None:
+        self.total = max(int(total), 1)
+        self.stream = sys.stderr if stream is None else stream
+        self.width = width
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+
+    def update(self, done: int, label: str = "") -> None:
+        filled = int(round(self.width * done / self.total))
+        bar = "#" * filled + "." * (self.width - filled)
+        text = f"[{bar}] {done}/{self.total} {label}"
+        if self.tty:
+            self.stream.write("\r" + text.ljust(self.width + 40))
+            if done >= self.total:
+                self.stream.write("\n")
+        else:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+
+def run_batch(folder: Path, args: argparse.Namespace, hand: Any) -> int:
+    """Plan every object of ``folder``; write the CSV report; 1 if any object failed."""
+    files = objects_in(folder)
+    out_dir = None
+    if args.output is not None:
+        if args.output == "-":
+            raise PregraspError("-o - is for one object; for a folder give a directory")
+        out_dir = Path(args.output)
+        out_dir.mkdir(parents=True, exist_ok=True)
+    bar = ProgressBar(len(files))
+    rows = []
+    failed = 0
+    bar.update(0, "")
+    for k, f in enumerate(files):  # loop over objects
+        t0 = time.perf_counter()
+        try:
+            result, timings = plan_one(f, args, hand)
+            rows.append(report_row(f.name, result, time.perf_counter() - t0))
+            if out_dir is not None:
+                write_result(result_doc(result, timings, args), out_dir / f"{f.stem}.json")
+        except PregraspError as exc:  # one bad object does not stop the batch
+            failed += 1
+            row = {c: "" for c in REPORT_COLUMNS}
+            row.update(object=f.name, seconds=round(time.perf_counter() - t0, 4), error=str(exc))
+            rows.append(row)
+        bar.update(k + 1, f.name)
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=list(REPORT_COLUMNS), lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    if args.report is None:
+        sys.stdout.write(text.getvalue())
+    else:
+        Path(args.report).write_text(text.getvalue())
+        n_fc = sum(1 for r in rows if r["best_epsilon"] not in ("", 0.0))
+        print(f"wrote {args.report}: {len(rows)} objects, best grasp force closure on {n_fc}")
+    return 1 if failed else 0

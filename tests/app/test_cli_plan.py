@@ -1,0 +1,168 @@
+"""`pregrasp plan`: summary, JSON result (file and stdout), batch over a folder with a CSV
+report and a progress bar, and user-facing errors."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import shutil
+
+import numpy as np
+import pytest
+import trimesh
+
+from app.cli import main
+from app.commands.plan import REPORT_COLUMNS, ProgressBar
+from pregrasp_core.paths import OBJECTS_DIR
+
+LEMON = OBJECTS_DIR / "fruit_lemon.obj"
+FAST = ["--points", "2500"]
+
+
+def test_summary_lists_parts_pool_and_best_grasps(capsys):
+    assert main(["plan", str(LEMON), *FAST, "--top", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "object:" in out and "fruit_lemon.obj (2500 points)" in out
+    assert "parts: 1" in out
+    assert "pool:" in out and "planned:" in out
+    assert "timings:" in out and "grasps" in out.split("timings:")[1]
+    assert "best 2 grasps (rank by epsilon, then volume):" in out
+    lines = out.splitlines()
+    header = next(k for k, line in enumerate(lines) if "contacts" in line and "epsilon" in line)
+    assert lines[header].split()[:3] == ["rank", "type", "node"]
+    first = lines[header + 1].split()
+    assert first[0] == "0" and first[1] in ("spherical", "cylindrical", "three_finger_tip",
+                                            "two_finger_tip")  # fmt: skip
+
+
+def test_json_result_has_grasps_best_and_timings(tmp_path, capsys):
+    out_file = tmp_path / "lemon.json"
+    assert main(["plan", str(LEMON), *FAST, "-o", str(out_file)]) == 0
+    assert "wrote" in capsys.readouterr().out
+    doc = json.loads(out_file.read_text())
+    assert doc["schema"] == "pregrasp/1"
+    for stage in ("load", "decompose", "classify", "facemask", "pool", "normals", "grasps"):
+        assert doc["timings"][stage] >= 0.0
+    n_pool = len(doc["pool"]["pregrasps"]) if "pregrasps" in doc["pool"] else None
+    items = doc["grasps"]["items"]
+    if n_pool is not None:
+        assert len(items) == n_pool
+    assert [g["pregrasp"] for g in items] == list(range(len(items)))
+    ranking = doc["grasps"]["ranking"]
+    if ranking:
+        assert doc["best"] == ranking[0]
+        best = items[doc["best"]]
+        assert best["rank"] == 0 and best["status"] == "kept"
+        eps = [items[k]["epsilon"] for k in ranking]
+        assert eps == sorted(eps, reverse=True)
+    else:
+        assert doc["best"] is None
+    for g in items:
+        assert (g["rejection"] is None) == (g["status"] == "kept")
+    assert doc["parameters"]["planner"]["quality"]["mu"] == 0.5
+
+
+def test_json_to_stdout_and_planner_options(capsys):
+    assert main(["plan", str(LEMON), *FAST, "--mu", "0.8", "--cone-edges", "6", "-o", "-"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["parameters"]["planner"]["quality"] == {"mu": 0.8, "n_edges": 6,
+                                                       "torque_scale": None}  # fmt: skip
+    assert doc["grasps"]["quality"]["n_edges"] == 6
+
+
+def _box_obj(path):
+    trimesh.creation.box(extents=[0.05, 0.07, 0.02]).export(path)
+
+
+def test_batch_over_a_folder_writes_a_csv_report(tmp_path, capsys):
+    folder = tmp_path / "objects"
+    folder.mkdir()
+    shutil.copy(LEMON, folder / "a_lemon.obj")
+    _box_obj(folder / "b_box.obj")
+    (folder / "c_empty.xyz").write_text("")
+    (folder / "notes.md").write_text("not an object")
+    report = tmp_path / "report.csv"
+    code = main(["plan", str(folder), *FAST, "--report", str(report), "-o", str(tmp_path / "js")])
+    captured = capsys.readouterr()
+    assert code == 1  # one object failed, the others were planned
+    rows = list(csv.DictReader(report.open()))
+    assert [r["object"] for r in rows] == ["a_lemon.obj", "b_box.obj", "c_empty.xyz"]
+    assert list(rows[0]) == list(REPORT_COLUMNS)
+    assert rows[0]["error"] == "" and int(rows[0]["points"]) == 2500
+    assert int(rows[1]["parts"]) >= 1 and rows[1]["error"] == ""
+    assert "c_empty.xyz" in rows[2]["error"] and "empty" in rows[2]["error"]
+    for r in rows[:2]:
+        if r["best_type"]:
+            assert float(r["best_epsilon"]) >= 0.0 and int(r["best_contacts"]) >= 1
+    assert sorted(p.name for p in (tmp_path / "js").iterdir()) == ["a_lemon.json", "b_box.json"]
+    # the progress bar (stderr is not a terminal under pytest: one line per update)
+    assert "[" in captured.err and "3/3 c_empty.xyz" in captured.err
+    assert "best grasp force closure on" in captured.out
+
+
+def test_batch_without_report_prints_csv(tmp_path, capsys):
+    folder = tmp_path / "one"
+    folder.mkdir()
+    _box_obj(folder / "box.obj")
+    assert main(["plan", str(folder), *FAST]) == 0
+    rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    assert len(rows) == 1 and rows[0]["object"] == "box.obj"
+
+
+def test_progress_bar_redraws_in_place_on_a_terminal():
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    s = Tty()
+    bar = ProgressBar(4, stream=s, width=8)
+    bar.update(2, "x")
+    bar.update(4, "y")
+    text = s.getvalue()
+    assert text.startswith("\r[####....] 2/4 x") and "\r[########] 4/4 y" in text
+    assert text.endswith("\n")
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--mu", "-1"], "invalid planner option: mu must be"),
+        (["--contact-distance", "0.0001"], "invalid planner option: contact_distance"),
+        (["--top", "-2"], "--top must be >= 0"),
+        (["--report", "r.csv"], "--report is for a folder INPUT"),
+    ],
+)
+def test_bad_options_are_one_line_errors(argv, message, capsys):
+    assert main(["plan", str(LEMON), *FAST, *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pregrasp plan: error:") and message in err
+    assert "Traceback" not in err
+
+
+def test_empty_folder_and_missing_file(tmp_path, capsys):
+    assert main(["plan", str(tmp_path)]) == 2
+    assert "no point cloud or mesh files" in capsys.readouterr().err
+    assert main(["plan", str(tmp_path / "missing.obj")]) == 2
+    err = capsys.readouterr().err
+    assert "missing.obj" in err and "Traceback" not in err
+
+
+def test_report_row_numbers_match_the_grasp_set():
+    """The CSV row is computed from the result, not re-derived: check it on a real run."""
+    from app.commands.plan import report_row
+    from pregrasp_core.hand import load_hand
+    from pregrasp_core.io import load_point_cloud
+    from pregrasp_core.pipeline import run_pipeline
+
+    cloud = load_point_cloud(LEMON, n_points=2500)
+    result = run_pipeline(cloud, hand=load_hand(), until="grasps")
+    row = report_row("lemon", result, 1.23456)
+    gs = result.grasps
+    assert row["pool"] == len(result.pool) and row["kept"] == len(gs.ranking)
+    assert row["force_closure"] == sum(g.epsilon > 0 for g in gs.grasps)
+    if gs.best is not None:
+        assert row["best_epsilon"] == pytest.approx(gs.grasps[gs.best].epsilon, abs=1e-6)
+        assert row["best_type"] == gs.grasps[gs.best].grasp_type
+    assert row["seconds"] == pytest.approx(1.2346)
+    assert np.isfinite(row["best_volume"])
