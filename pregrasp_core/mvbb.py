@@ -75,6 +75,9 @@ class MvbbParams:
     exact flush faces (final snap), radians."""
     snap_max: int = 12
     """At most this many facet normals are tried by the final snap."""
+    snap_grid: int = 8
+    """Columns per side of the grid that thins the points near the box faces before the snap's
+    hull (the snapped boxes are then judged on the whole cloud)."""
     max_iterations: int = 200
     """Upper bound on pattern-search iterations (a safeguard; typical runs need 20 to 40)."""
     refine_restart_level: int = 4
@@ -382,18 +385,22 @@ def _snap(R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams) -> np.ndar
     The pattern search ends within ``step_min`` of a local optimum. When that optimum has a face
     flush with a hull face (the usual case, and the only one face-normal methods consider), this
     step makes it exact: the hull of the cloud points ``Q`` (3, N) near the box faces (thinned to
-    the extremes of a ``polish_grid`` grid of columns in the box frame) is built,
+    the extremes of a ``snap_grid`` grid of columns in the box frame) is built,
     and for every hull facet whose normal is within ``snap_angle`` of a box axis, the box flush
     with that facet is completed by the exact minimum-area rectangle of the projected hull
     (rotating calipers over the projected silhouette edges). The best of these and ``R`` wins.
     """
     proj = R.T @ Q  # (3, N)
     lo, hi = proj.min(axis=1), proj.max(axis=1)
-    margin = 2.0 * radius * np.sin(p.snap_angle) * 2.0
+    # A snapped box is turned from R by at most 2 * snap_angle (tilt + in-plane), which moves a
+    # coordinate by at most radius * 2 * snap_angle: only points within twice that of a face
+    # can be extreme in it, so the snapped boxes are judged exactly on these points.
+    margin = 1.5 * 2.0 * radius * 2.0 * p.snap_angle
     near = np.flatnonzero(
         np.any((proj >= hi[:, None] - margin) | (proj <= lo[:, None] + margin), axis=0)
     )
-    near = near[_kernel_mask(proj[:, near], lo, hi - lo, p.polish_grid)]  # thinned
+    judge = np.ascontiguousarray(Q[:, near])  # (3, j)
+    near = near[_kernel_mask(proj[:, near], lo, hi - lo, p.snap_grid)]  # thinned for the hull
     Z = Q[:, near]  # (3, z)
     try:
         hull = ConvexHull(Z.T)
@@ -413,30 +420,45 @@ def _snap(R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams) -> np.ndar
     e0 = simp[:, [1, 2, 0]].reshape(-1)
     e1 = simp[:, [2, 0, 1]].reshape(-1)
     edge = Z[:, e1] - Z[:, e0]  # (3, 3F)
-    snapped = [R]
-    for n in cand:  # a few facets: small loop
-        s_f, s_g = normals[f_idx] @ n, normals[g_idx] @ n
-        sil = s_f * s_g <= 0.0  # silhouette edges bound the projected hull
-        frame = _frames_from_normals(n[None])[0]
-        eu, ev = frame[:, 0] @ edge[:, sil], frame[:, 1] @ edge[:, sil]
-        keep = np.hypot(eu, ev) > 0.0
-        theta = np.mod(np.arctan2(ev[keep], eu[keep]), 0.5 * np.pi)  # (s,)
-        # Only in-plane angles near the polished box's: the near points Z decide those boxes.
-        r = R[:, int(np.argmin(np.abs(R.T @ n)))]  # a box axis in the facet plane
-        phi = np.mod(np.arctan2(frame[:, 1] @ r, frame[:, 0] @ r), 0.5 * np.pi)
-        gap = np.abs(np.mod(theta - phi + 0.25 * np.pi, 0.5 * np.pi) - 0.25 * np.pi)
-        theta = theta[gap <= 4.0 * p.snap_angle]
-        if len(theta) == 0:
-            continue
-        w = frame.T @ W  # (3, h)
-        c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
-        x = c * w[0] + s * w[1]  # (s, h)
-        y = c * w[1] - s * w[0]
-        k = int(np.argmin((x.max(axis=1) - x.min(axis=1)) * (y.max(axis=1) - y.min(axis=1))))
-        ck, sk = float(c[k, 0]), float(s[k, 0])
-        snapped.append(frame @ np.array([[ck, -sk, 0.0], [sk, ck, 0.0], [0.0, 0.0, 1.0]]))
-    Rs = np.stack(snapped)  # (1 + k, 3, 3): true volumes on the whole cloud decide
-    best_R = Rs[int(np.argmin(_volumes(Rs, Q)))]
+    K = len(cand)
+    frames = _frames_from_normals(cand)  # (K, 3, 3), third column = facet normal
+    # Silhouette edges (between a facet facing the normal and one facing away) bound the
+    # projected hull; the minimum-area rectangle has a side along one of them.
+    sil = (normals[f_idx] @ cand.T) * (normals[g_idx] @ cand.T) <= 0.0  # (3F, K)
+    eu = edge.T @ frames[:, :, 0].T  # (3F, K) edge components in each facet plane
+    ev = edge.T @ frames[:, :, 1].T
+    theta = np.mod(np.arctan2(ev, eu), 0.5 * np.pi)  # (3F, K)
+    # Only in-plane angles near the polished box's: the near points Z decide those boxes.
+    r = R[:, np.argmin(np.abs(cand @ R), axis=1)].T  # (K, 3): a box axis in each facet plane
+    phi = np.mod(
+        np.arctan2(
+            np.einsum("ki,ki->k", frames[:, :, 1], r), np.einsum("ki,ki->k", frames[:, :, 0], r)
+        ),
+        0.5 * np.pi,
+    )  # (K,)
+    gap = np.abs(np.mod(theta - phi + 0.25 * np.pi, 0.5 * np.pi) - 0.25 * np.pi)
+    e_i, k_i = np.nonzero(sil & (np.hypot(eu, ev) > 0.0) & (gap <= p.snap_angle))
+    if len(k_i) == 0:
+        return R
+    w = (frames.transpose(0, 2, 1).reshape(-1, 3) @ W).reshape(K, 3, -1)  # (K, 3, h)
+    height = np.ptp(w[:, 2], axis=1)  # (K,)
+    th = theta[e_i, k_i]
+    c, s = np.cos(th)[:, None], np.sin(th)[:, None]
+    x = c * w[k_i, 0] + s * w[k_i, 1]  # (P, h) for the P (edge, facet) pairs
+    y = c * w[k_i, 1] - s * w[k_i, 0]
+    vol = (x.max(axis=1) - x.min(axis=1)) * (y.max(axis=1) - y.min(axis=1)) * height[k_i]
+    # W is a subset of the cloud, so vol is a lower bound of the true volume: only boxes below
+    # the polished box's true volume can win; the best few are judged on the whole cloud.
+    true_vol = float(np.prod(hi - lo))
+    pick = np.argsort(vol, kind="stable")[: p.snap_max]
+    pick = pick[vol[pick] < true_vol]
+    if len(pick) == 0:
+        return R
+    cp, sp = c[pick, 0], s[pick, 0]
+    Rz = np.zeros((len(pick), 3, 3))
+    Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = cp, -sp, sp, cp, 1.0
+    Rs = np.concatenate([R[None], frames[k_i[pick]] @ Rz])  # (1 + k, 3, 3)
+    best_R = Rs[int(np.argmin(_volumes(Rs, judge)))]
     return best_R
 
 
