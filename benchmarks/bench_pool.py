@@ -104,7 +104,7 @@ def collision_table(points: int, hand: Hand) -> None:
         for gt in ("spherical", "cylindrical"):
             q = np.tile(hand.preshape(gt), (G, 1))
             t0 = time.perf_counter()
-            ref = hand.hands_hit_points(pts, T, q[0], 0.0, kd)
+            ref = hand.hands_hit_points(pts, T, q[0], 0.0)
             t1 = time.perf_counter()
             ours = hand_hits_points(hand, T, np.full(G, gt), q, pts, kd)
             t2 = time.perf_counter()
