@@ -75,7 +75,7 @@ class MvbbParams:
     exact flush faces (final snap), radians."""
     snap_max: int = 12
     """At most this many facet normals are tried by the final snap."""
-    snap_grid: int = 8
+    snap_grid: int = 16
     """Columns per side of the grid that thins the points near the box faces before the snap's
     hull (the snapped boxes are then judged on the whole cloud)."""
     max_iterations: int = 200
@@ -392,10 +392,11 @@ def _snap(R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams) -> np.ndar
     """
     proj = R.T @ Q  # (3, N)
     lo, hi = proj.min(axis=1), proj.max(axis=1)
-    # A snapped box is turned from R by at most 2 * snap_angle (tilt + in-plane), which moves a
-    # coordinate by at most radius * 2 * snap_angle: only points within twice that of a face
-    # can be extreme in it, so the snapped boxes are judged exactly on these points.
-    margin = 1.5 * 2.0 * radius * 2.0 * p.snap_angle
+    # A snapped box is turned from R by at most 5 * snap_angle (tilt <= snap_angle, in-plane
+    # <= 4 * snap_angle), which moves a coordinate by at most radius * 5 * snap_angle: only
+    # points within twice that of a face can be extreme in it, so the snapped boxes are judged
+    # exactly on these points (1.5: safety factor).
+    margin = 1.5 * 2.0 * radius * 5.0 * p.snap_angle
     near = np.flatnonzero(
         np.any((proj >= hi[:, None] - margin) | (proj <= lo[:, None] + margin), axis=0)
     )
@@ -437,7 +438,7 @@ def _snap(R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams) -> np.ndar
         0.5 * np.pi,
     )  # (K,)
     gap = np.abs(np.mod(theta - phi + 0.25 * np.pi, 0.5 * np.pi) - 0.25 * np.pi)
-    e_i, k_i = np.nonzero(sil & (np.hypot(eu, ev) > 0.0) & (gap <= p.snap_angle))
+    e_i, k_i = np.nonzero(sil & (np.hypot(eu, ev) > 0.0) & (gap <= 4.0 * p.snap_angle))
     if len(k_i) == 0:
         return R
     w = (frames.transpose(0, 2, 1).reshape(-1, 3) @ W).reshape(K, 3, -1)  # (K, 3, h)
