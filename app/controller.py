@@ -44,7 +44,7 @@ class Controller:
     server: the ``viser.ViserServer`` (only used for notifications and downloads);
     scene: the :class:`~app.scene.SceneRenderer` that draws each new state;
     hand: the ``pregrasp_core.hand.Hand`` the pipeline uses;
-    params: initial ``PipelineParams`` (defaults when ``None``).
+    params: initial ``PipelineParams`` (defaults when ``None``); view: initial display options.
     """
 
     def __init__(
@@ -56,6 +56,7 @@ class Controller:
         n_points: int = 20000,
         seed: int = 0,
         max_upload_bytes: int = DEFAULT_MAX_UPLOAD_BYTES,
+        view: ViewState | None = None,
     ) -> None:
         self.server = server
         self.scene = scene
@@ -66,6 +67,7 @@ class Controller:
             n_points=int(n_points),
             seed=int(seed),
             params=params if params is not None else ppl.PipelineParams(),
+            view=view if view is not None else ViewState(),
         )
         self._listeners: list[Callable[[AppState], None]] = []
 

@@ -259,7 +259,7 @@ class SceneRenderer:
         """Aim every camera at a new object and put a table grid under it."""
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         center, diag = (lo + hi) / 2.0, max(float(np.linalg.norm(hi - lo)), 1e-3)
-        eye = center + diag * np.array([0.75, -0.95, 0.6])
+        eye = center + diag * np.array([1.0, -1.25, 0.8])
         cam = self.server.initial_camera
         cam.look_at, cam.position = center, eye
         for client in self.server.get_clients().values():

@@ -21,6 +21,7 @@ from pregrasp_core.paths import DEFAULT_OBJECT
 from .controller import DEFAULT_MAX_UPLOAD_BYTES, Controller
 from .gui import Gui
 from .scene import SceneRenderer
+from .state import ViewState
 
 logger = logging.getLogger(__name__)
 
@@ -46,6 +47,10 @@ class ViewerConfig:
     """Most hand ghosts drawn at once (an even subsample of the filtered pool beyond that)."""
     animate_hz: float = 30.0
     """Rate of the animation clock (frames per second)."""
+    show_ghosts: bool = True
+    """Whether the pre-grasp ghosts are drawn at start (the GUI toggles them)."""
+    show_face_masks: bool = True
+    """Whether the face masks are drawn at start (the GUI toggles them)."""
     params: Any = field(default=None)
     """``PipelineParams`` to start with (defaults when ``None``)."""
 
@@ -97,6 +102,7 @@ def run(config: ViewerConfig, server: Any) -> App:
         n_points=config.n_points,
         seed=config.seed,
         max_upload_bytes=config.max_upload_bytes,
+        view=ViewState(show_ghosts=config.show_ghosts, show_face_masks=config.show_face_masks),
     )
     scene.on_box_click = lambda node, client: controller.act(client, controller.select_node, node)
     gui = Gui(server, controller, scene)

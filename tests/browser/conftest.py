@@ -85,7 +85,9 @@ def live_app() -> Iterator:
 
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     try:
-        app = run(ViewerConfig(n_points=5000, max_ghosts=400), server)
+        # no ghosts: headless Chromium renders WebGL in software, and dozens of translucent
+        # hands make every frame slow; the ghosts are checked in tests/app
+        app = run(ViewerConfig(n_points=5000, show_ghosts=False), server)
         try:
             yield app
         finally:

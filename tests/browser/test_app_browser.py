@@ -35,6 +35,7 @@ def _boxes_in_page(page) -> int:
 @pytest.fixture(scope="module")
 def page(browser_context, live_app):
     page = browser_context.new_page()
+    page.set_default_timeout(LOAD_TIMEOUT_MS)
     page.goto(f"http://127.0.0.1:{live_app.server.get_port()}")
     page.get_by_text(re.compile(r"^boxes: \d+$")).wait_for(timeout=LOAD_TIMEOUT_MS)
     yield page
@@ -62,6 +63,7 @@ def test_threshold_change_changes_the_boxes(page, live_app, shots_dir):
     assert live_app.controller.state.params.decomposition.volume_ratio == float(ratio)
     # a second browser sees the same shared state (docs/app.md: one state per server)
     other = page.context.new_page()
+    other.set_default_timeout(LOAD_TIMEOUT_MS)
     try:
         other.goto(page.url)
         other.get_by_text(f"boxes: {expected}", exact=True).wait_for(timeout=LOAD_TIMEOUT_MS)
