@@ -10,6 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 from scipy.optimize import minimize
 from scipy.spatial.transform import Rotation
 
@@ -82,6 +85,28 @@ def test_random_clouds_valid_and_deterministic():
         again = minimum_volume_box(pts.copy())
         np.testing.assert_array_equal(again.rotation, box.rotation)
         np.testing.assert_array_equal(again.extents, box.extents)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    arrays(
+        np.float64,
+        st.tuples(st.integers(4, 60), st.just(3)),
+        elements=st.floats(-10.0, 10.0, allow_nan=False, allow_infinity=False),
+    )
+)
+def test_any_cloud_gives_a_valid_box_or_a_clear_error(pts):
+    try:
+        box = minimum_volume_box(pts)
+    except DegenerateGeometryError as exc:
+        assert "identical" in str(exc) or "collinear" in str(exc)
+        return
+    _assert_valid(box, pts)
+    pca = pca_box(pts)
+    if box.extents[2] <= FLAT_EXTENT * max(1.0, box.extents[0]):  # flat: compare the rectangles
+        assert box.extents[0] * box.extents[1] <= pca.extents[0] * pca.extents[1] * (1.0 + 1e-9)
+    else:
+        assert box.volume <= pca.volume * (1.0 + 1e-9)
 
 
 # --------------------------------------------------------------------------- known boxes
@@ -186,10 +211,10 @@ def test_within_one_percent_of_multistart_search():
         q = pts @ (Rotation.from_rotvec(r).as_matrix() @ R0)
         return float(np.prod(q.max(axis=0) - q.min(axis=0)))
 
-    for _ in range(3):
+    for _ in range(2):
         pts = rng.normal(size=(30, 3)) * rng.uniform(0.3, 1.0, 3)
         best = np.inf
-        for R0 in Rotation.random(16, random_state=rng).as_matrix():
+        for R0 in Rotation.random(12, random_state=rng).as_matrix():
             res = minimize(vol, np.zeros(3), args=(R0, pts), method="Powell")
             best = min(best, float(res.fun))
         assert minimum_volume_box(pts).volume <= best * 1.01
