@@ -690,8 +690,17 @@ def _node_pool(
 ) -> PreGraspPool:
     """The samples of one node for one grasp type on its usable sub-faces, as a pool."""
     every = sample_node(nd.box, gt, params)
-    ok = sample_node(nd.box, gt, params, usable_subfaces(masks.blocked[nd.id], gt))
-    dropped["blocked_subface"] += len(every.face) - len(ok.face)
+    use = usable_subfaces(masks.blocked[nd.id], gt)
+    keep = np.array([use[f][k] for f, k in zip(every.face, every.subface, strict=True)], bool)
+    ok = replace(
+        every,
+        T_box_grasp=every.T_box_grasp[keep],
+        face=every.face[keep],
+        subface=every.subface[keep],
+        surface=every.surface[keep],
+        aim=every.aim[keep],
+    )
+    dropped["blocked_subface"] += int(np.count_nonzero(~keep))
     M = len(ok.face)
     # the samples place the hand's grasp centre (a point of the palm plane, hand frame);
     # the hand's origin sits at -grasp_center from it
@@ -741,6 +750,7 @@ def _clear_the_hand(
         dropped["support"] += int(np.count_nonzero(no_room))
         first = np.where(no_room, n_levels + 1, first).astype(np.int64)
     backoff = np.full(P, np.nan)
+    cells: dict = {}  # link cells per preshape, shared by the back-off levels
     for k in range(n_levels + 1):  # loop over the few back-off levels
         todo = np.flatnonzero((first <= k) & np.isnan(backoff))
         if len(todo) == 0:
@@ -748,7 +758,14 @@ def _clear_the_hand(
         T = pool.T_world_hand[todo].copy()
         T[:, :3, 3] -= levels[k] * pool.approach[todo]
         hit = hand_hits_points(
-            hand, T, pool.grasp_type[todo], pool.q[todo], points, kd, params.collision_margin
+            hand,
+            T,
+            pool.grasp_type[todo],
+            pool.q[todo],
+            points,
+            kd,
+            params.collision_margin,
+            cells,
         )
         backoff[todo[~hit]] = levels[k]
     placed = ~np.isnan(backoff)
@@ -815,6 +832,7 @@ def hand_hits_points(
     points: np.ndarray,
     kd: cKDTree | None = None,
     margin: float = 0.0,
+    cells: dict | None = None,
 ) -> np.ndarray:
     """(P,) bool: the open hand at ``T_world_hand`` (P, 4, 4) with preshape ``q`` (P, J) holds
     at least one of ``points`` (N, 3) inside a link's collision box grown by ``margin``: the
@@ -823,7 +841,8 @@ def hand_hits_points(
     Each link box is cut into near-cubic cells (:func:`link_cells`); one nearest-point query
     per cell decides most cells (no point within its circumscribed sphere: free; a point within
     its inscribed sphere: hit); the undecided cells get the exact point-in-box test on the points
-    of their circumscribed sphere. Hands already hit skip their remaining cells."""
+    of their circumscribed sphere. Hands already hit skip their remaining cells. ``cells``: an
+    optional dict caching :func:`link_cells` per preshape across calls."""
     pts = _as_points(points)
     P = len(T_world_hand)
     out = np.zeros(P, dtype=bool)
@@ -832,7 +851,14 @@ def hand_hits_points(
     kd = cKDTree(pts) if kd is None else kd
     for gt in np.unique(grasp_type):  # loop over the (at most 4) preshapes
         sel = np.flatnonzero(grasp_type == gt)
-        T_cell, half = link_cells(hand, q[sel[0]], margin)  # (C, 4, 4), (C, 3)
+        key = (q[sel[0]].tobytes(), float(margin))
+        if cells is None or key not in cells:
+            cell = link_cells(hand, q[sel[0]], margin)
+            if cells is not None:
+                cells[key] = cell
+        else:
+            cell = cells[key]
+        T_cell, half = cell  # (C, 4, 4), (C, 3)
         r_out = np.linalg.norm(half, axis=1)  # (C,)
         r_in = half.min(axis=1)
         R = np.einsum("gij,cjk->gcik", T_world_hand[sel, :3, :3], T_cell[:, :3, :3])  # (G,C,3,3)
