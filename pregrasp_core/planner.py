@@ -56,6 +56,9 @@ REJECTION_REASONS: dict[str, str] = {
 }
 """Why a pre-grasp can be rejected (keys used in ``Grasp.rejection`` and the result file)."""
 
+APPROACH_WINDOW: float = 0.03
+"""First approach window (metres): pairs are first gathered for this much travel only."""
+
 APPROACH_STOPS: tuple[str, ...] = ("object", "support", "start")
 """What ended the approach: a cloud point, the support plane, or already close at the start."""
 
@@ -346,14 +349,27 @@ def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray, p_h: np.ndarray) -> 
     c = prm.approach_clearance
     S = prm.max_approach
     Tb, lo, hi = ctx.boxes(q)
-    # (point, link) pairs: the point lies in front of the link, within its footprint across the
-    # approach (the hand-frame AABB of its box grown by the clearance)
-    inside = (
-        (p_h[:, None, :2] >= lo[None, :, :2] - c) & (p_h[:, None, :2] <= hi[None, :, :2] + c)
-    ).all(axis=2)
-    inside &= (p_h[:, None, 2] >= lo[None, :, 2] - c) & (p_h[:, None, 2] <= hi[None, :, 2] + c + S)
-    ip, il = np.nonzero(inside)  # (K,) point and link of each candidate pair
-    s_obj = _sweep_pairs(p_h[ip], Tb[il], ctx.half[il] + c)[0] if len(ip) else np.inf
+    # (point, link) pairs: the point lies in front of the link within the travel window, and
+    # within its footprint across the approach (the hand-frame AABB of its box grown by c).
+    # The z test runs on all (point, link) pairs, the x/y tests only on its survivors; a short
+    # first window (most approaches end within a few centimetres) keeps that set small.
+    x, y, z = p_h[:, 0], p_h[:, 1], p_h[:, 2]
+    s_obj = np.inf
+    for window in (min(APPROACH_WINDOW, S), S):  # at most two passes
+        in_z = (z[:, None] >= lo[None, :, 2] - c) & (z[:, None] <= hi[None, :, 2] + c + window)
+        ip, il = np.nonzero(in_z)  # (K,) point and link of each candidate pair
+        ok = (
+            (x[ip] >= lo[il, 0] - c)
+            & (x[ip] <= hi[il, 0] + c)
+            & (y[ip] >= lo[il, 1] - c)
+            & (y[ip] <= hi[il, 1] + c)
+        )
+        ip, il = ip[ok], il[ok]
+        if len(ip):
+            s_obj = _sweep_pairs(p_h[ip], Tb[il], ctx.half[il] + c)[0]
+        # a hit beyond the window may hide an earlier one by a point not gathered: re-test all
+        if s_obj <= window or window >= S:
+            break
     s_sup = np.inf
     if ctx.support is not None:
         n = np.asarray(ctx.support.normal, dtype=np.float64)

@@ -75,7 +75,7 @@ def _cylinder_scene(hand, n_dirs=6):
     angles = np.linspace(0.0, 2 * np.pi, n_dirs, endpoint=False)
     Ts = [
         _pose(hand, "cylindrical", [np.cos(a), np.sin(a), 0.0], [-np.sin(a), np.cos(a), 0.0],
-              np.array([0.0, 0.0, 0.01 * k]), 0.06)
+              np.array([0.0, 0.0, 0.01 * k]), 0.09)
         for k, a in enumerate(angles)
     ]  # fmt: skip
     return mesh, _pool(hand, Ts, "cylindrical")
@@ -323,3 +323,23 @@ def test_parameter_and_shape_checks(hand):
     mesh, pool = _flat_box_scene(hand, n_dirs=1)
     with pytest.raises(ValueError, match=r"normals must have shape \(10, 3\)"):
         plan_grasps(np.zeros((10, 3)), np.zeros((9, 3)), pool, hand)
+
+
+@pytest.mark.parametrize("scene", ["cylinder_plan", "box_plan"])
+def test_approach_stops_exactly_at_the_clearance(hand, scene, request):
+    """At the approach pose the open hand's boxes, grown by the clearance, touch the cloud and
+    hold no point: the smallest Chebyshev box distance of the cloud is the clearance."""
+    pts, _, pool, gs = request.getfixturevalue(scene)
+    c = PlannerParams().approach_clearance
+    for g in gs.grasps:
+        assert g.approach_stop == "object"
+        q0 = pool.q[g.pregrasp]
+        Tb = hand.box_poses(q0)
+        p_h = (pts - g.T_world_hand[:3, 3]) @ g.T_world_hand[:3, :3]
+        local = np.einsum("nlj,ljk->nlk", p_h[:, None, :] - Tb[None, :, :3, 3], Tb[:, :3, :3])
+        cheb = (np.abs(local) - hand.link_box_half[None]).max(axis=2)  # (N, L)
+        assert cheb.min() == pytest.approx(c, abs=1e-9)
+        # and it got there by moving straight along its approach from the pre-grasp pose
+        T0 = pool.T_world_hand[g.pregrasp]
+        assert np.allclose(g.T_world_hand[:3, :3], T0[:3, :3])
+        assert np.allclose(g.T_world_hand[:3, 3], T0[:3, 3] + g.approach_distance * T0[:3, 2])
