@@ -73,7 +73,7 @@ class MvbbParams:
     snap_angle: float = np.deg2rad(0.5)
     """Hull facets whose normal is within this angle of an axis of the polished box are tried as
     exact flush faces (final snap), radians."""
-    snap_max: int = 12
+    snap_max: int = 4
     """At most this many facet normals are tried by the final snap."""
     snap_grid: int = 16
     """Columns per side of the grid that thins the points near the box faces before the snap's
@@ -196,7 +196,8 @@ def _tight_box(PT: np.ndarray, R: np.ndarray, origin: np.ndarray | None = None) 
 
 def _kernel_mask(q: np.ndarray, lo: np.ndarray, ext: np.ndarray, grid: int) -> np.ndarray:
     """(N,) bool: the lowest and the highest point of every column of a ``grid`` x ``grid``
-    grid, along each of the three axes. q: (3, N) points; lo, ext: (3,) their bounds."""
+    grid, along each of the three axes (one point per column and side, ties broken by index).
+    q: (3, N) points; lo, ext: (3,) their bounds."""
     keep = np.zeros(q.shape[1], dtype=bool)
     cells = np.minimum(((q - lo[:, None]) / ext[:, None] * grid).astype(np.int64), grid - 1)
     for a in range(3):
@@ -206,7 +207,11 @@ def _kernel_mask(q: np.ndarray, lo: np.ndarray, ext: np.ndarray, grid: int) -> n
         np.maximum.at(top, cell, q[a])
         bottom = np.full(grid * grid, np.inf)
         np.minimum.at(bottom, cell, q[a])
-        keep |= (q[a] >= top[cell]) | (q[a] <= bottom[cell])
+        for hit in (np.flatnonzero(q[a] >= top[cell]), np.flatnonzero(q[a] <= bottom[cell])):
+            # One point per column even when several tie (points on a face parallel to a grid
+            # plane): the first of each column.
+            _, first = np.unique(cell[hit], return_index=True)
+            keep[hit[first]] = True
     return keep
 
 
@@ -401,7 +406,14 @@ def _snap(R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams) -> np.ndar
         np.any((proj >= hi[:, None] - margin) | (proj <= lo[:, None] + margin), axis=0)
     )
     judge = np.ascontiguousarray(Q[:, near])  # (3, j)
-    near = near[_kernel_mask(proj[:, near], lo, hi - lo, p.snap_grid)]  # thinned for the hull
+    # Facets within snap_angle of a face are spanned by points within 2 * radius * snap_angle
+    # of it: hull those, thinned to the column extremes of a snap_grid grid.
+    pn = proj[:, near]
+    close_margin = 2.0 * 2.0 * radius * p.snap_angle
+    near = near[
+        np.any((pn >= hi[:, None] - close_margin) | (pn <= lo[:, None] + close_margin), axis=0)
+    ]
+    near = near[_kernel_mask(proj[:, near], lo, hi - lo, p.snap_grid)]
     Z = Q[:, near]  # (3, z)
     try:
         hull = ConvexHull(Z.T)
