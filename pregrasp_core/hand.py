@@ -32,7 +32,6 @@ import fcl
 import numpy as np
 import trimesh
 import yourdfpy
-from scipy.spatial import cKDTree
 
 from .box import OrientedBox
 from .errors import HandModelError
@@ -56,7 +55,15 @@ DEFAULT_CLOSING_STEPS: int = 64
 """Closing model: samples along each closing phase before the contact is refined by bisection."""
 
 _PAIR_CHUNK: int = 1_000_000
-"""Batched point-in-link tests handle at most this many (point, link) pairs at once (memory)."""
+"""Batched point-in-link counts move at most this many (point, hand) pairs at once (memory)."""
+
+_VOXEL: float = 0.004
+"""Voxel size (metres) of the hand occupancy grid that culls points before exact box tests."""
+
+_GRID_MAX_CONFIGS: int = 8
+"""Batched counts build an occupancy grid per distinct configuration only up to this many
+distinct configurations (a pre-grasp pool has one per grasp type); beyond it they cull by each
+hand's bounding box."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -190,21 +197,16 @@ class FingerClosing:
 # --------------------------------------------------------------------------------------------
 
 
+def _all3(b: np.ndarray) -> np.ndarray:
+    """``np.all(b, axis=-1)`` for a last axis of 3, several times faster."""
+    return b[..., 0] & b[..., 1] & b[..., 2]
+
+
 def _as_n3(p: np.ndarray, name: str) -> np.ndarray:
     arr = np.asarray(p, dtype=np.float64)
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise ValueError(f"{name} must have shape (N, 3), got {arr.shape}")
     return arr
-
-
-def _rot_batch(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """(B, 3, 3) rotations by ``angle`` (B,) about the unit ``axis`` (3,) (Rodrigues)."""
-    x, y, z = axis
-    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    K2 = K @ K
-    s = np.sin(angle)[:, None, None]
-    c = np.cos(angle)[:, None, None]
-    return np.eye(3) + s * K + (1.0 - c) * K2
 
 
 @dataclass(frozen=True)
@@ -486,17 +488,54 @@ class Hand:
         """Link poses ``T_hand_link`` as one array: (B, L, 4, 4) for ``q`` (B, J), in
         ``link_names`` order; (L, 4, 4) for ``q`` (J,). Vectorised over configurations."""
         Q, single = self._as_q(q)
-        B = Q.shape[0]
-        out = np.empty((B, len(self.link_names), 4, 4))
-        index = {n: i for i, n in enumerate(self.link_names)}
-        out[:, index["palm"]] = np.eye(4)
-        for j in self._chain:
-            T = out[:, index[j.parent]] @ j.origin  # (B, 4, 4) parent -> joint frame
-            if j.axis is not None:
-                angle = j.multiplier * Q[:, j.source] + j.offset
-                T[:, :3, :3] = T[:, :3, :3] @ _rot_batch(j.axis, angle)
-            out[:, index[j.child]] = T
+        R, t = self._fk_rt(Q)
+        B, L = R.shape[0], R.shape[1]
+        out = np.zeros((B, L, 4, 4))
+        out[:, :, :3, :3] = R
+        out[:, :, :3, 3] = t
+        out[:, :, 3, 3] = 1.0
         return out[0] if single else out
+
+    def _fk_rt(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rotations (B, L, 3, 3) and translations (B, L, 3) of every link for ``Q`` (B, J).
+
+        Per joint: ``R_child = R_parent R_origin R_axis(angle)`` with Rodrigues' formula written
+        as ``A R_axis = A + sin(angle) A K + (1 - cos(angle)) A K^2`` (A = R_parent R_origin,
+        K the axis' cross-product matrix), so every product is a (3B, 3) x (3, 3) matrix product;
+        the rotation about the joint origin leaves the translation alone."""
+        B = Q.shape[0]
+        L = len(self.link_names)
+        R = np.empty((L, B, 3, 3))  # link-major so that every R[i] is contiguous
+        t = np.empty((L, B, 3))
+        root = self.link_names.index("palm")
+        R[root] = np.eye(3)  # the palm (root) is the hand frame
+        t[root] = 0.0
+        for j, (ip, ic, K, K2) in zip(self._chain, self._chain_index, strict=True):
+            Rp = R[ip].reshape(3 * B, 3)  # rows of the parent rotations
+            A = Rp @ j.origin[:3, :3]  # (3B, 3): R_parent R_origin
+            t[ic] = t[ip] + (Rp @ j.origin[:3, 3]).reshape(B, 3)
+            if K is None:
+                R[ic] = A.reshape(B, 3, 3)
+                continue
+            angle = j.multiplier * Q[:, j.source] + j.offset
+            s = np.repeat(np.sin(angle), 3)[:, None]  # (3B, 1): one per row
+            c1 = np.repeat(1.0 - np.cos(angle), 3)[:, None]
+            R[ic] = (A + s * (A @ K) + c1 * (A @ K2)).reshape(B, 3, 3)
+        return R.transpose(1, 0, 2, 3), t.transpose(1, 0, 2)
+
+    @functools.cached_property
+    def _chain_index(self) -> tuple[tuple[int, int, np.ndarray | None, np.ndarray | None], ...]:
+        """Per chain joint: (parent link index, child link index, K (3, 3), K^2 (3, 3))."""
+        index = {n: i for i, n in enumerate(self.link_names)}
+        out = []
+        for j in self._chain:
+            if j.axis is None:
+                out.append((index[j.parent], index[j.child], None, None))
+                continue
+            x, y, z = j.axis
+            K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+            out.append((index[j.parent], index[j.child], K, K @ K))
+        return tuple(out)
 
     def fk(self, q: np.ndarray) -> dict[str, np.ndarray]:
         """Link name -> ``T_hand_link``: (B, 4, 4) for ``q`` (B, J), (4, 4) for ``q`` (J,)."""
@@ -751,9 +790,14 @@ class Hand:
         if not single:
             raise ValueError(f"q must have shape ({self.n_joints},), got {Q.shape}")
         Tb = self.box_poses(Q[0])  # (L, 4, 4)
-        d = p[:, None, :] - Tb[None, :, :3, 3]  # (N, L, 3)
-        local = np.einsum("nlj,ljk->nlk", d, Tb[:, :3, :3])  # box-frame coordinates
-        return np.all(np.abs(local) <= self.link_box_half + margin, axis=2)
+        R = Tb[:, :3, :3]  # (L, 3, 3) box axes as columns
+        L = R.shape[0]
+        # box-frame coordinates of every point in every box with one matrix product:
+        # local[n, l, k] = p[n] . R[l][:, k] - t[l] . R[l][:, k]
+        Rcat = R.transpose(1, 0, 2).reshape(3, 3 * L)  # (3, 3L)
+        off = np.einsum("lj,ljk->lk", Tb[:, :3, 3], R).reshape(3 * L)
+        local = (p @ Rcat - off).reshape(-1, L, 3)  # (N, L, 3)
+        return _all3(np.abs(local) <= self.link_box_half + margin)
 
     def points_in_hand(self, p_hand: np.ndarray, q: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """(N,) bool: point inside any link (grown by ``margin``) at configuration ``q`` (J,)."""
@@ -765,52 +809,86 @@ class Hand:
         T_world_hand: np.ndarray,
         q: np.ndarray,
         margin: float = 0.0,
-        tree: cKDTree | None = None,
     ) -> np.ndarray:
         """(G, L) int64: how many of ``points`` (N, 3, world) lie in each link's box (grown by
         ``margin``) for G hands at poses ``T_world_hand`` (G, 4, 4) and configurations ``q``
-        ((J,) shared or (G, J)).
+        ((J,) shared by all hands, or (G, J)).
 
-        Fast for thousands of hands against a 20k-point cloud: a k-d tree of the points
-        (pass ``tree=cKDTree(points)`` to reuse one) gives the points inside each box's
-        circumscribed sphere; only those (point, box) pairs get the exact oriented-box test."""
+        Made for thousands of hands against a 20k-point cloud: the points are moved into the
+        frames of a chunk of hands with one matrix product, tested against each hand's
+        axis-aligned bounding box (hand frame, at its configuration), and only the points inside
+        it get the exact tests against the link boxes, grouped by distinct configuration (a
+        pool has one preshape per grasp type)."""
         pts = _as_n3(points, "points")
         T = np.asarray(T_world_hand, dtype=np.float64)
         if T.ndim != 3 or T.shape[1:] != (4, 4):
             raise ValueError(f"T_world_hand must have shape (G, 4, 4), got {T.shape}")
-        G, L = T.shape[0], len(self.link_names)
+        G, L, N = T.shape[0], len(self.link_names), pts.shape[0]
         Q = np.asarray(q, dtype=np.float64)
         if Q.ndim == 1:
-            self._as_q(Q)
-            Tb = np.broadcast_to(self.box_poses(Q), (G, L, 4, 4))
-        else:
             Qb, _ = self._as_q(Q)
-            if Qb.shape[0] != G:
+            inverse = np.zeros(G, dtype=np.int64)
+        else:
+            Qall, _ = self._as_q(Q)
+            if Qall.shape[0] != G:
                 raise ValueError(
                     f"q must have shape ({self.n_joints},) or ({G}, {self.n_joints}), got {Q.shape}"
                 )
-            Tb = self.box_poses(Qb)
-        if G == 0 or pts.shape[0] == 0:
-            return np.zeros((G, L), dtype=np.int64)
-        Tw = (T[:, None] @ Tb).reshape(G * L, 4, 4)  # world poses of every box
-        half = np.broadcast_to(self.link_box_half + margin, (G, L, 3)).reshape(G * L, 3)
-        radius = np.linalg.norm(half, axis=1)
-        if tree is None:
-            tree = cKDTree(pts)
-        lists = tree.query_ball_point(Tw[:, :3, 3], radius, return_sorted=False)
-        lens = np.fromiter((len(x) for x in lists), dtype=np.int64, count=G * L)
-        counts = np.zeros(G * L, dtype=np.int64)
-        if lens.sum() == 0:
-            return counts.reshape(G, L)
-        flat = np.concatenate([np.asarray(x, dtype=np.int64) for x in lists if len(x)])
-        box = np.repeat(np.arange(G * L), lens)  # (P,) box id of each candidate pair
-        for s in range(0, flat.shape[0], _PAIR_CHUNK):
-            b, ip = box[s : s + _PAIR_CHUNK], flat[s : s + _PAIR_CHUNK]
-            d = pts[ip] - Tw[b, :3, 3]  # (P, 3)
-            local = np.einsum("pj,pjk->pk", d, Tw[b, :3, :3])
-            inside = np.all(np.abs(local) <= half[b], axis=1)
-            counts += np.bincount(b[inside], minlength=G * L)
-        return counts.reshape(G, L)
+            Qb, inverse = np.unique(Qall, axis=0, return_inverse=True)
+            inverse = inverse.reshape(-1)
+        counts = np.zeros((G, L), dtype=np.int64)
+        if G == 0 or N == 0:
+            return counts
+        # per distinct configuration: box-frame transform as one (3, 3L) product
+        Tb = self.box_poses(Qb)  # (U, L, 4, 4)
+        Rb = Tb[:, :, :3, :3]
+        Rcat = Rb.transpose(0, 2, 1, 3).reshape(-1, 3, 3 * L)  # (U, 3, 3L)
+        off = np.einsum("ulj,uljk->ulk", Tb[:, :, :3, 3], Rb).reshape(-1, 3 * L)  # (U, 3L)
+        half = self.link_box_half + margin  # (L, 3)
+        if Qb.shape[0] <= _GRID_MAX_CONFIGS:
+            grid = _OccupancyGrid.build(Rcat, off, half, Tb[:, :, :3, 3], Rb)
+        else:  # many distinct configurations: cull by each hand's bounding box only
+            reach = np.einsum("ulij,lj->uli", np.abs(Rb), half)  # (U, L, 3)
+            box_lo = (Tb[:, :, :3, 3] - reach).min(axis=1)  # (U, 3) hand frame
+            box_hi = (Tb[:, :, :3, 3] + reach).max(axis=1)
+        R = T[:, :3, :3]
+        t_off = np.einsum("gj,gjk->gk", T[:, :3, 3], R)  # (G, 3): R^T t
+        chunk = max(1, _PAIR_CHUNK // max(N, 1))
+        flat_counts = np.zeros(G * L, dtype=np.int64)
+        for g0 in range(0, G, chunk):
+            g1 = min(G, g0 + chunk)
+            Rc = R[g0:g1].transpose(1, 0, 2).reshape(3, -1)  # (3, 3Gc)
+            p_hand = (pts @ Rc).reshape(N, g1 - g0, 3) - t_off[g0:g1]  # (N, Gc, 3)
+            if Qb.shape[0] <= _GRID_MAX_CONFIGS:
+                code = grid.lookup(p_hand, inverse[g0:g1])  # (N, Gc) conservative cull
+            else:
+                u = inverse[g0:g1]
+                inb = (p_hand >= box_lo[u]) & (p_hand <= box_hi[u])  # (N, Gc, 3)
+                code = np.where(_all3(inb), L, -1)  # test every link of the hand
+            n_idx, g_idx = np.nonzero(code >= 0)
+            if n_idx.size == 0:
+                continue
+            cand = p_hand[n_idx, g_idx]  # (P, 3) candidate points in their hand's frame
+            lid = code[n_idx, g_idx]  # (P,) the one link to test, or L for several
+            g_abs = g_idx + g0
+            u_of = inverse[g_abs]
+            one = lid < L
+            # voxels of a single link: test that link only
+            c1, l1, g1a, u1 = cand[one], lid[one], g_abs[one], u_of[one]
+            Rs = Rb[u1, l1]  # (P1, 3, 3)
+            d = c1 - Tb[u1, l1, :3, 3]
+            local = d[:, 0:1] * Rs[:, 0] + d[:, 1:2] * Rs[:, 1] + d[:, 2:3] * Rs[:, 2]
+            inside = _all3(np.abs(local) <= half[l1])
+            flat_counts += np.bincount(g1a[inside] * L + l1[inside], minlength=G * L)
+            # voxels where several links may be: test them all
+            many = np.flatnonzero(~one)
+            for u in np.unique(u_of[many]):
+                sel = many[u_of[many] == u]
+                local = (cand[sel] @ Rcat[u] - off[u]).reshape(-1, L, 3)  # (P_u, L, 3)
+                pi, li = np.nonzero(_all3(np.abs(local) <= half))
+                flat_counts += np.bincount(g_abs[sel[pi]] * L + li, minlength=G * L)
+        counts += flat_counts.reshape(G, L)
+        return counts
 
     def hands_hit_points(
         self,
@@ -818,11 +896,10 @@ class Hand:
         T_world_hand: np.ndarray,
         q: np.ndarray,
         margin: float = 0.0,
-        tree: cKDTree | None = None,
     ) -> np.ndarray:
         """(G,) bool: any of ``points`` (N, 3, world) inside any link of hand g (see
         :meth:`link_point_counts`)."""
-        return self.link_point_counts(points, T_world_hand, q, margin, tree).sum(axis=1) > 0
+        return self.link_point_counts(points, T_world_hand, q, margin).sum(axis=1) > 0
 
     # ---------------------------------------------------------------- fcl and meshes
     def collision_objects(self, q: np.ndarray) -> dict[str, fcl.CollisionObject]:
@@ -889,6 +966,57 @@ class Hand:
             for i in range(len(self.link_names))
         ]
         return trimesh.util.concatenate(parts)
+
+
+# --------------------------------------------------------------------------------------------
+# Occupancy grid of the hand (cull for the batched point-in-link counts)
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _OccupancyGrid:
+    """Voxels of the hand frame that may hold a point of a (grown) link box, per distinct
+    configuration, with the link when only one can be there. Conservative: a voxel is marked
+    for a box when its centre lies in the box grown by the voxel's circumradius, so every point
+    inside a box falls in a voxel marked for that box."""
+
+    lo: np.ndarray
+    """(3,) corner of the grid, hand frame."""
+    dims: np.ndarray
+    """(3,) int64 number of voxels per axis."""
+    link: np.ndarray
+    """(U, C) int64 per voxel: -1 no link, l in [0, L) only link l, L several links."""
+
+    @classmethod
+    def build(cls, Rcat, off, half, centers, Rb) -> _OccupancyGrid:
+        h = _VOXEL
+        reach = np.einsum("ulij,lj->uli", np.abs(Rb), half)  # (U, L, 3) AABB half sizes
+        lo = (centers - reach).min(axis=(0, 1)) - h
+        hi = (centers + reach).max(axis=(0, 1)) + h
+        dims = np.ceil((hi - lo) / h).astype(np.int64)
+        axes = [lo[k] + (np.arange(dims[k]) + 0.5) * h for k in range(3)]
+        c = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)  # (C, 3)
+        L = half.shape[0]
+        grow = half + 0.5 * np.sqrt(3.0) * h
+        link = np.empty((Rcat.shape[0], c.shape[0]), dtype=np.int64)
+        for u in range(Rcat.shape[0]):  # distinct configurations (a handful)
+            local = (c @ Rcat[u] - off[u]).reshape(-1, L, 3)
+            hit = _all3(np.abs(local) <= grow)  # (C, L)
+            n = hit.sum(axis=1)
+            link[u] = np.where(n == 0, -1, np.where(n == 1, np.argmax(hit, axis=1), L))
+        return cls(lo=lo, dims=dims, link=link)
+
+    def lookup(self, p_hand: np.ndarray, u_of_hand: np.ndarray) -> np.ndarray:
+        """(N, G) int64 voxel link code (see ``link``; -1 outside the grid) for points
+        (N, G, 3) in the frames of G hands with configuration ids ``u_of_hand`` (G,)."""
+        cell = np.floor((p_hand - self.lo) * (1.0 / _VOXEL)).astype(np.int64)  # (N, G, 3)
+        inb = (cell >= 0) & (cell < self.dims)
+        valid = inb[..., 0] & inb[..., 1] & inb[..., 2]
+        flat = (cell[..., 0] * self.dims[1] + cell[..., 1]) * self.dims[2] + cell[..., 2]
+        flat[~valid] = 0
+        code = self.link[u_of_hand[None, :], flat]
+        code[~valid] = -1
+        return code
 
 
 # --------------------------------------------------------------------------------------------

@@ -339,20 +339,33 @@ def _random_poses(rng, G):
 
 def test_batched_counts_equal_per_pose_queries(hand):
     rng = np.random.default_rng(11)
-    pts = rng.uniform(-0.1, 0.1, size=(3000, 3))
-    G = 25
+    G = 24
     T = _random_poses(rng, G)
-    Q = rng.uniform(hand.lower, hand.upper, size=(G, hand.n_joints))
-    for q_arg in (Q, Q[0]):
-        counts = hand.link_point_counts(pts, T, q_arg, margin=0.002)
-        for g in range(G):
-            qg = Q[g] if q_arg.ndim == 2 else Q[0]
-            p_hand = (pts - T[g, :3, 3]) @ T[g, :3, :3]  # world -> hand
-            ref = hand.points_in_links(p_hand, qg, margin=0.002).sum(axis=0)
-            np.testing.assert_array_equal(counts[g], ref)
-        assert counts.sum() > 0
+    Q = rng.uniform(hand.lower, hand.upper, size=(G, hand.n_joints))  # all distinct
+    Q4 = np.stack([hand.preshape(g) for g in GRASP_TYPES] * (G // 4))  # a pool: 4 preshapes
+    # points spread around the hands plus points right at the link box surfaces (+-0.1 mm)
+    near = [
+        T[g, :3, :3] @ hand.collision_mesh(Q4[g]).sample(300, seed=g).T + T[g, :3, 3:4]
+        for g in range(0, G, 5)
+    ]
+    pts = np.concatenate(
+        [rng.uniform(-0.12, 0.12, size=(3000, 3))]
+        + [p.T + rng.normal(0, 1e-4, size=p.T.shape) for p in near]
+    )
+    for q_arg in (Q, Q[0], Q4):
+        for margin in (0.0, 0.002):
+            counts = hand.link_point_counts(pts, T, q_arg, margin=margin)
+            for g in range(G):
+                qg = q_arg[g] if q_arg.ndim == 2 else q_arg
+                p_hand = (pts - T[g, :3, 3]) @ T[g, :3, :3]  # world -> hand
+                ref = hand.points_in_links(p_hand, qg, margin=margin).sum(axis=0)
+                np.testing.assert_array_equal(counts[g], ref)
+            assert counts.sum() > 0
     hits = hand.hands_hit_points(pts, T, Q)
     assert hits.dtype == bool and hits.shape == (G,)
+    np.testing.assert_array_equal(hits, hand.link_point_counts(pts, T, Q).sum(axis=1) > 0)
+    with pytest.raises(ValueError, match=r"T_world_hand must have shape \(G, 4, 4\)"):
+        hand.link_point_counts(pts, T[0], Q[0])
 
 
 def test_self_collision_detects_overlap(hand):

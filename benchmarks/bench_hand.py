@@ -1,0 +1,180 @@
+"""Hand benchmark (issue 3): batch forward kinematics, point-in-link queries, the batched
+hand-vs-cloud filter and the planar closing model, each beside a reference in the same run.
+
+- Batch FK (``Hand.fk_array``) for B random configurations, against yourdfpy's per-configuration
+  FK (``update_cfg`` + ``get_transform`` of every link), timed on a subset and given per
+  configuration. The results are compared (max abs difference).
+- ``points_in_links`` for a 20k-point cloud at one configuration.
+- ``link_point_counts`` (hand-frame bounds, then exact box tests) for G hands around the
+  default object, against a loop of per-pose ``points_in_links`` calls (brute force);
+  counts must agree.
+- ``close_finger`` on slices of M points.
+
+Usage: .venv/bin/python benchmarks/bench_hand.py [--configs 10000] [--repeats 7] [--points 20000]
+Timings are medians of ``--repeats`` runs, wall-clock, one process (numpy may use its threads).
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+
+import numpy as np
+import yourdfpy
+
+from pregrasp_core.hand import Hand
+from pregrasp_core.paths import DEFAULT_OBJECT, HAND_URDF
+
+
+def median_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def fmt(seconds: float) -> str:
+    if seconds >= 1.0:
+        return f"{seconds:.2f} s"
+    if seconds >= 1e-3:
+        return f"{seconds * 1e3:.2f} ms"
+    return f"{seconds * 1e6:.1f} us"
+
+
+def bench_fk(hand: Hand, n_configs: int, repeats: int, rng: np.random.Generator) -> None:
+    urdf = yourdfpy.URDF.load(str(HAND_URDF), build_scene_graph=True, load_meshes=False)
+    print("\n### Batch forward kinematics (all 10 links)\n")
+    print(
+        "| configurations | pregrasp batch FK | per configuration | yourdfpy loop (est.) "
+        "| speed-up |"
+    )
+    print("|---:|---:|---:|---:|---:|")
+    n_ref = 200
+    Qref = rng.uniform(hand.lower, hand.upper, size=(n_ref, hand.n_joints))
+
+    def ref_loop():
+        for q in Qref:
+            urdf.update_cfg(q)
+            for n in hand.link_names:
+                urdf.get_transform(n)
+
+    t_ref = median_time(ref_loop, max(1, repeats // 3)) / n_ref
+    T = hand.fk(Qref)
+    err = 0.0
+    for b, q in enumerate(Qref):
+        urdf.update_cfg(q)
+        for n in hand.link_names:
+            err = max(err, float(np.abs(urdf.get_transform(n) - T[n][b]).max()))
+    for B in (1, 100, 1000, n_configs):
+        Q = rng.uniform(hand.lower, hand.upper, size=(B, hand.n_joints))
+        t = median_time(lambda Q=Q: hand.fk_array(Q), repeats)
+        print(f"| {B} | {fmt(t)} | {fmt(t / B)} | {fmt(t_ref * B)} | {t_ref * B / t:.0f}x |")
+    print(f"\nmax |batch FK - yourdfpy| over {n_ref} configurations x 10 links: {err:.1e}")
+
+
+def object_cloud(n_points: int) -> np.ndarray:
+    try:
+        from pregrasp_core.io import load_point_cloud
+
+        return load_point_cloud(DEFAULT_OBJECT, n_points=n_points, seed=0).points
+    except ImportError:  # io not there: sample the mesh with trimesh
+        import trimesh
+
+        mesh = trimesh.load(DEFAULT_OBJECT, force="mesh")
+        return np.asarray(trimesh.sample.sample_surface(mesh, n_points, seed=0)[0])
+
+
+def poses_around(
+    cloud: np.ndarray, G: int, rng: np.random.Generator, lo: float, hi: float
+) -> np.ndarray:
+    """G hand poses whose approach (+z) aims at the cloud's centre from random directions, the
+    palm at ``lo`` to ``hi`` times the cloud's radius (farthest point) from the centre."""
+    c = cloud.mean(axis=0)
+    r = np.linalg.norm(cloud - c, axis=1).max()
+    d = rng.normal(size=(G, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    z = -d
+    x = np.cross(z, rng.normal(size=(G, 3)))
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    y = np.cross(z, x)
+    T = np.tile(np.eye(4), (G, 1, 1))
+    T[:, :3, 0], T[:, :3, 1], T[:, :3, 2] = x, y, z
+    T[:, :3, 3] = c + d * r * rng.uniform(lo, hi, size=(G, 1))
+    assert np.allclose(np.linalg.det(T[:, :3, :3]), 1.0)
+    return T
+
+
+def bench_points(hand: Hand, n_points: int, repeats: int, rng: np.random.Generator) -> None:
+    cloud = object_cloud(n_points)
+    q = hand.preshape("spherical")
+    print(f"\n### Point-in-link queries ({n_points} points of the default object)\n")
+    print("| query | hands | time | per hand | reference (per-pose loop) | same counts |")
+    print("|---|---:|---:|---:|---:|---|")
+    c = cloud.mean(axis=0)
+    p_hand = cloud - c + np.array([0.0, 0.0, 0.06])
+    t = median_time(lambda: hand.points_in_links(p_hand, q, 0.002), repeats)
+    print(f"| points_in_links (N, L) | 1 | {fmt(t)} | {fmt(t)} | - | - |")
+    for G, lo, hi in ((100, 0.5, 1.0), (1000, 0.5, 1.0), (1000, 1.0, 1.5)):
+        T = poses_around(cloud, G, rng, lo, hi)
+        Q = np.tile(q, (G, 1))
+        t = median_time(lambda T=T, Q=Q: hand.link_point_counts(cloud, T, Q, 0.002), repeats)
+
+        def brute(T=T, G=G):
+            out = np.empty((G, len(hand.link_names)), dtype=np.int64)
+            for g in range(G):
+                ph = (cloud - T[g, :3, 3]) @ T[g, :3, :3]
+                out[g] = hand.points_in_links(ph, q, 0.002).sum(axis=0)
+            return out
+
+        t_ref = median_time(brute, 1)
+        same = np.array_equal(hand.link_point_counts(cloud, T, Q, 0.002), brute())
+        hit = hand.hands_hit_points(cloud, T, Q, 0.002).mean()
+        print(
+            f"| link_point_counts, palm at {lo}-{hi} r, {hit:.0%} hit | {G} | {fmt(t)} | "
+            f"{fmt(t / G)} | {fmt(t_ref)} | {same} |"
+        )
+
+
+def bench_closing(hand: Hand, repeats: int, rng: np.random.Generator) -> None:
+    print("\n### Planar closing model (one finger, 64 steps per phase, bisection to 1e-4 rad)\n")
+    print("| points in slice | time per close_finger | outcome |")
+    print("|---:|---:|---|")
+    f = hand.finger("f1")
+    for M in (100, 1000, 10000):
+        # a disc of points in front of the finger: the middle link touches, the distal wraps
+        ang = rng.uniform(0, 2 * np.pi, M)
+        rad = 0.03 * np.sqrt(rng.uniform(0, 1, M))
+        P = np.stack([0.06 + rad * np.cos(ang), 0.055 + rad * np.sin(ang)], axis=1)
+        q0 = np.array([-0.5, 0.0])
+        t = median_time(lambda P=P, q0=q0: hand.close_finger(f, P, q0), repeats)
+        c = hand.close_finger(f, P, q0)
+        links = "+".join(k.link.split("_")[1] for k in c.contacts) or "none"
+        print(f"| {M} | {fmt(t)} | contacts: {links} |")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--configs", type=int, default=10000)
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--points", type=int, default=20000)
+    args = parser.parse_args()
+    rng = np.random.default_rng(0)
+    hand = Hand.load()
+    print(
+        f"machine: {platform.machine()}, Python {platform.python_version()}, "
+        f"numpy {np.__version__}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}"
+    )
+    bench_fk(hand, args.configs, args.repeats, rng)
+    bench_points(hand, args.points, args.repeats, rng)
+    bench_closing(hand, args.repeats, rng)
+    q = hand.preshape("spherical")
+    t = median_time(lambda: hand.self_collision(q), args.repeats)
+    n_pairs = len(hand.self_collision_pairs_checked)
+    print(f"\nself_collision (python-fcl, {n_pairs} pairs): {fmt(t)}")
+
+
+if __name__ == "__main__":
+    main()
