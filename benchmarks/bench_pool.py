@@ -2,7 +2,8 @@
 
 For every demo object in ``assets/objects/`` (meshes sampled to N points with seed 0) the
 pipeline runs at default settings (``PipelineParams()``: volume ratio 0.9, min points 500, the
-paper's traversal, support plane under the object, interval 0.03 m). Stage times are the median
+paper's traversal, support plane under the object, interval 0.02 m); the pool size is also given
+at ``--other-interval`` (default 0.03 m), re-running only the pool stage. Stage times are the median
 of ``--repeats`` runs (each run recomputes every stage). A second table compares the two
 batched collision tests of the pool filter on the same poses and cloud in the same run: the
 hand model's ``Hand.hands_hit_points`` (k-d tree ball query around every link box) against
@@ -23,6 +24,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import platform  # noqa: E402
 import statistics  # noqa: E402
 import sys  # noqa: E402
@@ -51,11 +53,16 @@ SHORT = {
 }
 
 
-def pool_table(points: int, repeats: int, hand: Hand) -> None:
+def pool_table(points: int, repeats: int, hand: Hand, other_interval: float) -> None:
     params = PipelineParams()
+    other = dataclasses.replace(
+        params, sampling=dataclasses.replace(params.sampling, interval=other_interval)
+    )
     head = (
-        "| object | parts | candidates | pool | per type | fallback | dropped (subface / "
-        "support / collision) | " + " | ".join(f"{s} ms" for s in POOL_STAGES) + " |"
+        f"| object | parts | candidates | pool | pool at {other_interval} m | per type | fallback "
+        "| dropped (subface / support / collision) | "
+        + " | ".join(f"{s} ms" for s in POOL_STAGES)
+        + " |"
     )
     print(head)
     print("|" + "---|" * (head.count("|") - 1))
@@ -64,6 +71,7 @@ def pool_table(points: int, repeats: int, hand: Hand) -> None:
         cloud = load_point_cloud(path, n_points=points, seed=0)
         runs = [run_pipeline(cloud, params, hand, until="pool") for _ in range(repeats)]
         r = runs[0]
+        n_other = len(run_pipeline(cloud, other, hand, until="pool", previous=r).pool)
         ms = {s: 1000 * statistics.median(x.timings[s] for x in runs) for s in POOL_STAGES}
         totals.append(sum(ms.values()))
         per_type = ", ".join(f"{SHORT[k]} {v}" for k, v in r.pool.counts()["per_type"].items())
@@ -71,7 +79,7 @@ def pool_table(points: int, repeats: int, hand: Hand) -> None:
         d = r.pool.dropped
         print(
             f"| {path.stem} | {len(r.tree.leaves())} | {len(r.traversal.candidates)} | "
-            f"{len(r.pool)} | {per_type or '-'} | {fb} | {d['blocked_subface']} / "
+            f"{len(r.pool)} | {n_other} | {per_type or '-'} | {fb} | {d['blocked_subface']} / "
             f"{d['support']} / {d['object_collision']} | "
             + " | ".join(f"{ms[s]:.1f}" for s in POOL_STAGES)
             + " |"
@@ -118,13 +126,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, default=20000)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument(
+        "--other-interval", type=float, default=0.03, help="pool size also at this interval"
+    )
     a = ap.parse_args()
     print(
         f"# bench_pool: {a.points} points, {a.repeats} repeats, {platform.platform()}, "
         f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}\n"
     )
     hand = Hand.load()
-    pool_table(a.points, a.repeats, hand)
+    pool_table(a.points, a.repeats, hand, a.other_interval)
     collision_table(a.points, hand)
 
 

@@ -81,7 +81,7 @@ class TraversalPolicy(str, enum.Enum):
 class SamplingParams:
     """Parameters of the traversal and of the pre-grasp sampling."""
 
-    interval: float = 0.03
+    interval: float = 0.02
     """Metres: distance between neighbouring samples on the enclosing surface (> 0)."""
     policy: TraversalPolicy = TraversalPolicy.PAPER
     """Which nodes get pre-grasps (:class:`TraversalPolicy` or its string value)."""

@@ -51,13 +51,13 @@ def test_writes_the_pool_into_the_result(box_cloud, tmp_path, capsys):
 def test_options_reach_the_pipeline(box_cloud, tmp_path, capsys):
     out = tmp_path / "pool.json"
     args = [
-        "pregrasps", str(box_cloud), "--min-points", "200", "--no-support", "--interval", "0.02",
+        "pregrasps", str(box_cloud), "--min-points", "200", "--no-support", "--interval", "0.025",
         "--policy", "all", "--no-fallback", "-o", str(out),
     ]  # fmt: skip
     assert main(args) == 0
     doc = read_result(out)
     assert doc["pool"]["support_plane"] is None
-    assert doc["parameters"]["sampling"]["interval"] == 0.02
+    assert doc["parameters"]["sampling"]["interval"] == 0.025
     assert doc["parameters"]["sampling"]["policy"] == "all"
     assert doc["pool"]["traversal"]["candidates"] == [n["id"] for n in doc["tree"]["nodes"]]
     # without a table the bottom face is free: no face of the root is blocked
