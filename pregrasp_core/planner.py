@@ -59,8 +59,12 @@ REJECTION_REASONS: dict[str, str] = {
 APPROACH_WINDOW: float = 0.03
 """First approach window (metres): pairs are first gathered for this much travel only."""
 
-APPROACH_STOPS: tuple[str, ...] = ("object", "support", "start")
-"""What ended the approach: a cloud point, the support plane, or already close at the start."""
+APPROACH_STOPS: tuple[str, ...] = ("object", "support", "start", "support_lifted")
+"""What ended the approach: a cloud point, the support plane, already close at the start, or
+the support followed by a retreat so that the fingers close on the object (``max_lift``)."""
+
+LIFT_STEP: float = 0.005
+"""Retreat step (metres) when the support plane stops the fingers (see ``max_lift``)."""
 
 
 @dataclass(frozen=True)
@@ -71,6 +75,10 @@ class PlannerParams:
     """The approach stops when a hand box is this close to a cloud point (or the support)."""
     max_approach: float = 0.15
     """Farthest the hand travels along its approach from the pre-grasp pose."""
+    max_lift: float = 0.04
+    """When the support plane ended the approach and a finger closes on the table instead of the
+    object, retreat along the approach in 5 mm steps up to this far and keep the pose where the
+    most fingers touch the object (0: never)."""
     closing_margin: float = 0.001
     """A finger link touches a slice point when within this distance (planar closing model)."""
     closing_steps: int = 48
@@ -468,6 +476,39 @@ def _thin_2d(p2: np.ndarray, cell: float) -> np.ndarray:
     return p2[np.sort(first)]
 
 
+def _close_fingers(
+    ctx: _Context, T: np.ndarray, p_h: np.ndarray, q0: np.ndarray, gt: str, spread: float
+) -> tuple[np.ndarray, list]:
+    """Slice and close every finger of the grasp type for the hand at pose ``T`` (``p_h``: the
+    nearby cloud points in that hand frame). Returns the joint vector and, per finger,
+    ``(finger, FingerClosing, n_slice, links touched on cloud points, stopped by the support)``.
+    """
+    hand, prm = ctx.hand, ctx.params
+    q = q0.copy()
+    closings = []
+    for f in hand.fingers_for(gt):  # loop over <= 3 fingers
+        plane = ctx.plane(f, spread)
+        p2, off = plane.to_plane(p_h)
+        in_slice = (np.abs(off) <= 0.5 * f.width) & (np.hypot(p2[:, 0], p2[:, 1]) <= ctx.reach)
+        p_slice = _thin_2d(p2[in_slice], prm.slice_resolution)
+        n_obj = len(p_slice)
+        table = _support_line_2d(ctx, T, plane, 0.5 * f.width)
+        cl = hand.close_finger(
+            f,
+            np.concatenate([p_slice, table]),
+            q0[list(f.flex_index)],
+            n_steps=prm.closing_steps,
+            margin=prm.closing_margin,
+        )
+        q[list(f.flex_index)] = cl.q
+        touched = tuple(c.link for c in cl.contacts if c.index < n_obj)
+        on_table = any(c.index >= n_obj for c in cl.contacts) or (
+            cl.start_in_contact and not touched and len(table) > 0
+        )
+        closings.append((f, cl, int(np.count_nonzero(in_slice)), touched, on_table))
+    return q, closings
+
+
 def _plan_one(ctx: _Context, pool: Any, i: int) -> Grasp:
     hand, prm = ctx.hand, ctx.params
     gt = str(pool.grasp_type[i])
@@ -501,26 +542,28 @@ def _plan_one(ctx: _Context, pool: Any, i: int) -> Grasp:
     p_h = p_h[in_reach]
 
     # 2. slicing and closing, per finger of the grasp type
-    q = q0.copy()
-    closings = []
-    for f in hand.fingers_for(gt):  # loop over <= 3 fingers
-        plane = ctx.plane(f, spread)
-        p2, off = plane.to_plane(p_h)
-        in_slice = (np.abs(off) <= 0.5 * f.width) & (np.hypot(p2[:, 0], p2[:, 1]) <= ctx.reach)
-        p_slice = _thin_2d(p2[in_slice], prm.slice_resolution)
-        n_obj = len(p_slice)
-        table = _support_line_2d(ctx, T, plane, 0.5 * f.width)
-        cl = hand.close_finger(
-            f,
-            np.concatenate([p_slice, table]),
-            q0[list(f.flex_index)],
-            n_steps=prm.closing_steps,
-            margin=prm.closing_margin,
-        )
-        q[list(f.flex_index)] = cl.q
-        touched = tuple(c.link for c in cl.contacts if c.index < n_obj)
-        on_table = any(c.index >= n_obj for c in cl.contacts)
-        closings.append((f, cl, int(np.count_nonzero(in_slice)), touched, on_table))
+    q, closings = _close_fingers(ctx, T, p_h, q0, gt, spread)
+    lift = 0.0
+    if ctx.support is not None and prm.max_lift > 0.0 and stop in ("support", "start"):
+        # the table, not the object, ended the approach: fingers that closed on the table (or
+        # could not move) get another chance from a little higher up (back along the approach)
+        n_touch = sum(bool(c[3]) for c in closings)
+        for k in range(1, int(round(prm.max_lift / LIFT_STEP)) + 1):  # <= ~8 retreats
+            if n_touch == len(closings):
+                break
+            up = k * LIFT_STEP
+            T_up = T.copy()
+            T_up[:3, 3] -= up * T0[:3, 2]
+            p_up = p_h + np.array([0.0, 0.0, up])
+            q_up, cl_up = _close_fingers(ctx, T_up, p_up, q0, gt, spread)
+            n_up = sum(bool(c[3]) for c in cl_up)
+            if n_up > n_touch:
+                n_touch, q, closings, lift = n_up, q_up, cl_up, up
+        if lift > 0.0:
+            T[:3, 3] -= lift * T0[:3, 2]
+            p_h = p_h + np.array([0.0, 0.0, lift])
+            s -= lift
+            stop = "support_lifted"
 
     # 3. verification in 3D: depth of the nearby points in every link
     reach = max(prm.contact_distance, prm.penetration_tol)

@@ -210,23 +210,35 @@ def test_rejections_and_support_stop(hand):
     assert gs.grasps[1].kept and gs.best == 1 and gs.grasps[1].rank == 0
     assert gs.rejected == {**{k: 0 for k in REJECTION_REASONS}, "nothing_ahead": 1}
     # top-down over the box standing on a table at its bottom face: the open fingers reach
-    # the table before the palm reaches the box, so the table stops the approach
+    # the table before the palm reaches the box, so the table stops the approach; the fingers
+    # then close on the table, so the hand retreats (max_lift) until they reach the box
     down = _pose(hand, "cylindrical", [0, 0, -1.0], [0, 1.0, 0], np.zeros(3), 0.15)
     support = SupportPlane(normal=np.array([0.0, 0.0, 1.0]), height=-0.01)
-    gs2 = plan_grasps(pts, nrm, _pool(hand, [down], "cylindrical"), hand, support=support)
-    g = gs2.grasps[0]
-    assert g.approach_stop == "support"
+    tol = PlannerParams().penetration_tol
     clearance = PlannerParams().approach_clearance
+    pool = _pool(hand, [down], "cylindrical")
 
-    def lowest(q):
+    def lowest(g, q):
         v = hand.collision_mesh(q).vertices @ g.T_world_hand[:3, :3].T + g.T_world_hand[:3, 3]
         return v[:, 2].min()
 
-    assert lowest(hand.preshape("cylindrical")) == pytest.approx(-0.01 + clearance, abs=1e-9)
+    stiff = plan_grasps(pts, nrm, pool, hand, PlannerParams(max_lift=0.0), support=support)
+    g = stiff.grasps[0]
+    assert g.approach_stop == "support"
+    assert lowest(g, hand.preshape("cylindrical")) == pytest.approx(-0.01 + clearance, abs=1e-9)
     # closing lowers the open fingertips: the table (in every slice) stops them on it
-    assert any(f.support_stop for f in g.fingers)
-    assert lowest(g.q) >= -0.01 - PlannerParams().penetration_tol
-    assert g.rejection in (None, "no_contact")
+    assert all(f.support_stop for f in g.fingers)
+    assert lowest(g, g.q) >= -0.01 - tol
+    assert g.rejection == "no_contact"
+
+    lifted = plan_grasps(pts, nrm, pool, hand, support=support).grasps[0]
+    assert lifted.approach_stop == "support_lifted"
+    up = g.approach_distance - lifted.approach_distance
+    assert 0.0 < up <= PlannerParams().max_lift + 1e-12
+    assert up / 0.005 == pytest.approx(round(up / 0.005), abs=1e-9)
+    assert lowest(lifted, lifted.q) >= -0.01 - tol
+    assert lifted.kept and lifted.n_contacts >= 2
+    assert {c.link.split("_")[0] for c in lifted.contacts} == {"thumb", "f1", "f2"}
 
 
 def test_support_collision_check_uses_fcl_half_space(hand):
