@@ -132,7 +132,7 @@ def test_result_document_has_masks_and_pool(first, params, tmp_path):
     assert json.loads(json.dumps(pool_section(first)))["count"] == len(first.pool)
 
 
-def test_the_default_object_gets_a_pool(hand):
+def test_the_default_object_gets_a_pool_identical_for_the_same_seed(hand):
     cloud = load_point_cloud(DEFAULT_OBJECT, n_points=6000, seed=0)
     r = run_pipeline(
         cloud, PipelineParams(decomposition=DecompositionParams(min_points=150)), hand, until="pool"
@@ -144,3 +144,14 @@ def test_the_default_object_gets_a_pool(hand):
         sel = r.pool.grasp_type == gt
         hits = hand.hands_hit_points(cloud.points, r.pool.T_world_hand[sel], r.pool.q[sel][0])
         assert not hits.any()
+    # the same file and seed give the same pool, bit for bit
+    cloud2 = load_point_cloud(DEFAULT_OBJECT, n_points=6000, seed=0)
+    r2 = run_pipeline(
+        cloud2,
+        PipelineParams(decomposition=DecompositionParams(min_points=150)),
+        hand,
+        until="pool",
+    )
+    for name in ("T_world_hand", "q", "node", "face", "subface", "backoff", "grasp_type"):
+        assert np.array_equal(getattr(r.pool, name), getattr(r2.pool, name))
+    assert r.pool.dropped == r2.pool.dropped

@@ -295,6 +295,17 @@ def test_box_on_the_table_gets_no_pregrasp_from_below_and_all_are_collision_free
     assert np.all((pool.backoff >= 0) & (pool.backoff <= 0.06 + 1e-12))
 
 
+def test_every_pregrasp_of_the_pool_aims_at_its_box_centre(hand):
+    tree, _, _, pool = box_on_table_pool(hand)
+    c = tree.root.box.center
+    # the line from the hand's grasp centre along the approach passes through the box centre
+    g = pool.T_world_hand[:, :3, :3] @ hand.grasp_center("spherical") + pool.T_world_hand[:, :3, 3]
+    to_c = c - g
+    assert np.allclose(np.cross(to_c, pool.approach), 0.0, atol=1e-12)
+    assert np.all(np.einsum("ij,ij->i", to_c, pool.approach) > 0)
+    assert np.allclose(np.linalg.norm(pool.approach, axis=1), 1.0)
+
+
 def test_without_back_off_the_hand_is_dropped_rather_than_moved(hand):
     *_, moved = box_on_table_pool(hand)
     *_, strict = box_on_table_pool(hand, max_backoff=0.0)
