@@ -29,6 +29,7 @@ points raise :class:`~pregrasp_core.errors.DegenerateGeometryError`.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,10 +47,10 @@ class MvbbParams:
     """Parameters of the MVBB search. The defaults meet the targets of ``docs/mvbb.md``."""
 
     kernel_grid: int = 16
-    """Columns per side of the fine kernel grid (step 1): up to 6 * kernel_grid**2 points are
-    kept for the refinement. Larger is more exact and slower."""
+    """Columns per side of the fine kernel grid (step 1): at most 6 * kernel_grid**2 points are
+    kept for the polish. Larger is more exact and slower."""
     coarse_grid: int = 6
-    """Columns per side of the coarse kernel whose hull gives the candidate normals (step 2)."""
+    """Columns per side of the coarse kernel whose hull gives the candidate normals (step 1)."""
     n_angles: int = 12
     """In-plane angles tried per candidate normal over 90 degrees (step 2): 12 = 7.5 degree
     steps (the pattern search starts at ``step_start`` and covers the gaps)."""
@@ -63,31 +64,31 @@ class MvbbParams:
     the best are skipped)."""
     n_refine: int = 4
     """Distinct candidates polished by the pattern search (step 3)."""
-    step_start: float = np.deg2rad(3.0)
+    step_start: float = math.radians(3.0)
     """First rotation step of the pattern search, radians."""
-    step_min: float = np.deg2rad(0.005)
+    step_min: float = math.radians(0.005)
     """The pattern search stops when its step falls below this, radians."""
     active_reach: float = 4.0
     """The pattern search rebuilds its active point set after moves totalling this many steps
     (a larger reach means fewer rebuilds but larger sets; any value is exact)."""
-    snap_angle: float = np.deg2rad(0.5)
-    """Hull facets whose normal is within this angle of an axis of the polished box are tried as
-    exact flush faces (final snap), radians."""
-    snap_max: int = 4
-    """At most this many facet normals are tried by the final snap."""
-    snap_grid: int = 16
-    """Columns per side of the grid that thins the points near the box faces before the snap's
-    hull (the snapped boxes are then judged on the whole cloud)."""
     max_iterations: int = 200
-    """Upper bound on pattern-search iterations (a safeguard; typical runs need 20 to 40)."""
+    """Upper bound on pattern-search iterations per call (a safeguard; runs need 10 to 40)."""
     refine_restart_level: int = 4
-    """After adding the cloud points near the polished boxes, the pattern search restarts at
-    step ``step_start / 2**refine_restart_level``."""
+    """After this many halvings (step ``step_start / 2**4``) only the best box goes on, with the
+    cloud points near its faces added (step 3)."""
     polish_grid: int = 16
     """Columns per side of the grid that thins the cloud points added for the final polish."""
     max_rounds: int = 2
-    """Rounds of adding cloud points and re-polishing (stops early when nothing is added)."""
-
+    """Rounds of adding cloud points and polishing (the second only if the box on the polishing
+    set is not yet the box on the whole cloud)."""
+    snap_angle: float = math.radians(0.5)
+    """Hull facets whose normal is within this angle of an axis of the polished box are tried as
+    exact flush faces (step 4), radians."""
+    snap_max: int = 4
+    """At most this many snapped boxes (smallest lower bounds first) are judged exactly."""
+    snap_grid: int = 16
+    """Columns per side of the grid that thins the points near the box faces before the snap's
+    hull."""
 
 DEFAULT_PARAMS = MvbbParams()
 
