@@ -691,7 +691,10 @@ def _node_pool(
     """The samples of one node for one grasp type on its usable sub-faces, as a pool."""
     every = sample_node(nd.box, gt, params)
     use = usable_subfaces(masks.blocked[nd.id], gt)
-    keep = np.array([use[f][k] for f, k in zip(every.face, every.subface, strict=True)], bool)
+    table = np.zeros((6, max(len(u) for u in use) or 1), dtype=bool)  # (6, S_max) usable
+    for f, u in enumerate(use):
+        table[f, : len(u)] = u
+    keep = table[every.face, every.subface]  # (M,)
     ok = replace(
         every,
         T_box_grasp=every.T_box_grasp[keep],
