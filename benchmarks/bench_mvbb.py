@@ -105,7 +105,15 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=20000)
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--starts", type=int, default=24, help="random starts of the best-known search")
+    ap.add_argument(
+        "--scaling",
+        action="store_true",
+        help="instead: our CPU time against the number of points (mug_handle, 500 to 100,000)",
+    )
     args = ap.parse_args()
+    if args.scaling:
+        scaling(args.repeats)
+        return
 
     clouds = load_clouds(args.points)
     print(
@@ -155,6 +163,20 @@ def main() -> None:
     ]
     for text, ok in checks:
         print(f"{'PASS' if ok else 'FAIL'}  {text}")
+
+
+def scaling(repeats: int) -> None:
+    """Median CPU time of ours and trimesh against the number of points of one object."""
+    from pregrasp_core.io import load_point_cloud
+    from pregrasp_core.paths import DEFAULT_OBJECT
+
+    print(f"# {DEFAULT_OBJECT.name}: median CPU ms of {repeats} runs")
+    print(f"{'points':>8} | {'ours':>7} {'trimesh':>8} {'ratio':>6}")
+    for n in (500, 2000, 5000, 20000, 100000):
+        pts = load_point_cloud(DEFAULT_OBJECT, n_points=n, seed=0).points
+        t_ours, _, _ = timed(minimum_volume_box, pts, repeats)
+        t_tm, _, _ = timed(trimesh.bounds.oriented_bounds, pts, repeats)
+        print(f"{n:>8} | {t_ours * 1e3:>7.2f} {t_tm * 1e3:>8.1f} {t_tm / t_ours:>6.1f}")
 
 
 if __name__ == "__main__":
