@@ -5,6 +5,8 @@ from __future__ import annotations
 import fcl
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from pregrasp_core.box import OrientedBox
@@ -366,3 +368,21 @@ def test_subface_rectangles_tile_each_face():
             assert area == pytest.approx(sides[0] * sides[1])
             # counter-clockwise seen from outside
             assert np.all(np.cross(e1, e2) @ normal > 0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    blocked=st.lists(st.booleans(), min_size=6, max_size=6),
+    grasp_type=st.sampled_from(["spherical", "cylindrical", "three_finger_tip", "two_finger_tip"]),
+)
+def test_usable_subfaces_match_the_geometry_of_the_rectangles(blocked, grasp_type):
+    """Oracle from geometry alone: a sub-face borders face g when two of its corners lie on g's
+    plane (the edge it shares with g); it is usable when its face and those faces are free."""
+    box = OrientedBox(np.zeros(3), np.eye(3), np.array([0.3, 0.2, 0.1]))
+    blocked = np.array(blocked)
+    use = usable_subfaces(blocked, grasp_type)
+    for f, rects in enumerate(subface_rectangles(box, grasp_type)):
+        for s, corners in enumerate(rects):  # (4, 3)
+            on_plane = np.isclose(corners @ FACE_NORMAL.T, box.half_extents[np.arange(6) // 2])
+            borders = [g for g in range(6) if g != f and on_plane[:, g].sum() == 2]
+            assert use[f][s] == (not blocked[f] and not any(blocked[g] for g in borders))
