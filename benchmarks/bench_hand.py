@@ -11,7 +11,8 @@ hand-vs-cloud filter and the planar closing model, each beside a reference in th
 - ``close_finger`` on slices of M points.
 
 Usage: .venv/bin/python benchmarks/bench_hand.py [--configs 10000] [--repeats 7] [--points 20000]
-Timings are medians of ``--repeats`` runs, wall-clock, one process (numpy may use its threads).
+Timings are medians of ``--repeats`` runs of the process's CPU time; run with
+``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1`` for single-core figures.
 """
 
 from __future__ import annotations
@@ -28,11 +29,14 @@ from pregrasp_core.paths import DEFAULT_OBJECT, HAND_URDF
 
 
 def median_time(fn, repeats: int) -> float:
+    """Median CPU time of this process over ``repeats`` calls (``time.process_time``): with one
+    BLAS thread it is the single-core time, and other jobs on a shared machine do not inflate
+    it the way they inflate wall-clock time."""
     times = []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         fn()
-        times.append(time.perf_counter() - t0)
+        times.append(time.process_time() - t0)
     return float(np.median(times))
 
 

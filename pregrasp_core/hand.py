@@ -869,24 +869,23 @@ class Hand:
             if n_idx.size == 0:
                 continue
             cand = p_hand[n_idx, g_idx]  # (P, 3) candidate points in their hand's frame
-            lid = code[n_idx, g_idx]  # (P,) the one link to test, or L for several
             g_abs = g_idx + g0
-            u_of = inverse[g_abs]
-            one = lid < L
-            # voxels of a single link: test that link only
-            c1, l1, g1a, u1 = cand[one], lid[one], g_abs[one], u_of[one]
-            Rs = Rb[u1, l1]  # (P1, 3, 3)
-            d = c1 - Tb[u1, l1, :3, 3]
-            local = d[:, 0:1] * Rs[:, 0] + d[:, 1:2] * Rs[:, 1] + d[:, 2:3] * Rs[:, 2]
-            inside = _all3(np.abs(local) <= half[l1])
-            flat_counts += np.bincount(g1a[inside] * L + l1[inside], minlength=G * L)
-            # voxels where several links may be: test them all
-            many = np.flatnonzero(~one)
-            for u in np.unique(u_of[many]):
-                sel = many[u_of[many] == u]
-                local = (cand[sel] @ Rcat[u] - off[u]).reshape(-1, L, 3)  # (P_u, L, 3)
-                pi, li = np.nonzero(_all3(np.abs(local) <= half))
-                flat_counts += np.bincount(g_abs[sel[pi]] * L + li, minlength=G * L)
+            # group the candidates by (configuration, link code) with one radix sort; each group
+            # is one matrix product: a single link's box, or all L boxes (code L)
+            key = (inverse[g_abs] * (L + 1) + code[n_idx, g_idx]).astype(np.int16)
+            order = np.argsort(key, kind="stable")
+            ks = key[order]
+            cuts = np.flatnonzero(np.diff(ks)) + 1
+            for seg in np.split(order, cuts):  # at most (L + 1) x distinct configurations
+                u, lk = divmod(int(key[seg[0]]), L + 1)
+                if lk < L:
+                    local = cand[seg] @ Rb[u, lk] - off[u, 3 * lk : 3 * lk + 3]  # (P_s, 3)
+                    inside = _all3(np.abs(local) <= half[lk])
+                    flat_counts += np.bincount(g_abs[seg[inside]] * L + lk, minlength=G * L)
+                else:
+                    local = (cand[seg] @ Rcat[u] - off[u]).reshape(-1, L, 3)  # (P_s, L, 3)
+                    pi, li = np.nonzero(_all3(np.abs(local) <= half))
+                    flat_counts += np.bincount(g_abs[seg[pi]] * L + li, minlength=G * L)
         counts += flat_counts.reshape(G, L)
         return counts
 
@@ -985,20 +984,20 @@ class _OccupancyGrid:
     dims: np.ndarray
     """(3,) int64 number of voxels per axis."""
     link: np.ndarray
-    """(U, C) int64 per voxel: -1 no link, l in [0, L) only link l, L several links."""
+    """(U, C) int8 per voxel: -1 no link, l in [0, L) only link l, L several links."""
 
     @classmethod
     def build(cls, Rcat, off, half, centers, Rb) -> _OccupancyGrid:
         h = _VOXEL
         reach = np.einsum("ulij,lj->uli", np.abs(Rb), half)  # (U, L, 3) AABB half sizes
-        lo = (centers - reach).min(axis=(0, 1)) - h
-        hi = (centers + reach).max(axis=(0, 1)) + h
+        lo = (centers - reach).min(axis=(0, 1)) - 2.0 * h  # two empty voxels all round
+        hi = (centers + reach).max(axis=(0, 1)) + 2.0 * h
         dims = np.ceil((hi - lo) / h).astype(np.int64)
         axes = [lo[k] + (np.arange(dims[k]) + 0.5) * h for k in range(3)]
         c = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)  # (C, 3)
         L = half.shape[0]
         grow = half + 0.5 * np.sqrt(3.0) * h
-        link = np.empty((Rcat.shape[0], c.shape[0]), dtype=np.int64)
+        link = np.empty((Rcat.shape[0], c.shape[0]), dtype=np.int8)
         for u in range(Rcat.shape[0]):  # distinct configurations (a handful)
             local = (c @ Rcat[u] - off[u]).reshape(-1, L, 3)
             hit = _all3(np.abs(local) <= grow)  # (C, L)
@@ -1007,16 +1006,16 @@ class _OccupancyGrid:
         return cls(lo=lo, dims=dims, link=link)
 
     def lookup(self, p_hand: np.ndarray, u_of_hand: np.ndarray) -> np.ndarray:
-        """(N, G) int64 voxel link code (see ``link``; -1 outside the grid) for points
-        (N, G, 3) in the frames of G hands with configuration ids ``u_of_hand`` (G,)."""
-        cell = np.floor((p_hand - self.lo) * (1.0 / _VOXEL)).astype(np.int64)  # (N, G, 3)
-        inb = (cell >= 0) & (cell < self.dims)
-        valid = inb[..., 0] & inb[..., 1] & inb[..., 2]
-        flat = (cell[..., 0] * self.dims[1] + cell[..., 1]) * self.dims[2] + cell[..., 2]
-        flat[~valid] = 0
-        code = self.link[u_of_hand[None, :], flat]
-        code[~valid] = -1
-        return code
+        """(N, G) voxel link codes (see ``link``) for points (N, G, 3) in the frames of G hands
+        with configuration ids ``u_of_hand`` (G,). Points outside the grid are clipped onto its
+        border voxels, which are always empty (the grid has a margin of two voxels)."""
+        x = (p_hand - self.lo) * (1.0 / _VOXEL)
+        np.clip(x, 0.0, self.dims - 1.0, out=x)
+        cell = x.astype(np.int32)  # (N, G, 3) voxel indices (truncation = floor here)
+        d1, d2 = int(self.dims[1]), int(self.dims[2])
+        flat = (cell[..., 0] * d1 + cell[..., 1]) * d2 + cell[..., 2]  # (N, G)
+        flat += (u_of_hand * self.link.shape[1]).astype(np.int32)[None, :]
+        return np.take(self.link.reshape(-1), flat)
 
 
 # --------------------------------------------------------------------------------------------
