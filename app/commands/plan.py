@@ -6,7 +6,8 @@ per stage); ``-o -`` prints the JSON; without ``-o`` a readable summary (parts, 
 best grasps with type, contacts and epsilon).
 
 A folder: every mesh or cloud in it (sorted by name) is planned in turn with a text progress bar
-on stderr; ``--report report.csv`` writes one row per object (object, points, parts, pool, kept,
+on stderr (files that do not read as a cloud, such as a ``manifest.csv``, are listed as
+skipped); ``--report report.csv`` writes one row per object (object, points, parts, pool, kept,
 force closure, best type, contacts, epsilon, volume, seconds, error), else the CSV goes to
 stdout; ``-o DIR`` also writes ``DIR/<object>.json`` per object.
 """
@@ -146,11 +147,15 @@ def pipeline_params(args: argparse.Namespace) -> Any:
 
 def plan_one(path: str | Path, args: argparse.Namespace, hand: Any) -> tuple[Any, dict]:
     """Load and plan one object: (PipelineResult, timings with ``load`` first)."""
-    from pregrasp_core.pipeline import run_pipeline
-
     t0 = time.perf_counter()
     cloud = load_point_cloud(path, n_points=args.points, seed=args.seed, scale=args.scale)
-    t_load = time.perf_counter() - t0
+    return plan_loaded(cloud, time.perf_counter() - t0, args, hand)
+
+
+def plan_loaded(cloud: Any, t_load: float, args: argparse.Namespace, hand: Any) -> tuple:
+    """Plan a loaded cloud: (PipelineResult, timings with ``load`` first)."""
+    from pregrasp_core.pipeline import run_pipeline
+
     result = run_pipeline(cloud, pipeline_params(args), hand, until="grasps")
     return result, {"load": t_load, **result.timings}
 
@@ -308,7 +313,9 @@ class ProgressBar:
 
 
 def run_batch(folder: Path, args: argparse.Namespace, hand: Any) -> int:
-    """Plan every object of ``folder``; write the CSV report; 1 if any object failed."""
+    """Plan every object of ``folder``; write the CSV report. Files that do not read as a cloud
+    or mesh (a manifest, notes) are listed with ``skipped: <reason>``; the exit status is 1 when
+    an object that loaded failed later, or when nothing could be planned."""
     files = objects_in(folder)
     out_dir = None
     if args.output is not None:
@@ -322,15 +329,23 @@ def run_batch(folder: Path, args: argparse.Namespace, hand: Any) -> int:
     bar.update(0, "")
     for k, f in enumerate(files):  # loop over objects
         t0 = time.perf_counter()
+        error = ""
         try:
-            result, timings = plan_one(f, args, hand)
-            rows.append(report_row(f.name, result, time.perf_counter() - t0))
-            if out_dir is not None:
-                write_result(result_doc(result, timings, args), out_dir / f"{f.stem}.json")
-        except PregraspError as exc:  # one bad object does not stop the batch
-            failed += 1
+            cloud = load_point_cloud(f, n_points=args.points, seed=args.seed, scale=args.scale)
+        except InputError as exc:  # not an object (a manifest, notes...): listed, skipped
+            error = f"skipped: {exc}"
+        else:
+            try:
+                result, timings = plan_loaded(cloud, time.perf_counter() - t0, args, hand)
+                rows.append(report_row(f.name, result, time.perf_counter() - t0))
+                if out_dir is not None:
+                    write_result(result_doc(result, timings, args), out_dir / f"{f.stem}.json")
+            except PregraspError as exc:  # a failed object does not stop the batch
+                failed += 1
+                error = str(exc)
+        if error:
             row = {c: "" for c in REPORT_COLUMNS}
-            row.update(object=f.name, seconds=round(time.perf_counter() - t0, 4), error=str(exc))
+            row.update(object=f.name, seconds=round(time.perf_counter() - t0, 4), error=error)
             rows.append(row)
         bar.update(k + 1, f.name)
     text = io.StringIO()
@@ -343,4 +358,5 @@ def run_batch(folder: Path, args: argparse.Namespace, hand: Any) -> int:
         Path(args.report).write_text(text.getvalue())
         n_fc = sum(1 for r in rows if r["best_epsilon"] not in ("", 0.0))
         print(f"wrote {args.report}: {len(rows)} objects, best grasp force closure on {n_fc}")
-    return 1 if failed else 0
+    planned = sum(1 for r in rows if not r["error"])
+    return 1 if failed or planned == 0 else 0

@@ -81,23 +81,27 @@ def test_batch_over_a_folder_writes_a_csv_report(tmp_path, capsys):
     shutil.copy(LEMON, folder / "a_lemon.obj")
     _box_obj(folder / "b_box.obj")
     (folder / "c_empty.xyz").write_text("")
+    (folder / "d_manifest.csv").write_text("name,source\nmug,pybullet\n")
     (folder / "notes.md").write_text("not an object")
     report = tmp_path / "report.csv"
     code = main(["plan", str(folder), *FAST, "--report", str(report), "-o", str(tmp_path / "js")])
     captured = capsys.readouterr()
-    assert code == 1  # one object failed, the others were planned
+    assert code == 0  # unreadable files are skipped, every object was planned
     rows = list(csv.DictReader(report.open()))
-    assert [r["object"] for r in rows] == ["a_lemon.obj", "b_box.obj", "c_empty.xyz"]
+    assert [r["object"] for r in rows] == ["a_lemon.obj", "b_box.obj", "c_empty.xyz",
+                                           "d_manifest.csv"]  # fmt: skip
     assert list(rows[0]) == list(REPORT_COLUMNS)
     assert rows[0]["error"] == "" and int(rows[0]["points"]) == 2500
     assert int(rows[1]["parts"]) >= 1 and rows[1]["error"] == ""
-    assert "c_empty.xyz" in rows[2]["error"] and "empty" in rows[2]["error"]
+    assert rows[2]["error"].startswith("skipped:") and "c_empty.xyz" in rows[2]["error"]
+    assert "empty" in rows[2]["error"]
+    assert rows[3]["error"].startswith("skipped:") and "d_manifest.csv" in rows[3]["error"]
     for r in rows[:2]:
         if r["best_type"]:
             assert float(r["best_epsilon"]) >= 0.0 and int(r["best_contacts"]) >= 1
     assert sorted(p.name for p in (tmp_path / "js").iterdir()) == ["a_lemon.json", "b_box.json"]
     # the progress bar (stderr is not a terminal under pytest: one line per update)
-    assert "[" in captured.err and "3/3 c_empty.xyz" in captured.err
+    assert "[" in captured.err and "4/4 d_manifest.csv" in captured.err
     assert "best grasp force closure on" in captured.out
 
 
@@ -138,6 +142,13 @@ def test_bad_options_are_one_line_errors(argv, message, capsys):
     err = capsys.readouterr().err
     assert err.startswith("pregrasp plan: error:") and message in err
     assert "Traceback" not in err
+
+
+def test_a_folder_of_unreadable_files_fails(tmp_path, capsys):
+    (tmp_path / "a.xyz").write_text("1 2\n")
+    assert main(["plan", str(tmp_path), *FAST]) == 1
+    rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    assert rows[0]["error"].startswith("skipped:")
 
 
 def test_empty_folder_and_missing_file(tmp_path, capsys):
