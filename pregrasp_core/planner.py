@@ -559,6 +559,8 @@ def _plan_one(ctx: _Context, pool: Any, i: int) -> Grasp:
             n_up = sum(bool(c[3]) for c in cl_up)
             if n_up > n_touch:
                 n_touch, q, closings, lift = n_up, q_up, cl_up, up
+            if not any(c[4] and not c[3] for c in cl_up):
+                break  # no finger is held by the table any more: going higher cannot help
         if lift > 0.0:
             T[:3, 3] -= lift * T0[:3, 2]
             p_h = p_h + np.array([0.0, 0.0, lift])
