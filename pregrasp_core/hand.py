@@ -387,6 +387,27 @@ class Hand:
             j1, j2 = jmap[flex[0]], jmap[flex[1]]
             mid = link_names.index(links[1])
             dist = link_names.index(links[2])
+            # the planar closing model assumes: links start at their joint on the finger axis,
+            # equal cross-sections, and the distal joint on the middle link's axis
+            for li, length in ((mid, j2.origin[2, 3]), (dist, 2.0 * box_half[dist, 2])):
+                expected = np.eye(4)
+                expected[2, 3] = length / 2.0
+                if not (
+                    np.allclose(box_T[li], expected) and np.isclose(box_half[li, 2], length / 2)
+                ):
+                    raise HandModelError(
+                        f"hand URDF {path}: link {link_names[li]}'s box must run from its joint "
+                        "along z (origin 0 0 length/2) for the planar closing model"
+                    )
+            if not (
+                np.allclose(box_half[mid, :2], box_half[dist, :2])
+                and np.allclose(j2.origin[:3, :3], np.eye(3))
+                and np.allclose(j2.origin[:2, 3], 0.0)
+            ):
+                raise HandModelError(
+                    f"hand URDF {path}: finger {fname}: the middle and distal links must have "
+                    "equal cross-sections and the distal joint must sit on the middle link's axis"
+                )
             spread = f"{fname}_spread" if f"{fname}_spread" in jmap else None
             fingers.append(
                 Finger(
@@ -406,6 +427,11 @@ class Hand:
             )
         if "f1_spread" not in joint_names:
             raise HandModelError(f"hand URDF {path}: f1_spread must be an actuated joint")
+        for arr in (lower, upper, box_T, box_half):
+            arr.flags.writeable = False  # the model is immutable
+        for f in fingers:
+            f.lower.flags.writeable = False
+            f.upper.flags.writeable = False
         hand = cls(
             urdf_path=path,
             urdf=urdf,
