@@ -355,3 +355,14 @@ def test_approach_stops_exactly_at_the_clearance(hand, scene, request):
         T0 = pool.T_world_hand[g.pregrasp]
         assert np.allclose(g.T_world_hand[:3, :3], T0[:3, :3])
         assert np.allclose(g.T_world_hand[:3, 3], T0[:3, 3] + g.approach_distance * T0[:3, 2])
+
+
+def test_empty_pool_and_determinism(hand, box_plan):
+    pts, nrm, pool, gs = box_plan
+    empty = plan_grasps(pts, nrm, PreGraspPool.empty(hand.joint_names), hand)
+    assert len(empty) == 0 and empty.best is None and empty.ranking.shape == (0,)
+    assert grasps_sections(empty, hand)["best"] is None
+    again = plan_grasps(pts, nrm, pool, hand)
+    for a, b in zip(gs.grasps, again.grasps, strict=True):
+        assert a.epsilon == b.epsilon and a.rank == b.rank
+        assert np.array_equal(a.q, b.q) and np.array_equal(a.T_world_hand, b.T_world_hand)
