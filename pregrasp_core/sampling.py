@@ -736,7 +736,9 @@ def _clear_the_hand(
 ) -> PreGraspPool:
     """Back every pre-grasp off along its approach line by the smallest multiple of
     ``backoff_step`` (up to ``max_backoff``) at which its open hand is above the support plane
-    and holds no cloud point; drop it when there is none (counted in ``dropped``)."""
+    and holds no cloud point, provided the hand is also clear at ``max_backoff`` (where the
+    approach starts from); drop it otherwise (counted in ``dropped``). Levels are tested in the
+    order 0, ``max_backoff``, then the ones between, so hopeless pre-grasps cost two tests."""
     P = len(pool)
     if P == 0:
         return pool
@@ -754,23 +756,40 @@ def _clear_the_hand(
         first = np.where(no_room, n_levels + 1, first).astype(np.int64)
     backoff = np.full(P, np.nan)
     cells: dict = {}  # link cells per preshape, shared by the back-off levels
-    for k in range(n_levels + 1):  # loop over the few back-off levels
-        todo = np.flatnonzero((first <= k) & np.isnan(backoff))
+    hopeless = np.zeros(P, dtype=bool)  # still colliding at the largest back-off
+
+    def test(idx: np.ndarray, k: int) -> np.ndarray:
+        T = pool.T_world_hand[idx].copy()
+        T[:, :3, 3] -= levels[k] * pool.approach[idx]
+        return hand_hits_points(
+            hand, T, pool.grasp_type[idx], pool.q[idx], points, kd, params.collision_margin, cells
+        )
+
+    # levels in the order 0, then the last (to drop hopeless ones at once), then 1, 2, ...
+    order = [0, n_levels] + list(range(1, n_levels)) if n_levels > 0 else [0]
+    for k in order:  # loop over the few back-off levels
+        todo = np.flatnonzero((first <= k) & np.isnan(backoff) & ~hopeless)
         if len(todo) == 0:
             continue
-        T = pool.T_world_hand[todo].copy()
-        T[:, :3, 3] -= levels[k] * pool.approach[todo]
-        hit = hand_hits_points(
-            hand,
-            T,
-            pool.grasp_type[todo],
-            pool.q[todo],
-            points,
-            kd,
-            params.collision_margin,
-            cells,
-        )
-        backoff[todo[~hit]] = levels[k]
+        hit = test(todo, k)
+        if k == n_levels and n_levels > 0:
+            hopeless[todo[hit]] = True
+            # free at the largest back-off: placed there unless a smaller level also is
+            free_last = todo[~hit]
+            backoff[free_last] = -1.0  # marker: free at the last level, smaller ones untested
+            continue
+        done = todo[~hit]
+        backoff[done] = levels[k]
+    # the marked ones get the smallest free level >= their first, scanning 1 .. n_levels - 1
+    marked = np.flatnonzero(backoff == -1.0)
+    backoff[marked] = np.nan
+    for k in range(1, n_levels):
+        todo = marked[(first[marked] <= k) & np.isnan(backoff[marked])]
+        if len(todo) == 0:
+            continue
+        backoff[todo[~test(todo, k)]] = levels[k]
+    rest = marked[np.isnan(backoff[marked])]
+    backoff[rest] = levels[n_levels] if n_levels > 0 else np.nan
     placed = ~np.isnan(backoff)
     dropped["object_collision"] += int(np.count_nonzero(~placed & (first <= n_levels)))
     out = pool.select(placed)
