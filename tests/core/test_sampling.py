@@ -306,6 +306,19 @@ def test_every_pregrasp_of_the_pool_aims_at_its_box_centre(hand):
     assert np.allclose(np.linalg.norm(pool.approach, axis=1), 1.0)
 
 
+def test_back_off_is_the_smallest_clear_step(hand):
+    tree, pts, masks, pool = box_on_table_pool(hand)
+    moved = pool.backoff > 0
+    assert moved.any() and np.allclose(pool.backoff / 0.01, np.round(pool.backoff / 0.01))
+    # one step closer, the open hand is below the table or holds a cloud point
+    T = pool.T_world_hand[moved].copy()
+    T[:, :3, 3] += 0.01 * pool.approach[moved]
+    c = hand_corners(hand, hand.preshape("spherical"))
+    below = (np.einsum("pij,cj->pci", T[:, :3, :3], c)[..., 2] + T[:, None, 2, 3]).min(1) < 0
+    hits = hand.hands_hit_points(pts, T, hand.preshape("spherical"))
+    assert np.all(below | hits)
+
+
 def test_without_back_off_the_hand_is_dropped_rather_than_moved(hand):
     *_, moved = box_on_table_pool(hand)
     *_, strict = box_on_table_pool(hand, max_backoff=0.0)
