@@ -14,6 +14,9 @@ import fcl
 import numpy as np
 import pytest
 import yourdfpy
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 from scipy.optimize import brentq
 
 from pregrasp_core.errors import HandModelError
@@ -489,6 +492,63 @@ def test_closing_result_agrees_with_3d_boxes(hand):
             li = hand.link_names.index(contact.link)
             near = hand.points_in_links(p_hand[[contact.index]], q, margin=1e-3)[0, li]
             assert near, (trial, contact)
+
+
+def test_closing_keeps_the_margin(hand):
+    rng = np.random.default_rng(4)
+    f = hand.finger("thumb")
+    plane = hand.flexion_plane(f)
+    m = 0.003
+    for _ in range(10):
+        p2d = rng.uniform([0.0, 0.0], [0.1, 0.1], size=(40, 2))
+        c = hand.close_finger(f, p2d, f.lower.copy(), margin=m)
+        if c.start_in_contact or not c.contacts:
+            continue
+        q = hand.with_flexion(np.zeros(hand.n_joints), f, c.q)
+        cols = [hand.link_names.index(n) for n in f.links[1:]]
+        inside = hand.points_in_links(plane.to_hand(p2d), q, margin=m - 1e-6)[:, cols]
+        assert not inside.any()  # every point stays (just) outside the grown links
+        for contact in c.contacts:
+            li = hand.link_names.index(contact.link)
+            grown = hand.points_in_links(plane.to_hand(p2d[[contact.index]]), q, margin=m + 1e-3)
+            assert grown[0, li]
+
+
+def test_closing_starting_in_contact(hand):
+    f = hand.finger("f1")
+    # a point inside the middle link at q_start = 0: the middle is stopped at once
+    c = hand.close_finger(f, np.array([[0.02, 0.0]]), np.zeros(2), palm=False)
+    assert c.start_in_contact and c.stopped_middle
+    assert c.q[0] == 0.0 and c.q[1] == pytest.approx(f.upper[1])
+    # a point inside the distal link at q_start: the finger does not move
+    c = hand.close_finger(f, np.array([[0.07, 0.0]]), np.zeros(2))
+    assert c.start_in_contact and c.stopped_distal
+    np.testing.assert_array_equal(c.q, [0.0, 0.0])
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    pts=hnp.arrays(np.float64, (12, 2), elements=st.floats(-0.05, 0.12)),
+    q0=hnp.arrays(np.float64, (2,), elements=st.floats(-1.0, 2.0)),
+    coupling=st.floats(0.3, 3.0),
+)
+def test_closing_invariants_hypothesis(hand, pts, q0, coupling):
+    f = hand.finger("f2")
+    c = hand.close_finger(f, pts, q0, n_steps=16, coupling=coupling)
+    assert np.all(c.q >= f.lower) and np.all(c.q <= f.upper)
+    start = np.clip(q0, f.lower, f.upper)
+    assert np.all(c.q >= start - 1e-12)  # closing never opens a joint
+    assert np.all(np.diff(c.path, axis=0) >= -1e-12)
+    np.testing.assert_allclose(c.path[0], start)
+    np.testing.assert_allclose(c.path[-1], c.q)
+    if not c.start_in_contact:
+        q = hand.with_flexion(np.zeros(hand.n_joints), f, c.q)
+        cols = [hand.link_names.index(n) for n in f.links[1:]]
+        p_hand = hand.flexion_plane(f).to_hand(pts)
+        # no point deeper than 1e-9 m inside a moving link (points exactly on a face, e.g. at
+        # the joint, are on the boundary in either test)
+        assert not hand.points_in_links(p_hand, q, margin=-1e-9)[:, cols].any()
+        assert (c.contact_link is None) == (len(c.contacts) == 0)
 
 
 def test_closing_rejects_bad_input(hand):
