@@ -573,3 +573,29 @@ def test_visual_mesh_lies_inside_collision_boxes(hand):
     box = hand.palm_box
     np.testing.assert_allclose(box.center, [0, 0, -0.015])
     np.testing.assert_allclose(box.extents, [0.1, 0.1, 0.03])
+
+
+def test_committed_meshes_match_the_generator(tmp_path):
+    """assets/meshes are what scripts/make_hand_meshes.py makes from the URDF's boxes."""
+    import importlib.util
+    import shutil
+
+    import trimesh
+
+    script = HAND_URDF.parents[1] / "scripts" / "make_hand_meshes.py"
+    if not script.is_file():
+        pytest.skip("scripts/ is not shipped with an installed package")
+    spec = importlib.util.spec_from_file_location("make_hand_meshes", script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    urdf = tmp_path / "hand.urdf"
+    shutil.copy(HAND_URDF, urdf)
+    module.main(["--urdf", str(urdf)])
+    for name in ("palm.stl", "knuckle.stl", "middle.stl", "distal.stl"):
+        new = trimesh.load(tmp_path / "meshes" / name, force="mesh")
+        old = trimesh.load(HAND_URDF.parent / "meshes" / name, force="mesh")
+        assert new.is_watertight and new.is_convex
+        np.testing.assert_allclose(
+            np.sort(new.vertices, axis=0), np.sort(old.vertices, axis=0), atol=1e-6
+        )
+        assert len(new.faces) == len(old.faces)
