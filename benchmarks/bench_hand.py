@@ -143,7 +143,7 @@ def bench_points(hand: Hand, n_points: int, repeats: int, rng: np.random.Generat
 
 
 def bench_closing(hand: Hand, repeats: int, rng: np.random.Generator) -> None:
-    print("\n### Planar closing model (one finger, 64 steps per phase, bisection to 1e-4 rad)\n")
+    print("\n### Planar closing model (one finger, 64 steps per phase, refined to 1e-4 rad)\n")
     print("| points in slice | time per close_finger | outcome |")
     print("|---:|---:|---|")
     f = hand.finger("f1")

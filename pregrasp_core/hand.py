@@ -52,7 +52,14 @@ DEFAULT_COUPLING: float = 1.0
 (tendon coupling; 1.0 = both joints close at the same rate)."""
 
 DEFAULT_CLOSING_STEPS: int = 64
-"""Closing model: samples along each closing phase before the contact is refined by bisection."""
+"""Closing model: samples along each closing phase before the first touching step is refined."""
+
+_REFINE_SAMPLES: int = 32
+"""Closing model: most samples per refinement level of the bracket around the first touch."""
+
+_REFINE_BUDGET: int = 2000
+"""Closing model: a refinement level evaluates about this many (sample, point) pairs: many
+samples per level for small slices (few numpy calls), plain bisection for large ones."""
 
 _PAIR_CHUNK: int = 1_000_000
 """Batched point-in-link counts move at most this many (point, hand) pairs at once (memory)."""
@@ -701,8 +708,9 @@ class Hand:
            (``palm_stop``), so the model never drives the finger into the palm.
 
         Every phase is sampled in ``n_steps`` steps, all steps x all points at once, and the
-        first touching step is refined by bisection to ``HAND_CLOSING_ANGLE_TOL``. The returned
-        configuration is the last one at which no point is within ``margin`` of a moving link.
+        first touching step is refined (up to 32 samples per level, all at once) until the
+        bracket is narrower than ``HAND_CLOSING_ANGLE_TOL``. The returned configuration is the
+        last one at which no point is within ``margin`` of a moving link.
         """
         f = self.finger(finger)
         P = np.asarray(points_2d, dtype=np.float64)
@@ -717,6 +725,13 @@ class Hand:
             raise ValueError(f"coupling must be > 0, got {coupling}")
         q0 = np.clip(q0, f.lower, f.upper)
         geo = _FingerGeometry(f, margin, palm)
+        # only points within the finger's reach from its first joint can ever be touched
+        reach = f.middle_length + np.hypot(f.distal_length, 0.5 * f.thickness) + 2.0 * abs(margin)
+        keep = np.flatnonzero(np.einsum("ij,ij->i", P, P) <= reach * reach)  # (M',) into P
+        Pr = P[keep]
+
+        def contact(link: str, i: int) -> FingerContact:  # i indexes Pr
+            return FingerContact(link, P[keep[i]].copy(), int(keep[i]))
 
         # ---- phase 1: both joints close together (clipped at their limits)
         def path1(t: np.ndarray) -> np.ndarray:  # (K,) -> (K, 2)
@@ -726,7 +741,7 @@ class Hand:
             )
 
         t_end = max(f.upper[0] - q0[0], (f.upper[1] - q0[1]) / coupling, 0.0)
-        ev1 = _first_event(geo, P, path1, t_end, n_steps, links=(True, True))
+        ev1 = _first_event(geo, Pr, path1, t_end, n_steps, links=(True, True))
         contacts: list[FingerContact] = []
         stopped_middle = stopped_distal = palm_stop = False
         start_in_contact = ev1.k_hit == 0
@@ -750,10 +765,10 @@ class Hand:
         path = np.concatenate([path1(ev1.t_samples[ev1.t_samples < ev1.t_free]), q_free[None]])
         if ev1.distal_hit:  # the distal touched (maybe together with the middle): stop
             if ev1.middle_idx is not None:
-                contacts.append(FingerContact(f.links[1], P[ev1.middle_idx].copy(), ev1.middle_idx))
+                contacts.append(contact(f.links[1], ev1.middle_idx))
                 stopped_middle = True
             if ev1.distal_idx is not None:
-                contacts.append(FingerContact(f.links[2], P[ev1.distal_idx].copy(), ev1.distal_idx))
+                contacts.append(contact(f.links[2], ev1.distal_idx))
                 stopped_distal = True
             palm_stop = ev1.palm
             return _closing(
@@ -769,7 +784,7 @@ class Hand:
 
         # ---- phase 2: the middle link stopped; the distal joint closes alone
         if ev1.middle_idx is not None:
-            contacts.append(FingerContact(f.links[1], P[ev1.middle_idx].copy(), ev1.middle_idx))
+            contacts.append(contact(f.links[1], ev1.middle_idx))
             stopped_middle = True
         palm_stop = ev1.palm
         q1 = q_free[0]
@@ -778,7 +793,7 @@ class Hand:
             return np.stack([np.full_like(t, q1), np.minimum(q_free[1] + t, f.upper[1])], axis=1)
 
         t_end2 = max(f.upper[1] - q_free[1], 0.0)
-        ev2 = _first_event(geo, P, path2, t_end2, n_steps, links=(False, True))
+        ev2 = _first_event(geo, Pr, path2, t_end2, n_steps, links=(False, True))
         if ev2.t_hit is None:
             path = np.concatenate([path, path2(ev2.t_samples[1:])])
             return _closing(
@@ -800,7 +815,7 @@ class Hand:
             ]
         )
         if ev2.distal_idx is not None:
-            contacts.append(FingerContact(f.links[2], P[ev2.distal_idx].copy(), ev2.distal_idx))
+            contacts.append(contact(f.links[2], ev2.distal_idx))
             stopped_distal = True
         palm_stop = palm_stop or ev2.palm
         return _closing(
@@ -1134,14 +1149,18 @@ def _first_event(
         lo = hi = 0.0
     else:
         lo, hi = float(t[k - 1]), float(t[k])
-        # bisection: the largest contact-free parameter in [lo, hi]
+        # refine [last free, first touching] by sampling it densely, all samples at once, until
+        # it is narrower than the tolerance (each level shrinks it n_ref + 1 times)
+        n_ref = max(1, min(_REFINE_SAMPLES, _REFINE_BUDGET // max(P.shape[0], 1)))
         while hi - lo > HAND_CLOSING_ANGLE_TOL:
-            mid_t = 0.5 * (lo + hi)
-            a, b, c, d = geo.hits(path(np.array([mid_t])), P, links)
-            if a.any() or b.any() or c[0] or d[0]:
-                hi = mid_t
+            ts = np.linspace(lo, hi, n_ref + 2)[1:-1]
+            a, b, c, d = geo.hits(path(ts), P, links)
+            hit = a.any(axis=1) | b.any(axis=1) | c | d
+            if hit.any():
+                j = int(np.argmax(hit))
+                lo, hi = (float(ts[j - 1]) if j > 0 else lo), float(ts[j])
             else:
-                lo = mid_t
+                lo = float(ts[-1])
     a, b, c, d = geo.hits(path(np.array([hi])), P, links)
     ev = _Event(t_samples=t, t_free=lo, t_hit=hi, k_hit=k)
     q_free = path(np.array([lo]))[0]

@@ -44,5 +44,5 @@ than this below it (so side faces of a part standing on the table stay free; fac
 # --- hand (issue 3) ---
 
 HAND_CLOSING_ANGLE_TOL: float = 1e-4
-"""Radians: the hand's closing model refines the first touching step by bisection until the
+"""Radians: the hand's closing model refines the first touching step (dense resampling) until the
 bracket [last free, first touching] of the path parameter is narrower than this."""
