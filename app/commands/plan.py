@@ -231,6 +231,8 @@ def summary(result: Any, timings: dict, top: int) -> str:
                 f"  {g.rank:>4}  {g.grasp_type:<17} {int(pool.node[g.pregrasp]):>4} "
                 f"{g.pregrasp:>5} {g.n_contacts:>8} {g.epsilon:>8.4f} {g.volume:>10.3e}  {links}"
             )
+        lines.append("by grasp type (why the best has its type):")
+        lines.extend("  " + line for line in type_lines(result))
     else:
         lines.append("no grasp kept")
     total = sum(timings.values())
@@ -239,6 +241,34 @@ def summary(result: Any, timings: dict, top: int) -> str:
         f"{total:.3f} s"
     )
     return "\n".join(lines)
+
+
+def type_lines(result: Any) -> list[str]:
+    """One line per grasp type of the pool, best epsilon first: pre-grasps, kept, force
+    closure, and its best grasp's epsilon, contacts and node (shape class)."""
+    gs, pool, shapes = result.grasps, result.pool, result.shapes
+    best_of: dict[str, Any] = {}
+    count: dict[str, list[int]] = {}
+    for g in gs.grasps:  # loop over grasps for a summary of a few lines
+        c = count.setdefault(g.grasp_type, [0, 0, 0])
+        c[0] += 1
+        c[1] += g.kept
+        c[2] += g.epsilon > 0.0
+    for g in gs.ranked:
+        best_of.setdefault(g.grasp_type, g)
+    out = []
+    for t in sorted(count, key=lambda t: -(best_of[t].epsilon if t in best_of else -1.0)):
+        n, kept, fc = count[t]
+        text = f"{t}: {n} pre-grasps, {kept} kept, {fc} force closure"
+        b = best_of.get(t)
+        if b is not None:
+            node = int(pool.node[b.pregrasp])
+            cls = shapes[node].shape_class.value if shapes is not None else "?"
+            text += (
+                f"; best epsilon {b.epsilon:.4f} with {b.n_contacts} contacts (node {node}, {cls})"
+            )
+        out.append(text)
+    return out
 
 
 def _counts(d: dict) -> str:
