@@ -77,8 +77,8 @@ def scaling(path, sizes, repeats, params):
         f"min points {params.min_points}\n"
     )
     print(
-        "| points | parts | MVBB calls | MVBB ms | cut search ms | other ms | total ms (median) "
-        "| wall ms (median) | ns / (n log2 n) |"
+        "| points | parts | MVBB calls | MVBB ms | cut search ms | other ms "
+        "| total CPU ms (median) | wall ms (median) | ns / (n log2 n) |"
     )
     print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for n in sizes:
@@ -106,7 +106,7 @@ def objects(n_points, repeats, params):
         f"### Parts per object: {n_points:,} points (seed 0), volume ratio "
         f"{params.volume_ratio}, min points {params.min_points}, max depth {params.max_depth}\n"
     )
-    print("| object | parts | splits | depth | leaf classes | decompose ms (median) | wall ms |")
+    print("| object | parts | splits | depth | leaf classes | CPU ms (median) | wall ms (median) |")
     print("|---|---:|---:|---:|---|---:|---:|")
     for path in demo_objects():
         pts = load_point_cloud(path, n_points=n_points, seed=0).points
