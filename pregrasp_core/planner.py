@@ -489,7 +489,11 @@ def _close_fingers(
     for f in hand.fingers_for(gt):  # loop over <= 3 fingers
         plane = ctx.plane(f, spread)
         p2, off = plane.to_plane(p_h)
-        in_slice = (np.abs(off) <= 0.5 * f.width) & (np.hypot(p2[:, 0], p2[:, 1]) <= ctx.reach)
+        # the moving links never get farther than Lm + hypot(Ld, h) from the first joint
+        r_f = f.middle_length + np.hypot(f.distal_length, 0.5 * f.thickness) + prm.closing_margin
+        in_slice = (np.abs(off) <= 0.5 * f.width) & (
+            p2[:, 0] ** 2 + p2[:, 1] ** 2 <= (r_f + 1e-9) ** 2
+        )
         p_slice = _thin_2d(p2[in_slice], prm.slice_resolution)
         n_obj = len(p_slice)
         table = _support_line_2d(ctx, T, plane, 0.5 * f.width)
