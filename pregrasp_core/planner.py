@@ -795,3 +795,8 @@ def grasps_sections(gs: GraspSet, hand: Any, params: PlannerParams | None = None
         },
         "best": best,
     }
+
+
+def grasps_to_dict(gs: GraspSet, hand: Any, params: PlannerParams | None = None) -> dict:
+    """Same as :func:`grasps_sections`: ``{"grasps": {...}, "best": index | None}``."""
+    return grasps_sections(gs, hand, params)
