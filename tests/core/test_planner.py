@@ -366,3 +366,34 @@ def test_empty_pool_and_determinism(hand, box_plan):
     for a, b in zip(gs.grasps, again.grasps, strict=True):
         assert a.epsilon == b.epsilon and a.rank == b.rank
         assert np.array_equal(a.q, b.q) and np.array_equal(a.T_world_hand, b.T_world_hand)
+
+
+def test_pipeline_grasps_stage_reuses_normals_and_pool(hand):
+    """The pipeline's planning stage: normals once per cloud, the pool reused when only the
+    planner's parameters change, everything reused when nothing changes."""
+    import dataclasses
+
+    from pregrasp_core.io import load_point_cloud
+    from pregrasp_core.paths import OBJECTS_DIR
+    from pregrasp_core.pipeline import ALL_STAGES, PipelineParams, run_pipeline
+    from pregrasp_core.quality import QualityParams
+
+    cloud = load_point_cloud(OBJECTS_DIR / "fruit_lemon.obj", n_points=2500)
+    fractions = []
+    first = run_pipeline(cloud, hand=hand, until="grasps", progress=fractions.append)
+    assert ALL_STAGES[-1] == "grasps" and set(first.timings) >= set(ALL_STAGES) | {"normals"}
+    assert fractions[-1] == pytest.approx(1.0) and fractions == sorted(fractions)
+    assert len(first.grasps) == len(first.pool) and first.normals.shape == (2500, 3)
+    same = run_pipeline(cloud, first.params, hand, until="grasps", previous=first)
+    assert "grasps" in same.reused and same.grasps is first.grasps
+    params = dataclasses.replace(
+        first.params,
+        planner=dataclasses.replace(first.params.planner, quality=QualityParams(mu=1.0)),
+    )
+    other = run_pipeline(cloud, params, hand, until="grasps", previous=first)
+    assert "pool" in other.reused and "grasps" not in other.reused
+    assert other.normals is first.normals and other.pool is first.pool
+    # more friction can only enlarge every friction cone: no epsilon decreases
+    for a, b in zip(first.grasps.grasps, other.grasps.grasps, strict=True):
+        assert b.epsilon >= a.epsilon - 1e-9
+    assert isinstance(PipelineParams().planner, PlannerParams)
