@@ -49,9 +49,9 @@ SUBFACE_RGB = (255, 255, 255)
 """Colour of the outlines of usable sub-faces (white)."""
 CONTACT_RGB = (255, 210, 0)
 """Colour of contact points and friction cones (yellow)."""
-DETAILED_GHOSTS = 150
+DETAILED_GHOSTS = 40
 """Up to this many ghosts use the hand's visual mesh; beyond, its collision boxes."""
-GHOST_OPACITY = 0.18
+GHOST_OPACITY = 0.3
 """Opacity of the pre-grasp hand ghosts."""
 BOX_OPACITY = 0.12
 """Opacity of unselected boxes (the selected one is drawn at 0.35)."""
@@ -391,10 +391,11 @@ class SceneRenderer:
                 faces=mesh.faces,
                 batched_wxyzs=wxyz_from_matrices(T[sel, :3, :3]),
                 batched_positions=T[sel, :3, 3],
-                batched_colors=GHOST_RGB.get(gt, (200, 200, 200)),
+                batched_colors=ghost_colors(gt, np.asarray(pool.face)[sel]),
                 opacity=GHOST_OPACITY,
                 cast_shadow=False,
                 receive_shadow=False,
+                lod="off",  # simplified levels are built asynchronously in the browser
             )
             self.n_ghosts_shown += len(sel)
 
@@ -475,6 +476,18 @@ GHOST_RGB = {
     "two_finger_tip": (60, 220, 200),
 }
 """Ghost colour per grasp type."""
+
+
+FACE_SHADE = np.array([1.0, 0.55, 0.85, 0.4, 0.7, 0.25])
+"""Brightness factor of the ghosts sampled from face 0..5 (+x, -x, +y, -y, +z, -z)."""
+
+
+def ghost_colors(grasp_type: str, faces: np.ndarray) -> np.ndarray:
+    """(K, 3) uint8 ghost colours: the grasp type's hue, shaded by the face of origin, so that
+    neighbouring hands from different faces stay apart in a dense pool."""
+    base = np.asarray(GHOST_RGB.get(grasp_type, (200, 200, 200)), dtype=np.float64)
+    shade = FACE_SHADE[np.clip(np.asarray(faces, dtype=np.int64), 0, 5)]  # (K,)
+    return np.clip(base[None] * (0.45 + 0.55 * shade[:, None]), 0, 255).astype(np.uint8)
 
 
 # ---------------------------------------------------------------------- pure helpers

@@ -16,6 +16,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -32,6 +34,8 @@ CHROMIUM_ARGS = [
 def _settle(page, app) -> None:
     """Wait until the page shows the scene's box count and two frames have been drawn."""
     page.get_by_text(f"boxes: {app.scene.n_boxes}", exact=True).wait_for(timeout=120_000)
+    ghosts = f"{app.scene.n_ghosts_shown} ghosts drawn"
+    page.get_by_text(re.compile(re.escape(ghosts))).wait_for(timeout=120_000)
     page.wait_for_load_state("networkidle")
     for _ in range(3):
         page.evaluate(
@@ -83,7 +87,7 @@ def main() -> int:
                 _settle(page, app)
                 _close_notifications(page)
                 path = args.out / f"{name}.png"
-                page.screenshot(path=str(path))
+                page.screenshot(path=str(path), timeout=180_000)
                 print(f"wrote {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}")
 
             c.set_ghosts_visible(False)
@@ -98,7 +102,14 @@ def main() -> int:
             c.set_face_masks_visible(False)
             c.select_node(None)
             c.set_ghosts_visible(True)
+            # the whole pool is a dense cloud of hands: show one node's pre-grasps (the node
+            # with the fewest, at least 10) so that single hands can be told apart
+            nodes, counts = np.unique(np.asarray(c.state.result.pool.node), return_counts=True)
+            ok = counts >= 10
+            if ok.any():
+                c.set_ghost_filter(node=int(nodes[ok][np.argmin(counts[ok])]))
             shot("pregrasps")
+            c.set_ghost_filter(node=None)
 
             c.set_ghosts_visible(False)
             c.plan()
