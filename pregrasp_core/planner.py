@@ -513,6 +513,51 @@ def _close_fingers(
     return q, closings
 
 
+def _open_self_collisions(
+    ctx: _Context, q: np.ndarray, closings: list, corrected: dict
+) -> np.ndarray:
+    """Undo finger-finger collisions of the closed hand (python-fcl): for a colliding pair, each
+    finger owning one of the two links is opened back along its closing path (bisection over
+    the path samples) to the last sample where the pair is apart; the finger that keeps the
+    most of its closing is used. At most ``len(closings)`` pairs are resolved; what remains is
+    rejected later as ``self_collision``."""
+    hand = ctx.hand
+    q = q.copy()
+    for _ in range(len(closings)):  # loop over <= 3 fingers
+        pairs = hand.self_collisions(q)
+        if not pairs:
+            break
+        a, b = pairs[0]
+        best = None  # (kept path index, finger, q_flex)
+        for f, cl, *_ in closings:  # loop over <= 3 fingers
+            if not {a, b} & {f.links[1], f.links[2]} or len(cl.path) == 0:
+                continue
+
+            def apart(i: int, f=f, cl=cl, pair=(a, b)) -> bool:
+                qq = q.copy()
+                qq[list(f.flex_index)] = cl.path[i]
+                return pair not in hand.self_collisions(qq)
+
+            if not apart(0):
+                continue
+            lo, hi = 0, len(cl.path) - 1  # apart(lo) holds; find the last apart sample
+            while hi - lo > 1:  # bisection over the path samples
+                mid = (lo + hi) // 2
+                if apart(mid):
+                    lo = mid
+                else:
+                    hi = mid
+            i = hi if apart(hi) else lo
+            if best is None or i > best[0]:
+                best = (i, f, cl.path[i])
+        if best is None:
+            break
+        _, f, q_flex = best
+        q[list(f.flex_index)] = q_flex
+        corrected[f.name] = True
+    return q
+
+
 def _plan_one(ctx: _Context, pool: Any, i: int) -> Grasp:
     hand, prm = ctx.hand, ctx.params
     gt = str(pool.grasp_type[i])
@@ -571,10 +616,13 @@ def _plan_one(ctx: _Context, pool: Any, i: int) -> Grasp:
             s -= lift
             stop = "support_lifted"
 
-    # 3. verification in 3D: depth of the nearby points in every link
+    # 3. verification in 3D. Fingers that closed into each other (python-fcl) stop where they
+    # meet: the finger that needs the least opening goes back along its closing path.
+    corrected = {f.name: False for f, *_ in closings}
+    q = _open_self_collisions(ctx, q, closings, corrected)
+    # depth of the nearby cloud points in every link
     reach = max(prm.contact_distance, prm.penetration_tol)
     ids, dists = _link_distances(ctx, T, q, reach)
-    corrected = {f.name: False for f, *_ in closings}
     bad = {ctx.link_names[j] for j, d in enumerate(dists) if np.any(d < -prm.penetration_tol)}
     if bad:
         for f, cl, *_ in closings:

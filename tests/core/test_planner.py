@@ -397,3 +397,40 @@ def test_pipeline_grasps_stage_reuses_normals_and_pool(hand):
     for a, b in zip(first.grasps.grasps, other.grasps.grasps, strict=True):
         assert b.epsilon >= a.epsilon - 1e-9
     assert isinstance(PipelineParams().planner, PlannerParams)
+
+
+def test_fingers_closed_into_each_other_are_opened_back_along_their_paths(hand):
+    """Spherical preshape, the three fingers closed together along straight paths until two of
+    them overlap: the correction leaves no self-collision and every finger on its own path."""
+    from types import SimpleNamespace
+
+    from pregrasp_core.planner import _Context, _open_self_collisions
+
+    q0 = hand.preshape("spherical")
+    t = np.linspace(0.0, 1.0, 60)
+    paths = {
+        f.name: q0[list(f.flex_index)] + t[:, None] * (f.upper - q0[list(f.flex_index)])
+        for f in hand.fingers
+    }
+
+    def at(k):
+        q = q0.copy()
+        for f in hand.fingers:
+            q[list(f.flex_index)] = paths[f.name][k]
+        return q
+
+    k = next(k for k in range(len(t)) if hand.self_collisions(at(k)))
+    assert all("palm" not in pair for pair in hand.self_collisions(at(k)))
+    closings = [(f, SimpleNamespace(path=paths[f.name][: k + 1]), 0, (), False)
+                for f in hand.fingers]  # fmt: skip
+    pts = np.zeros((20, 3))
+    ctx = _Context(pts, pts, hand, PlannerParams(), None)
+    corrected = {f.name: False for f in hand.fingers}
+    q = _open_self_collisions(ctx, at(k), closings, corrected)
+    assert hand.self_collisions(q) == []
+    assert any(corrected.values())
+    for f in hand.fingers:
+        flex = q[list(f.flex_index)]
+        assert np.min(np.abs(paths[f.name][: k + 1] - flex).sum(axis=1)) < 1e-12
+        if not corrected[f.name]:
+            assert np.array_equal(flex, paths[f.name][k])
