@@ -93,6 +93,7 @@ def _trials(app, listener, handle, values, trials: int) -> dict:
     """Alternate ``handle`` between ``values`` (two settings with different box counts); time
     each change until the client has received the new "boxes: N" label."""
     cb, rx, pipe = [], [], []
+    stages: dict[str, list[float]] = {}
     counts = set()
     for k in range(trials + 1):
         before = app.controller.state.result
@@ -108,6 +109,9 @@ def _trials(app, listener, handle, values, trials: int) -> dict:
         cb.append(t1 - t0)
         rx.append(t2 - t0)
         ran = s.result is not before  # a view change keeps the result: no stage ran
+        for st, t in s.result.timings.items():
+            if ran and st not in s.result.reused:
+                stages.setdefault(st, []).append(t)
         pipe.append(
             sum(t for st, t in s.result.timings.items() if st not in s.result.reused) if ran else 0
         )
@@ -115,6 +119,8 @@ def _trials(app, listener, handle, values, trials: int) -> dict:
         raise SystemExit(f"{values} give the same box count; the client would wait forever")
     return {
         "pipeline": statistics.median(pipe),
+        "stages": ", ".join(f"{k} {statistics.median(v) * 1e3:.0f}" for k, v in stages.items())
+        or "none",
         "callback": statistics.median(cb),
         "received": statistics.median(rx),
         "min": min(rx),
@@ -160,14 +166,17 @@ def main() -> None:
         f"# {args.trials} changes per row after one warm-up; medians in ms (min, max of received)"
     )
     print()
-    print("| points | change | pool | pipeline (ms) | callback (ms) | received (ms) | min | max |")
-    print("|---:|---|---:|---:|---:|---:|---:|---:|")
+    print(
+        "| points | change | pool | pipeline (ms) | callback (ms) | received (ms) | min | max "
+        "| stages re-run (ms) |"
+    )
+    print("|---:|---|---:|---:|---:|---:|---:|---:|---|")
     for n in args.points:
         for r in bench(n, args.trials):
             print(
                 f"| {r['points']:,} | {r['change']} | {r['pool']} | {r['pipeline'] * 1e3:.0f} | "
                 f"{r['callback'] * 1e3:.0f} | {r['received'] * 1e3:.0f} | {r['min'] * 1e3:.0f} | "
-                f"{r['max'] * 1e3:.0f} |",
+                f"{r['max'] * 1e3:.0f} | {r['stages']} |",
                 flush=True,
             )
 
