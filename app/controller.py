@@ -395,12 +395,14 @@ class Controller:
         target = client if client is not None else self.server
         target.send_file_download(name, data)
 
-    def screenshot(self, client: Any, height: int = 1080, width: int = 1920) -> None:
-        """Render ``client``'s view and send it back as a PNG download."""
+    def screenshot(self, client: Any) -> None:
+        """Render ``client``'s current view at its canvas size; send it back as a PNG download."""
         if client is None:
             raise InputError("a screenshot needs a browser: open the app and press the button")
         import imageio.v3 as iio
 
+        cam = client.camera
+        height, width = max(int(cam.image_height), 64), max(int(cam.image_width), 64)
         img = client.get_render(height=height, width=width, transport_format="png", timeout=30)
         name = Path(self._state.source.name).stem + ".png"
         client.send_file_download(name, iio.imwrite("<bytes>", img, extension=".png"))

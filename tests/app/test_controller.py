@@ -151,6 +151,8 @@ def test_threshold_change_after_planning_replans(app):
 
 
 def test_export_is_a_valid_result_document(app):
+    app.gui.export.value = True  # the download button (no browser: sent to every client)
+    assert app.controller.state.error == ""
     doc = json.loads(app.controller.result_json())
     assert doc["schema"] == "pregrasp/1"
     assert len(doc["tree"]["nodes"] if isinstance(doc["tree"], dict) else doc["tree"]) == len(
