@@ -378,7 +378,7 @@ class SceneRenderer:
         idx = np.flatnonzero(keep)
         if len(idx) > self.max_ghosts:  # even subsample: keeps the browser smooth
             idx = idx[np.linspace(0, len(idx) - 1, self.max_ghosts).astype(np.int64)]
-        types = np.asarray([str(_enum_value(t)) for t in pool.grasp_type], dtype=object)
+        types = pool_types(pool)
         T = np.asarray(pool.T_world_hand, dtype=np.float64)
         for gt in sorted(set(types[idx].tolist())):  # loop over grasp types (at most 4)
             sel = idx[types[idx] == gt]
@@ -501,10 +501,6 @@ def friction_coefficient(params: Any, default: float = 0.5) -> float:
     return float(getattr(q, "mu", default))
 
 
-def _enum_value(x: Any) -> Any:
-    return getattr(x, "value", x)
-
-
 def _default_urdf() -> Path:
     from pregrasp_core.paths import HAND_URDF
 
@@ -515,9 +511,14 @@ def _box_click_cb(cb: Callable[[int, Any], None], node_id: int) -> Callable[[Any
     return lambda event: cb(node_id, event.client)
 
 
+def pool_types(pool: Any) -> np.ndarray:
+    """(P,) str array of the pool's grasp types (``PreGraspPool.grasp_type`` is one)."""
+    return np.asarray(pool.grasp_type).astype(str)
+
+
 def ghost_selection(pool: Any, grasp_type: str, node: int | None) -> np.ndarray:
     """(P,) bool: the pre-grasps of ``pool`` passing the grasp-type and node filters."""
-    types = np.asarray([str(_enum_value(t)) for t in pool.grasp_type], dtype=object)
+    types = pool_types(pool)
     keep = np.ones(len(types), dtype=bool)
     if grasp_type != ALL:
         keep &= types == str(grasp_type)
