@@ -26,7 +26,7 @@ from pregrasp_core.errors import InputError, PregraspError
 from pregrasp_core.paths import demo_objects
 
 from .scene import SceneRenderer, ranked_grasps
-from .state import ALL, AppState, ObjectSource, ViewState
+from .state import ALL, AppState, ObjectSource, ViewState, n_splits
 
 logger = logging.getLogger(__name__)
 
@@ -264,24 +264,24 @@ class Controller:
 
     def set_level(self, level: int | None) -> AppState:
         """Show the boxes after ``level`` accepted splits (``None`` = the leaves)."""
-        tree = self._state.tree
-        if level is not None and tree is not None:
-            from .state import n_splits
-
-            n = n_splits(tree)
-            if not 0 <= int(level) <= n:
-                raise ValueError(f"level must be in [0, {n}], got {level}")
-            level = None if int(level) == n else int(level)
-        return self._set_view(level=level)
+        with self._lock:  # the check and the change see the same tree
+            tree = self._state.tree
+            if level is not None and tree is not None:
+                n = n_splits(tree)
+                if not 0 <= int(level) <= n:
+                    raise ValueError(f"level must be in [0, {n}], got {level}")
+                level = None if int(level) == n else int(level)
+            return self._set_view(level=level)
 
     def select_node(self, node: int | None) -> AppState:
         """Select node ``node`` (as a click on its box does) or clear the selection."""
-        tree = self._state.tree
-        if node is not None:
-            if tree is None or not 0 <= int(node) < len(tree.nodes):
-                raise ValueError(f"no node {node} in the current tree")
-            node = int(node)
-        return self._set_view(selected_node=node)
+        with self._lock:
+            tree = self._state.tree
+            if node is not None:
+                if tree is None or not 0 <= int(node) < len(tree.nodes):
+                    raise ValueError(f"no node {node} in the current tree")
+                node = int(node)
+            return self._set_view(selected_node=node)
 
     def set_face_masks_visible(self, visible: bool) -> AppState:
         """Show or hide the face masks."""
@@ -339,12 +339,13 @@ class Controller:
 
     def select_grasp(self, rank: int | None) -> AppState:
         """Show the grasp of rank ``rank`` (0 = best) with the URDF hand, closed."""
-        if rank is not None:
-            n = len(ranked_grasps(self._state.result))
-            if not 0 <= int(rank) < n:
-                raise ValueError(f"grasp rank must be in [0, {n - 1}], got {rank}")
-            rank = int(rank)
-        return self._set_view(selected_grasp=rank, anim_t=1.0)
+        with self._lock:
+            if rank is not None:
+                n = len(ranked_grasps(self._state.result))
+                if not 0 <= int(rank) < n:
+                    raise ValueError(f"grasp rank must be in [0, {n - 1}], got {rank}")
+                rank = int(rank)
+            return self._set_view(selected_grasp=rank, anim_t=1.0)
 
     def set_anim_t(self, t: float) -> AppState:
         """Set the animation phase (0 pre-grasp, 0.5 approached, 1 closed)."""
@@ -352,8 +353,9 @@ class Controller:
 
     def play(self) -> AppState:
         """Start the animation (from the pre-grasp if it was at the end)."""
-        t = self._state.view.anim_t
-        return self._set_view(playing=True, anim_t=0.0 if t >= 1.0 else t)
+        with self._lock:
+            t = self._state.view.anim_t
+            return self._set_view(playing=True, anim_t=0.0 if t >= 1.0 else t)
 
     def pause(self) -> AppState:
         """Stop the animation where it is."""

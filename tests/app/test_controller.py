@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import json
+import time
 
 import numpy as np
 import pytest
@@ -101,7 +102,18 @@ def test_internal_errors_do_not_escape(app):
 
 # ---------------------------------------------------------------------- planner
 def test_plan_ranks_grasps_and_animates_the_hand(app):
+    seen = []  # (busy, progress, plan button disabled, progress bar shown) after every change
+    app.controller.subscribe(
+        lambda st: seen.append(
+            (st.busy, st.progress, app.gui.plan.disabled, app.gui.progress.visible)
+        )
+    )
     app.gui.plan.value = True  # a click: button callbacks run synchronously from Python
+    busy = [x for x in seen if x[0] == "plan"]
+    assert busy and all(x[2] and x[3] for x in busy)  # button disabled, progress shown
+    progress = [x[1] for x in busy]
+    assert progress == sorted(progress) and progress[-1] > 0.8
+    assert seen[-1][0] == "" and not seen[-1][2] and not seen[-1][3]  # enabled again
     s = app.controller.state
     assert s.planned and s.busy == "" and s.error == ""
     ranked = ranked_grasps(s.result)
@@ -128,13 +140,25 @@ def test_plan_ranks_grasps_and_animates_the_hand(app):
     app.gui.phase.value = 0.0  # back to the pre-grasp pose, open hand
     pre = s.result.pool[int(_pregrasp_index(g))]
     np.testing.assert_allclose(frame.position, pre.T_world_hand[:3, 3], atol=1e-6)
+    # play: the app's animation thread advances the clock by itself; pause stops it
+    app.gui.play.value = True
+    deadline = time.monotonic() + 10
+    while app.controller.state.view.anim_t <= 0.05:
+        assert time.monotonic() < deadline, "the animation clock does not run"
+        time.sleep(0.02)
+    app.gui.pause.value = True
+    t_paused = app.controller.state.view.anim_t
+    time.sleep(0.2)
+    assert app.controller.state.view.anim_t == t_paused
+    # the clock itself, without the thread: speed 1 is one cycle (0 -> 1) per 2 s
+    app.close()
     app.controller.play()
     t0 = app.controller.state.view.anim_t
     app.controller.tick(0.5)
     assert app.controller.state.view.anim_t == pytest.approx(t0 + 0.25)
-    app.gui.pause.value = True
+    app.gui.speed.value = 2.0
     app.controller.tick(0.5)
-    assert app.controller.state.view.anim_t == pytest.approx(t0 + 0.25)
+    assert app.controller.state.view.anim_t == pytest.approx(t0 + 0.75)
 
 
 def _pregrasp_index(g):
