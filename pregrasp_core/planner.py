@@ -357,13 +357,21 @@ def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray, p_h: np.ndarray) -> 
     c = prm.approach_clearance
     S = prm.max_approach
     Tb, lo, hi = ctx.boxes(q)
+    s_sup = np.inf
+    if ctx.support is not None:
+        n = np.asarray(ctx.support.normal, dtype=np.float64)
+        corners = _box_corners(Tb, ctx.half) @ T0[:3, :3].T + T0[:3, 3]  # (8L, 3) world
+        heights = corners @ n - (ctx.support.height + c)
+        rate = float(n @ T0[:3, 2])  # height change per metre of approach
+        s_sup = max(float(heights.min()), 0.0) / -rate if rate < -GEOM_EPS else np.inf
     # (point, link) pairs: the point lies in front of the link within the travel window, and
     # within its footprint across the approach (the hand-frame AABB of its box grown by c).
     # The z test runs on all (point, link) pairs, the x/y tests only on its survivors; a short
     # first window (most approaches end within a few centimetres) keeps that set small.
     x, y, z = p_h[:, 0], p_h[:, 1], p_h[:, 2]
     s_obj = np.inf
-    for window in (min(APPROACH_WINDOW, S), S):  # at most two passes
+    S_eff = min(S, s_sup)  # the hand cannot travel past the support plane
+    for window in (min(APPROACH_WINDOW, S_eff), S_eff):  # at most two passes
         in_z = (z[:, None] >= lo[None, :, 2] - c) & (z[:, None] <= hi[None, :, 2] + c + window)
         ip, il = np.nonzero(in_z)  # (K,) point and link of each candidate pair
         ok = (
@@ -376,15 +384,8 @@ def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray, p_h: np.ndarray) -> 
         if len(ip):
             s_obj = _sweep_pairs(p_h[ip], Tb[il], ctx.half[il] + c)[0]
         # a hit beyond the window may hide an earlier one by a point not gathered: re-test all
-        if s_obj <= window or window >= S:
+        if s_obj <= window or window >= S_eff:
             break
-    s_sup = np.inf
-    if ctx.support is not None:
-        n = np.asarray(ctx.support.normal, dtype=np.float64)
-        corners = _box_corners(Tb, ctx.half) @ T0[:3, :3].T + T0[:3, 3]  # (8L, 3) world
-        heights = corners @ n - (ctx.support.height + c)
-        rate = float(n @ T0[:3, 2])  # height change per metre of approach
-        s_sup = max(float(heights.min()), 0.0) / -rate if rate < -GEOM_EPS else np.inf
     s = min(s_obj, s_sup)
     if not np.isfinite(s) or s > S:
         return np.inf, ""
