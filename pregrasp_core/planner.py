@@ -516,18 +516,19 @@ def _close_fingers(
 
 def _open_self_collisions(
     ctx: _Context, q: np.ndarray, closings: list, corrected: dict
-) -> np.ndarray:
+) -> tuple[np.ndarray, bool]:
     """Undo finger-finger collisions of the closed hand (python-fcl): for a colliding pair, each
     finger owning one of the two links is opened back along its closing path (bisection over
     the path samples) to the last sample where the pair is apart; the finger that keeps the
     most of its closing is used. At most ``len(closings)`` pairs are resolved; what remains is
-    rejected later as ``self_collision``."""
+    rejected later as ``self_collision``. Returns ``(q, clean)``; ``clean`` says that python-fcl
+    found no pair at the returned ``q``."""
     hand = ctx.hand
     q = q.copy()
     for _ in range(len(closings)):  # loop over <= 3 fingers
         pairs = hand.self_collisions(q)
         if not pairs:
-            break
+            return q, True
         a, b = pairs[0]
         best = None  # (kept path index, finger, q_flex)
         for f, cl, *_ in closings:  # loop over <= 3 fingers
@@ -556,7 +557,7 @@ def _open_self_collisions(
         _, f, q_flex = best
         q[list(f.flex_index)] = q_flex
         corrected[f.name] = True
-    return q
+    return q, not hand.self_collisions(q)
 
 
 def _plan_one(ctx: _Context, pool: Any, i: int) -> Grasp:
@@ -620,7 +621,8 @@ def _plan_one(ctx: _Context, pool: Any, i: int) -> Grasp:
     # 3. verification in 3D. Fingers that closed into each other (python-fcl) stop where they
     # meet: the finger that needs the least opening goes back along its closing path.
     corrected = {f.name: False for f, *_ in closings}
-    q = _open_self_collisions(ctx, q, closings, corrected)
+    q, clean = _open_self_collisions(ctx, q, closings, corrected)
+    q_checked = q.copy()
     # depth of the nearby cloud points in every link
     reach = max(prm.contact_distance, prm.penetration_tol)
     ids, dists = _link_distances(ctx, T, q, reach)
@@ -665,7 +667,7 @@ def _plan_one(ctx: _Context, pool: Any, i: int) -> Grasp:
             f"{ctx.link_names[j]} holds a point {depth[j] * 1e3:.1f} mm deep",
             T, s, stop, q, fingers,
         )  # fmt: skip
-    pairs = hand.self_collisions(q)
+    pairs = [] if clean and np.array_equal(q, q_checked) else hand.self_collisions(q)
     if pairs:
         detail = f"{pairs[0][0]} and {pairs[0][1]}"
         return rejected("self_collision", detail, T, s, stop, q, fingers)

@@ -426,8 +426,8 @@ def test_fingers_closed_into_each_other_are_opened_back_along_their_paths(hand):
     pts = np.zeros((20, 3))
     ctx = _Context(pts, pts, hand, PlannerParams(), None)
     corrected = {f.name: False for f in hand.fingers}
-    q = _open_self_collisions(ctx, at(k), closings, corrected)
-    assert hand.self_collisions(q) == []
+    q, clean = _open_self_collisions(ctx, at(k), closings, corrected)
+    assert clean and hand.self_collisions(q) == []
     assert any(corrected.values())
     for f in hand.fingers:
         flex = q[list(f.flex_index)]
