@@ -114,7 +114,9 @@ def access_lines(host: str, port: int) -> list[str]:
     """The lines ``pregrasp view`` prints: the local URL and the exact SSH port-forward."""
     shown = "localhost" if host in ("127.0.0.1", "localhost", "0.0.0.0", "::") else host
     target = "localhost" if host in ("0.0.0.0", "::") else host
-    user, machine = getpass.getuser(), socket.getfqdn() or socket.gethostname()
+    fqdn = socket.getfqdn()
+    machine = fqdn if fqdn and not fqdn.startswith("localhost") else socket.gethostname()
+    user = getpass.getuser()
     return [
         f"pregrasp view: open http://{shown}:{port}",
         "From another computer, forward the port over SSH and open the same URL there:",
