@@ -349,7 +349,7 @@ class SceneRenderer:
                 batched_positions=T[:, :3, 3],
                 batched_scales=size,
                 batched_colors=rgb,
-                opacity=0.45,
+                opacity=0.6,
                 side="double",
                 cast_shadow=False,
                 receive_shadow=False,
