@@ -164,7 +164,7 @@ class SceneRenderer:
         self._last: AppState | None = None
         self._boxes: dict[int, Any] = {}  # node id -> BoxHandle
         self._handles: dict[str, Any] = {}  # fixed name -> handle
-        self._ghost_meshes: dict[tuple[str, bool], Any] = {}  # (type, detailed) -> hand mesh
+        self._ghost_meshes: dict[tuple, Any] = {}  # (preshape q, detailed) -> hand mesh
         self._urdf: Any = None
         self.n_ghosts_shown = 0
         """Number of ghost instances currently in the scene."""
@@ -188,6 +188,10 @@ class SceneRenderer:
     def handle(self, key: str) -> Any:
         """The handle drawn under ``NAMES[key]`` (or ``None`` when not drawn)."""
         return self._handles.get(key)
+
+    def ghost_handles(self) -> list[Any]:
+        """The batched-mesh handles of the ghosts now in the scene (one per preshape)."""
+        return [h for k, h in sorted(self._handles.items()) if k.startswith("ghost:")]
 
     def render(self, state: AppState) -> None:
         """Bring the scene in line with ``state``, redrawing only the parts that changed."""
@@ -380,13 +384,17 @@ class SceneRenderer:
             idx = idx[np.linspace(0, len(idx) - 1, self.max_ghosts).astype(np.int64)]
         types = pool_types(pool)
         T = np.asarray(pool.T_world_hand, dtype=np.float64)
-        for gt in sorted(set(types[idx].tolist())):  # loop over grasp types (at most 4)
-            sel = idx[types[idx] == gt]
-            mesh = self._ghost_mesh(
-                gt, np.asarray(pool.q)[sel[0]], detailed=len(idx) <= DETAILED_GHOSTS
-            )
-            self._handles[f"ghost:{gt}"] = self.server.scene.add_batched_meshes_simple(
-                f"{NAMES['ghosts']}/{gt}",
+        # one batched mesh per distinct preshape (a grasp type has one; robust to more)
+        q = np.round(np.asarray(pool.q, dtype=np.float64)[idx], 9)  # (K, J)
+        shapes, group = np.unique(q, axis=0, return_inverse=True)
+        group = group.reshape(-1)
+        for g in range(len(shapes)):  # loop over preshapes (a handful)
+            sel = idx[group == g]
+            gt = str(types[sel[0]])
+            key = f"{gt}_{g}"
+            mesh = self._ghost_mesh(shapes[g], detailed=len(idx) <= DETAILED_GHOSTS)
+            self._handles[f"ghost:{key}"] = self.server.scene.add_batched_meshes_simple(
+                f"{NAMES['ghosts']}/{key}",
                 vertices=mesh.vertices,
                 faces=mesh.faces,
                 batched_wxyzs=wxyz_from_matrices(T[sel, :3, :3]),
@@ -399,10 +407,10 @@ class SceneRenderer:
             )
             self.n_ghosts_shown += len(sel)
 
-    def _ghost_mesh(self, grasp_type: str, q: np.ndarray, detailed: bool) -> Any:
-        """The hand at its preshape (hand frame): the visual mesh when few ghosts are drawn, the
-        link boxes (12 triangles per link) for large pools, so thousands stay smooth."""
-        key = (grasp_type, detailed)
+    def _ghost_mesh(self, q: np.ndarray, detailed: bool) -> Any:
+        """The hand at preshape ``q`` (hand frame): the visual mesh when few ghosts are drawn,
+        the link boxes (12 triangles per link) for large pools, so thousands stay smooth."""
+        key = (tuple(np.asarray(q, dtype=np.float64).tolist()), detailed)
         mesh = self._ghost_meshes.get(key)
         if mesh is None:
             q = np.asarray(q, dtype=np.float64)

@@ -133,6 +133,12 @@ def test_ghost_filters(app):
     pool = s.result.pool
     assert len(pool) > 0
     assert app.scene.n_ghosts_shown == min(len(pool), app.scene.max_ghosts)
+    if len(pool) <= app.scene.max_ghosts:  # every pre-grasp drawn where the pool puts it
+        got = np.concatenate([h.batched_positions for h in app.scene.ghost_handles()])
+        want = np.asarray(pool.T_world_hand)[:, :3, 3]
+        np.testing.assert_allclose(
+            np.sort(got, axis=0), np.sort(want, axis=0).astype(np.float32), atol=1e-6
+        )
     types = sorted(set(np.asarray(pool.grasp_type).tolist()))
     gt = types[0]
     app.gui.ghost_type.value = gt
