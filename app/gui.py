@@ -79,9 +79,11 @@ class Gui:
             self.n_points = gui.add_number(
                 "points", c.state.n_points, min=10, max=2_000_000, step=1000
             )
-            self.n_points.on_update(lambda e: self._do(e, c.set_n_points, e.target.value))
+            self.n_points.on_update(
+                lambda e: self._debounced(e, "n_points", c.set_n_points, e.target.value)
+            )
             self.seed = gui.add_number("seed", c.state.seed, min=0, max=2**31 - 1, step=1)
-            self.seed.on_update(lambda e: self._do(e, c.set_seed, e.target.value))
+            self.seed.on_update(lambda e: self._debounced(e, "seed", c.set_seed, e.target.value))
             self.status = gui.add_markdown("")
 
         self.params: dict[tuple[str, str], Any] = {}
@@ -281,7 +283,8 @@ class Gui:
 
 
 PARAM_DEBOUNCE_S = 0.3
-"""A browser's edit of a threshold is applied once the control has rested this long (seconds)."""
+"""A browser's edit of a number (thresholds, points, seed) is applied once the control has
+rested this long (seconds)."""
 
 TABLE_ROWS = 20
 """Rows of the ranked grasp table and options of the grasp chooser."""
