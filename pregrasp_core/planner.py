@@ -438,9 +438,12 @@ def _link_distances(
     return ids, dists
 
 
-def _support_line_2d(ctx: _Context, T: np.ndarray, plane: Any, half_width: float) -> np.ndarray:
+def _support_line_2d(
+    ctx: _Context, T: np.ndarray, plane: Any, half_width: float, reach: float
+) -> np.ndarray:
     """(S, 2) points along the support plane's trace in a finger's flexion plane, spaced by
-    ``closing_margin`` within the finger's reach, so that the closing model stops a link on the
+    ``closing_margin`` within ``reach`` of the finger's first joint (the 2D origin; the moving
+    links never get farther), so that the closing model stops a link on the
     table as on the object. The trace is raised by ``half_width |n . plane normal|``: the link
     box is that much lower at its side edges when the plane is tilted. Empty without a support
     plane or when the flexion plane is parallel to it."""
@@ -455,9 +458,10 @@ def _support_line_2d(ctx: _Context, T: np.ndarray, plane: Any, half_width: float
     target = h_h + half_width * abs(float(n_h @ plane.normal)) - float(n_h @ plane.origin)
     foot = target * np.array([a, b]) / ab**2  # nearest point of the line to the 2D origin
     along = np.array([-b, a]) / ab
-    half_len = ctx.reach
-    if np.linalg.norm(foot) > ctx.reach:
+    d_foot = float(np.linalg.norm(foot))
+    if d_foot > reach:
         return np.zeros((0, 2))
+    half_len = np.sqrt(reach**2 - d_foot**2)  # the chord of the line inside the reach
     step = max(ctx.params.closing_margin, 1e-4)
     t = np.arange(-half_len, half_len + step, step)
     return foot + t[:, None] * along
@@ -497,7 +501,7 @@ def _close_fingers(
         )
         p_slice = _thin_2d(p2[in_slice], prm.slice_resolution)
         n_obj = len(p_slice)
-        table = _support_line_2d(ctx, T, plane, 0.5 * f.width)
+        table = _support_line_2d(ctx, T, plane, 0.5 * f.width, r_f)
         cl = hand.close_finger(
             f,
             np.concatenate([p_slice, table]),
