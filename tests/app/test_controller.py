@@ -270,3 +270,12 @@ def test_view_help_mentions_ssh(capsys):
         cli.main(["view", "--help"])
     out = capsys.readouterr().out
     assert "--host" in out and "--port" in out and "SSH" in out
+
+
+def test_view_malformed_file_is_a_clean_error(capsys, tmp_path):
+    bad = tmp_path / "broken.ply"
+    bad.write_bytes(b"ply\nformat junk\n")
+    code = cli.main(["view", str(bad), "--port", "0"])  # the server starts, the load fails
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "broken.ply" in err and "Traceback" not in err
