@@ -157,8 +157,12 @@ def minimum_volume_box(points: np.ndarray, params: MvbbParams = DEFAULT_PARAMS) 
         )
     if ext[2] <= zero:
         logger.debug("coplanar input (%d points): flat box", n)
-        R = _flat_rotation(q[:2], R_pca)
-        return _tight_box(PT, R, origin)
+        flat = _tight_box(PT, _flat_rotation(q[:2], R_pca), origin)
+        # Nearly collinear input: round-off in the calipers can leave the rectangle a hair
+        # larger than the principal one; keep the smaller.
+        pca = _tight_box(PT, R_pca, origin)
+        area = [float(b.extents[0] * b.extents[1]) for b in (flat, pca)]
+        return flat if area[0] <= area[1] else pca
 
     # Fine kernel (refinement) and coarse kernel of it (its hull gives the candidate normals).
     fine = np.flatnonzero(_kernel_mask(q, lo, ext, params.kernel_grid))  # (m,) indices
@@ -396,6 +400,8 @@ def _snap(R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams) -> np.ndar
     with that facet is completed by the exact minimum-area rectangle of the projected hull
     (rotating calipers over the projected silhouette edges). The best of these and ``R`` wins.
     """
+    if p.snap_max <= 0:
+        return R
     proj = R.T @ Q  # (3, N)
     lo, hi = proj.min(axis=1), proj.max(axis=1)
     # A snapped box is turned from R by at most 5 * snap_angle (tilt <= snap_angle, in-plane
