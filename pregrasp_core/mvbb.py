@@ -289,8 +289,11 @@ def _candidate_normals(normals: np.ndarray, areas: np.ndarray, max_normals: int)
     # n and -n give the same family of boxes: make the largest component positive.
     i = np.argmax(np.abs(n), axis=1)
     n = n * np.sign(n[np.arange(len(n)), i])[:, None]
-    key = np.round(n * 1e6).astype(np.int64)
-    _, first = np.unique(key, axis=0, return_index=True)
+    # One int64 key per normal (three 21-bit fields; components in [-1, 1] -> [0, 2e6]):
+    # np.unique on a 1-D array is much faster than on rows.
+    key = np.round(n * 1e6).astype(np.int64) + 1_000_000
+    key = (key[:, 0] << 42) | (key[:, 1] << 21) | key[:, 2]
+    _, first = np.unique(key, return_index=True)
     return n[np.sort(first)[:max_normals]]
 
 
