@@ -387,6 +387,12 @@ def run_batch(folder: Path, args: argparse.Namespace, hand: Any) -> int:
     else:
         Path(args.report).write_text(text.getvalue())
         n_fc = sum(1 for r in rows if r["best_epsilon"] not in ("", 0.0))
-        print(f"wrote {args.report}: {len(rows)} objects, best grasp force closure on {n_fc}")
+        n_ok = sum(1 for r in rows if not r["error"])
+        skipped = sum(1 for r in rows if str(r["error"]).startswith("skipped:"))
+        print(
+            f"wrote {args.report}: {n_ok} objects planned"
+            + (f" ({skipped} files skipped)" if skipped else "")
+            + f", best grasp force closure on {n_fc}"
+        )
     planned = sum(1 for r in rows if not r["error"])
     return 1 if failed or planned == 0 else 0

@@ -105,7 +105,7 @@ def test_batch_over_a_folder_writes_a_csv_report(tmp_path, capsys):
     assert sorted(p.name for p in (tmp_path / "js").iterdir()) == ["a_lemon.json", "b_box.json"]
     # the progress bar (stderr is not a terminal under pytest: one line per update)
     assert "[" in captured.err and "4/4 d_manifest.csv" in captured.err
-    assert "best grasp force closure on" in captured.out
+    assert "2 objects planned (2 files skipped), best grasp force closure on" in captured.out
 
 
 def test_batch_without_report_prints_csv(tmp_path, capsys):
