@@ -31,6 +31,7 @@ reason from :data:`REJECTION_REASONS`), so the whole trace is in the result file
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -763,7 +764,7 @@ def plan_grasps(
     ranked = list(grasps)
     for r, k in enumerate(order):
         g = ranked[k]
-        ranked[k] = Grasp(**{**g.__dict__, "rank": r})
+        ranked[k] = dataclasses.replace(g, rank=r)
     rejected = {key: 0 for key in REJECTION_REASONS}
     for g in ranked:
         if g.rejection is not None:
