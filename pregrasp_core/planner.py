@@ -165,7 +165,8 @@ class Grasp:
     T_world_hand: np.ndarray
     """(4, 4) float64: the hand pose at the end of the approach (pose of the grasp)."""
     approach_distance: float
-    """Metres travelled along the approach from the pre-grasp pose."""
+    """Metres travelled along the approach from the pre-grasp pose (negative when the hand
+    backed off from the table, ``approach_stop == "support_lifted"``)."""
     approach_stop: str
     """What ended the approach (:data:`APPROACH_STOPS`; '' when nothing did)."""
     q: np.ndarray
