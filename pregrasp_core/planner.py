@@ -638,18 +638,23 @@ def _plan_one(ctx: _Context, pool: Any, i: int) -> Grasp:
             cols = [ctx.link_index[n] for n in (f.links[1], f.links[2])]
             if not bad & {f.links[1], f.links[2]}:
                 continue
-            # open the finger back along its closing path until its links hold no point
-            ok_q = None
-            for q_flex in cl.path[::-1]:  # loop over closing steps (<= ~2 n_steps)
+            # open the finger back along its closing path (bisection over the path samples)
+            # to the last sample where its links hold no point deeper than the tolerance
+            origin = ctx.plane(f, spread).origin
+            near = p_h[np.sum((p_h - origin) ** 2, axis=1) <= (ctx.reach + reach) ** 2]
+
+            def clear(k: int, f=f, cl=cl, cols=cols, near=near) -> bool:
                 qq = q.copy()
-                qq[list(f.flex_index)] = q_flex
-                Tq = hand.box_poses(qq)[cols]
-                d = box_signed_distance(p_h, Tq, ctx.half[cols])
-                if not np.any(d < -prm.penetration_tol):
-                    ok_q = q_flex
-                    break
-            if ok_q is not None:
-                q[list(f.flex_index)] = ok_q
+                qq[list(f.flex_index)] = cl.path[k]
+                d = box_signed_distance(near, hand.box_poses(qq)[cols], ctx.half[cols])
+                return not np.any(d < -prm.penetration_tol)
+
+            if len(cl.path) and clear(0):
+                lo, hi = 0, len(cl.path) - 1
+                while hi - lo > 1:  # bisection over the closing steps
+                    mid = (lo + hi) // 2
+                    lo, hi = (mid, hi) if clear(mid) else (lo, mid)
+                q[list(f.flex_index)] = cl.path[hi if clear(hi) else lo]
                 corrected[f.name] = True
         ids, dists = _link_distances(ctx, T, q, reach)
     fingers = tuple(

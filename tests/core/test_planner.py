@@ -434,3 +434,33 @@ def test_fingers_closed_into_each_other_are_opened_back_along_their_paths(hand):
         assert np.min(np.abs(paths[f.name][: k + 1] - flex).sum(axis=1)) < 1e-12
         if not corrected[f.name]:
             assert np.array_equal(flex, paths[f.name][k])
+
+
+class _BlindHand:
+    """The real hand, except that its planar closing model sees no point: every finger closes
+    through the object. The planner's 3D verification must catch and correct that."""
+
+    def __init__(self, hand):
+        self._hand = hand
+
+    def __getattr__(self, name):
+        return getattr(self._hand, name)
+
+    def close_finger(self, finger, points_2d, q_start, **kw):
+        return self._hand.close_finger(finger, np.zeros((0, 2)), q_start, **kw)
+
+
+def test_fingers_closed_into_the_object_are_opened_back_or_rejected(hand):
+    mesh, pool = _cylinder_scene(hand, n_dirs=3)
+    pts, nrm = _cloud(mesh, n=8000)
+    gs = plan_grasps(pts, nrm, pool, _BlindHand(hand))
+    tol = PlannerParams().penetration_tol
+    n_corrected = 0
+    for g in gs.grasps:
+        assert g.kept or g.rejection in ("penetration", "self_collision")
+        if not g.kept:
+            continue
+        n_corrected += sum(f.corrected for f in g.fingers)
+        p_hand = (pts - g.T_world_hand[:3, 3]) @ g.T_world_hand[:3, :3]
+        assert not hand.points_in_hand(p_hand, g.q, margin=-tol).any()
+    assert n_corrected >= 3  # the blind closing went through the cylinder and was undone
