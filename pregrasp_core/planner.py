@@ -84,9 +84,10 @@ class PlannerParams:
     """A finger link touches a slice point when within this distance (planar closing model)."""
     closing_steps: int = 48
     """Samples per closing phase of the closing model (refined by bisection)."""
-    slice_resolution: float = 0.0005
-    """A slice keeps one point per square cell of this side in its plane (0: every point); the
-    contact found by the planar model moves by at most 0.71 of it (the 3D check is exact)."""
+    slice_resolution: float = 0.0007
+    """A slice keeps one point per square cell of this side in its plane (0: every point). A
+    dropped point lies within the cell diagonal (side x sqrt(2) = 0.99 mm) of a kept one, so
+    with the diagonal below ``closing_margin`` no link ever touches a dropped point either."""
     contact_distance: float = CONTACT_DISTANCE
     """A link makes a contact when a cloud point lies within this distance of its box."""
     penetration_tol: float = PENETRATION_TOL
@@ -110,6 +111,11 @@ class PlannerParams:
             )
         if not (np.isfinite(self.slice_resolution) and self.slice_resolution >= 0.0):
             raise ValueError(f"slice_resolution must be >= 0, got {self.slice_resolution}")
+        if self.slice_resolution * np.sqrt(2.0) > self.closing_margin:
+            raise ValueError(
+                f"slice_resolution ({self.slice_resolution}) times sqrt(2) must not exceed "
+                f"closing_margin ({self.closing_margin}): a link could touch a dropped point"
+            )
         if int(self.closing_steps) != self.closing_steps or self.closing_steps < 2:
             raise ValueError(f"closing_steps must be an integer >= 2, got {self.closing_steps}")
 

@@ -332,6 +332,8 @@ def test_parameter_and_shape_checks(hand):
         PlannerParams(contact_distance=0.0005, closing_margin=0.001)
     with pytest.raises(ValueError, match="max_approach"):
         PlannerParams(max_approach=0.0)
+    with pytest.raises(ValueError, match="slice_resolution .* sqrt"):
+        PlannerParams(slice_resolution=0.001, closing_margin=0.001)
     mesh, pool = _flat_box_scene(hand, n_dirs=1)
     with pytest.raises(ValueError, match=r"normals must have shape \(10, 3\)"):
         plan_grasps(np.zeros((10, 3)), np.zeros((9, 3)), pool, hand)
