@@ -9,11 +9,15 @@ For each pre-grasp of the pool (DESIGN section 8, after arXiv 1907.09142):
    (point, box) pair near the sweep. The support plane, when given, also stops the hand (its
    boxes stay ``approach_clearance`` above it). Nothing ahead within ``max_approach``: rejected.
 2. **Slicing and closing.** For each finger the grasp type uses, the cloud points within half a
-   finger width of the finger's flexion plane, in that plane's 2D frame, go to the hand's planar
-   closing model (:meth:`pregrasp_core.hand.Hand.close_finger`, vectorised over points and
-   closing steps), which returns the flexion angles and the touching links.
-3. **3D verification.** At the final pose and joint angles: every cloud point's depth inside
-   every link box (exact box distance); a finger that holds a point deeper than
+   finger width of the finger's flexion plane and within the finger's reach, in that plane's 2D
+   frame and thinned to one per 0.7 mm cell, plus the support plane's trace, go to the hand's
+   planar closing model (:meth:`pregrasp_core.hand.Hand.close_finger`, vectorised over points
+   and closing steps), which returns the flexion angles and the touching links. When the table
+   rather than the object stopped the approach and a finger closed on the table, the hand backs
+   off along its approach in 5 mm steps (``max_lift``) and closes again.
+3. **3D verification.** Fingers closed into each other (python-fcl) are opened back along their
+   closing paths. Then, at the final pose and joint angles: every nearby cloud point's depth
+   inside every link box (exact box distance); a finger that holds a point deeper than
    ``penetration_tol`` is opened back along its closing path until it holds none (corrected),
    else the pre-grasp is rejected; then python-fcl checks the links against each other
    (:meth:`Hand.self_collisions`) and against the support half-space.
