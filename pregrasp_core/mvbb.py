@@ -166,8 +166,8 @@ def minimum_volume_box(points: np.ndarray, params: MvbbParams = DEFAULT_PARAMS) 
 
     # Fine kernel (refinement) and coarse kernel of it (its hull gives the candidate normals).
     fine = np.flatnonzero(_kernel_mask(q, lo, ext, params.kernel_grid))  # (m,) indices
-    F = q[:, fine]  # (3, m)
-    S = F[:, _kernel_mask(F, lo, ext, params.coarse_grid)]  # (3, c)
+    F = np.take(q, fine, axis=1)  # (3, m); np.take: 2-D fancy indexing is ~5x slower
+    S = np.compress(_kernel_mask(F, lo, ext, params.coarse_grid), F, axis=1)  # (3, c)
     try:
         hull = ConvexHull(S.T)
     except QhullError:
@@ -176,7 +176,7 @@ def minimum_volume_box(points: np.ndarray, params: MvbbParams = DEFAULT_PARAMS) 
         except QhullError:  # pragma: no cover - the PCA test above catches flat input first
             logger.debug("qhull failed on %d kernel points: flat box", S.shape[1])
             return _tight_box(PT, _flat_rotation(q[:2], R_pca), origin)
-    Vc = np.ascontiguousarray(S[:, hull.vertices])  # (3, h) coarse hull vertices
+    Vc = np.take(S, hull.vertices, axis=1)  # (3, h) coarse hull vertices
     # Only fine-kernel points outside the coarse hull (or on it) can be extreme in some direction.
     eq = hull.equations  # (faces, 4): unit outward normal, offset
     outside = (eq[:, :3] @ F + eq[:, 3:]).max(axis=0) > -GEOM_EPS * float(ext[0])
@@ -331,7 +331,7 @@ def _search(
     areas (F,), polishes the best on the fine kernel ``Q[:, fine]`` (``fine``: (m,) indices),
     then adds the points of the whole cloud that touch the polished boxes and polishes again
     with small steps, so that the final choice is made on the true volumes."""
-    Vf = np.ascontiguousarray(Q[:, fine])
+    Vf = np.take(Q, fine, axis=1)
     cand = np.concatenate([np.eye(3), _candidate_normals(normals, areas, p.max_normals)])
     # Lower bound of every box with third axis n: height(n) * shadow area of the hull on the
     # plane normal to n (0.5 * sum of |n . face area vector|; the rectangle contains the shadow).
@@ -385,9 +385,9 @@ def _search(
         near = np.flatnonzero(
             np.any((proj >= hi[:, None] - margin) | (proj <= lo[:, None] + margin), axis=0)
         )
-        near = near[_kernel_mask(proj[:, near], lo, hi - lo, p.polish_grid)]
+        near = near[_kernel_mask(np.take(proj, near, axis=1), lo, hi - lo, p.polish_grid)]
         fine = np.union1d(fine, near)
-        Vf = np.ascontiguousarray(Q[:, fine])
+        Vf = np.take(Q, fine, axis=1)
         cur = _pattern_search(cur, Vf, p, mid, n_levels)
     return _snap(cur[0], Q, radius, p)
 
@@ -407,24 +407,15 @@ def _snap(R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams) -> np.ndar
         return R
     proj = R.T @ Q  # (3, N)
     lo, hi = proj.min(axis=1), proj.max(axis=1)
-    # A snapped box is turned from R by at most 5 * snap_angle (tilt <= snap_angle, in-plane
-    # <= 4 * snap_angle), which moves a coordinate by at most radius * 5 * snap_angle: only
-    # points within twice that of a face can be extreme in it, so the snapped boxes are judged
-    # exactly on these points (1.5: safety factor).
-    margin = 1.5 * 2.0 * radius * 5.0 * p.snap_angle
-    near = np.flatnonzero(
-        np.any((proj >= hi[:, None] - margin) | (proj <= lo[:, None] + margin), axis=0)
-    )
-    judge = np.ascontiguousarray(Q[:, near])  # (3, j)
     # Facets within snap_angle of a face are spanned by points within 2 * radius * snap_angle
-    # of it: hull those, thinned to the column extremes of a snap_grid grid.
-    pn = proj[:, near]
+    # of it: hull those, thinned to the column extremes of a snap_grid grid. (The snapped boxes
+    # are judged on the whole cloud at the end.)
     close_margin = 2.0 * 2.0 * radius * p.snap_angle
-    near = near[
-        np.any((pn >= hi[:, None] - close_margin) | (pn <= lo[:, None] + close_margin), axis=0)
-    ]
-    near = near[_kernel_mask(proj[:, near], lo, hi - lo, p.snap_grid)]
-    Z = Q[:, near]  # (3, z)
+    near = np.flatnonzero(
+        np.any((proj >= hi[:, None] - close_margin) | (proj <= lo[:, None] + close_margin), axis=0)
+    )
+    near = near[_kernel_mask(np.take(proj, near, axis=1), lo, hi - lo, p.snap_grid)]
+    Z = np.take(Q, near, axis=1)  # (3, z)
     try:
         hull = ConvexHull(Z.T)
     except QhullError:
@@ -434,7 +425,7 @@ def _snap(R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams) -> np.ndar
     if not np.any(close):
         return R
     cand = _candidate_normals(normals[close], np.ones(int(close.sum())), p.snap_max)
-    W = Z[:, hull.vertices]  # (3, h)
+    W = np.take(Z, hull.vertices, axis=1)  # (3, h)
     # Hull edges as (facet, neighbour) pairs: the edge of facet f opposite its vertex i is shared
     # with neighbours[f, i].
     simp, nb = hull.simplices, hull.neighbors  # (F, 3) each
@@ -442,7 +433,7 @@ def _snap(R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams) -> np.ndar
     g_idx = nb.reshape(-1)
     e0 = simp[:, [1, 2, 0]].reshape(-1)
     e1 = simp[:, [2, 0, 1]].reshape(-1)
-    edge = Z[:, e1] - Z[:, e0]  # (3, 3F)
+    edge = np.take(Z, e1, axis=1) - np.take(Z, e0, axis=1)  # (3, 3F)
     K = len(cand)
     frames = _frames_from_normals(cand)  # (K, 3, 3), third column = facet normal
     # Silhouette edges (between a facet facing the normal and one facing away) bound the
@@ -481,7 +472,7 @@ def _snap(R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams) -> np.ndar
     Rz = np.zeros((len(pick), 3, 3))
     Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = cp, -sp, sp, cp, 1.0
     Rs = np.concatenate([R[None], frames[k_i[pick]] @ Rz])  # (1 + k, 3, 3)
-    best_R = Rs[int(np.argmin(_volumes(Rs, judge)))]
+    best_R = Rs[int(np.argmin(_volumes(Rs, Q)))]
     return best_R
 
 
@@ -522,7 +513,7 @@ def _pattern_search(
             near = (proj >= proj.max(axis=2, keepdims=True) - margin) | (
                 proj <= proj.min(axis=2, keepdims=True) + margin
             )
-            active = Vf[:, near.any(axis=(0, 1))]  # (3, a)
+            active = np.compress(near.any(axis=(0, 1)), Vf, axis=1)  # (3, a)
         trial = C[:, None] @ stencils[lv]  # (T', 26, 3, 3)
         tv = _volumes(trial.reshape(-1, 3, 3), active).reshape(len(live), -1)
         j = np.argmin(tv, axis=1)
