@@ -190,3 +190,36 @@ def test_browser_edits_of_a_threshold_are_debounced(app):
         time.sleep(PARAM_DEBOUNCE_S / 3)
     assert app.controller.state.params.decomposition.min_points == 300
     assert len({id(r) for r in results}) == 1  # one pipeline run, for 300 only
+
+
+def test_concurrent_callbacks_leave_scene_and_state_consistent(app):
+    """viser runs callbacks on a thread pool: actions from several browsers at once must not
+    interleave (the controller's lock), so the scene always matches the final state."""
+    import threading
+
+    n = app.controller.state.tree.n_splits
+    errors = []
+
+    def worker(k: int) -> None:
+        try:
+            for j in range(4):
+                if k % 2:
+                    app.controller.set_param("decomposition", "volume_ratio", (0.5, 0.9)[j % 2])
+                else:
+                    app.controller.set_level((0, n)[j % 2] if j % 2 == 0 else None)
+                    app.controller.select_node(0)
+        except Exception as exc:  # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=worker, args=(k,)) for k in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=120)
+    assert not errors, errors
+    s = app.controller.state
+    assert sorted(_box_handles(app)) == sorted(s.shown_nodes()) == app.scene.box_ids
+    assert _boxes_label(app) == len(s.shown_nodes())
+    colors = app.server.scene.get_handle_by_name(NAMES["cloud"]).colors
+    for i in s.shown_nodes():
+        assert np.all(colors[s.tree.node(i).indices] == np.array(node_color(i)))
