@@ -466,3 +466,29 @@ def test_fingers_closed_into_the_object_are_opened_back_or_rejected(hand):
         p_hand = (pts - g.T_world_hand[:3, 3]) @ g.T_world_hand[:3, :3]
         assert not hand.points_in_hand(p_hand, g.q, margin=-tol).any()
     assert n_corrected >= 3  # the blind closing went through the cylinder and was undone
+
+
+@pytest.mark.slow
+def test_invariants_on_the_default_object(hand):
+    """The whole pipeline on the mug with a handle: every kept grasp holds no cloud point deeper
+    than the tolerance, every contact is within contact_distance of its link, no link is below
+    the table (all by the hand's own queries), and some grasp is force closure."""
+    from pregrasp_core.io import load_point_cloud
+    from pregrasp_core.paths import DEFAULT_OBJECT
+    from pregrasp_core.pipeline import run_pipeline
+
+    cloud = load_point_cloud(DEFAULT_OBJECT, n_points=6000)
+    result = run_pipeline(cloud, hand=hand, until="grasps")
+    prm = PlannerParams()
+    support = result.masks.support
+    ranked = result.grasps.ranked
+    assert len(ranked) >= 10 and ranked[0].epsilon > 0.0
+    for g in ranked:
+        R, t = g.T_world_hand[:3, :3], g.T_world_hand[:3, 3]
+        p_hand = (cloud.points - t) @ R
+        assert not hand.points_in_hand(p_hand, g.q, margin=-prm.penetration_tol).any()
+        for c in g.contacts:
+            inside = hand.points_in_links(((c.point - t) @ R)[None], g.q, prm.contact_distance)
+            assert inside[0, hand.link_names.index(c.link)]
+        corners = hand.collision_mesh(g.q).vertices @ R.T + t
+        assert (corners @ support.normal).min() >= support.height - prm.penetration_tol - 1e-9
