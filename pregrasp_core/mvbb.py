@@ -303,21 +303,26 @@ def _candidate_normals(normals: np.ndarray, areas: np.ndarray, max_normals: int)
 def _sweep(V: np.ndarray, cand: np.ndarray, n_angles: int) -> tuple[np.ndarray, np.ndarray]:
     """Boxes whose third axis is a candidate normal, with the in-plane angle on a grid.
 
-    V: (3, h) points; cand: (K, 3) unit normals. Returns rotations (K * M, 3, 3) and their
-    volumes (K * M,) around V, for M = n_angles angles over 90 degrees.
+    V: (3, h) points; cand: (K, 3) unit normals. Returns the frames (K, 3, 3) (third column the
+    normal) and the volumes (K, M) around V of the boxes ``frames[k] @ _rot_z(angles[m])``, for
+    M = n_angles angles ``m * 90 / M`` degrees (the rotations are built only for the few
+    candidates that are kept, see ``_sweep_angles``).
     """
     frames = _frames_from_normals(cand)  # (K, 3, 3)
     proj = (frames.transpose(0, 2, 1).reshape(-1, 3) @ V).reshape(len(cand), 3, -1)  # (K, 3, h)
     height = proj[:, 2].max(axis=1) - proj[:, 2].min(axis=1)  # (K,) shared by all angles
-    angles = np.arange(n_angles) * (0.5 * np.pi / n_angles)
+    angles = _sweep_angles(n_angles)
     c, s = np.cos(angles)[None, :, None], np.sin(angles)[None, :, None]
     u, v = proj[:, None, 0], proj[:, None, 1]  # (K, 1, h)
     x = c * u + s * v  # (K, M, h)
     y = c * v - s * u
     area = (x.max(axis=2) - x.min(axis=2)) * (y.max(axis=2) - y.min(axis=2))  # (K, M)
-    vol = (area * height[:, None]).reshape(-1)
-    R = (frames[:, None] @ _rot_z(angles)[None]).reshape(-1, 3, 3)
-    return R, vol
+    return frames, area * height[:, None]
+
+
+def _sweep_angles(n_angles: int) -> np.ndarray:
+    """(M,) in-plane angles of the sweep: M steps over 90 degrees."""
+    return np.arange(n_angles) * (0.5 * np.pi / n_angles)
 
 
 def _search(
@@ -344,18 +349,20 @@ def _search(
     shadow = 0.5 * (np.abs(cand @ normals.T) @ areas)  # (K,)
     order = np.argsort(height * shadow, kind="stable")
     bound = (height * shadow)[order]
-    Rs, vols, best_vol = [], [], np.inf
+    frames, vols, best_vol = [], [], np.inf
     for start in range(0, len(order), p.sweep_batch):
         if bound[start] > best_vol * (1.0 + p.sweep_slack):
             break
-        Rb, vb = _sweep(V, cand[order[start : start + p.sweep_batch]], p.n_angles)
-        Rs.append(Rb)
+        fb, vb = _sweep(V, cand[order[start : start + p.sweep_batch]], p.n_angles)
+        frames.append(fb)
         vols.append(vb)
         best_vol = min(best_vol, float(vb.min()))
-    R, vol = np.concatenate(Rs), np.concatenate(vols)
+    vol = np.concatenate(vols).reshape(-1)  # (K * M,): normal k, angle m at k * M + m
 
     # Keep the best n_refine candidates that are not the same box.
-    top = R[np.argsort(vol, kind="stable")[: 8 * p.n_refine]]  # (B, 3, 3), best first
+    best = np.argsort(vol, kind="stable")[: 8 * p.n_refine]
+    k_best, m_best = np.divmod(best, p.n_angles)
+    top = np.concatenate(frames)[k_best] @ _rot_z(_sweep_angles(p.n_angles)[m_best])  # (B, 3, 3)
     # same[i, j]: boxes i and j are within 2 steps (every axis of i has an axis of j within
     # that angle, axis order and signs ignored).
     cosines = np.abs(np.einsum("iab,jac->ijbc", top, top)).max(axis=3).min(axis=2)  # (B, B)
