@@ -33,11 +33,6 @@ logger = logging.getLogger(__name__)
 DEFAULT_MAX_UPLOAD_BYTES = 50 * 1024 * 1024
 """Largest upload accepted (bytes): 50 MiB, about 2 million points of binary PLY."""
 
-ANIM_HOLD = 0.25
-"""The animation clock runs over [0, 1 + ANIM_HOLD): it rests on the closed hand for this
-fraction of a cycle before it starts again."""
-
-
 class Controller:
     """Owns the app state; every change goes through one of its methods under its lock.
 
@@ -322,7 +317,7 @@ class Controller:
             dt = time.perf_counter() - t0
             n = len(ranked_grasps(result))
             view = dataclasses.replace(
-                self._state.view, selected_grasp=0 if n else None, anim_t=1.0, playing=False
+                self._state.view, selected_grasp=0 if n else None, anim_t=0.0, playing=bool(n)
             )
             msg = f"planned {len(result.pool)} pre-grasps: {n} grasps ({dt:.1f} s)"
             return self._commit(
@@ -338,18 +333,19 @@ class Controller:
         )
 
     def select_grasp(self, rank: int | None) -> AppState:
-        """Show the grasp of rank ``rank`` (0 = best) with the URDF hand, closed."""
+        """Show the grasp of rank ``rank`` (0 = best): the URDF hand plays its approach and
+        closing once, from the pre-grasp pose in its preshape to the closed configuration."""
         with self._lock:
             if rank is not None:
                 n = len(ranked_grasps(self._state.result))
                 if not 0 <= int(rank) < n:
                     raise ValueError(f"grasp rank must be in [0, {n - 1}], got {rank}")
                 rank = int(rank)
-            return self._set_view(selected_grasp=rank, anim_t=1.0)
+            return self._set_view(selected_grasp=rank, anim_t=0.0, playing=rank is not None)
 
     def set_anim_t(self, t: float) -> AppState:
-        """Set the animation phase (0 pre-grasp, 0.5 approached, 1 closed)."""
-        return self._set_view(anim_t=float(np.clip(t, 0.0, 1.0 + ANIM_HOLD)))
+        """Set the animation phase (0 pre-grasp, 0.5 approached, 1 closed); pauses it."""
+        return self._set_view(anim_t=float(np.clip(t, 0.0, 1.0)), playing=False)
 
     def play(self) -> AppState:
         """Start the animation (from the pre-grasp if it was at the end)."""
@@ -369,15 +365,14 @@ class Controller:
         return self._set_view(speed=speed)
 
     def tick(self, dt: float) -> AppState:
-        """Advance the animation clock by ``dt`` seconds when playing (called by the animator)."""
+        """Advance the animation clock by ``dt`` seconds when playing (called by the animator);
+        it stops on the closed hand (phase 1)."""
         with self._lock:
             v = self._state.view
             if not v.playing or v.selected_grasp is None:
                 return self._state
             t = v.anim_t + dt * v.speed / 2.0
-            if t >= 1.0 + ANIM_HOLD:
-                t = 0.0
-            return self._set_view(anim_t=t)
+            return self._set_view(anim_t=min(t, 1.0), playing=t < 1.0)
 
     # ------------------------------------------------------------------ export
     def result_json(self) -> bytes:

@@ -49,7 +49,7 @@ class ViewState:
     """Rank (0 = best) of the grasp shown with the URDF hand, or ``None``."""
     anim_t: float = 1.0
     """Animation phase in [0, 1]: 0 = pre-grasp pose in its preshape, 0.5 = end of the approach,
-    1 = fingers closed on the contacts."""
+    1 = fingers closed on the contacts (where a played animation stops)."""
     playing: bool = False
     """Whether the animation clock advances by itself."""
     speed: float = 1.0

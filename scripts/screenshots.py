@@ -126,7 +126,7 @@ def main() -> int:
             if c.state.view.selected_grasp is None:
                 print("no grasp was planned: grasp.png not written", file=sys.stderr)
                 return 1
-            c.set_anim_t(1.0)
+            c.set_anim_t(1.0)  # the closed hand (pauses the animation the plan started)
             page.get_by_text(re.compile(r"^ranked grasps: \d+")).scroll_into_view_if_needed()
             shot("grasp")
             ctx.close()

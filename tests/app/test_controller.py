@@ -123,7 +123,8 @@ def test_plan_ranks_grasps_and_animates_the_hand(app):
     table = app.gui.table.content
     assert f"ranked grasps: {len(ranked)}" in table
     assert f"{eps[0]:.4f}" in table
-    assert s.view.selected_grasp == 0
+    assert s.view.selected_grasp == 0 and s.view.playing  # the best grasp plays at once
+    _wait_closed(app)
     frame = app.scene.handle("hand_frame")
     assert frame is not None and frame.visible
     np.testing.assert_allclose(frame.position, ranked[0].T_world_hand[:3, 3], atol=1e-6)
@@ -135,12 +136,16 @@ def test_plan_ranks_grasps_and_animates_the_hand(app):
     if len(ranked) > 1:
         app.gui.grasp.value = app.gui.grasp.options[1]
         assert app.controller.state.view.selected_grasp == 1
+        assert app.controller.state.view.anim_t < 1.0  # it starts from the pre-grasp
+        _wait_closed(app)
         np.testing.assert_allclose(frame.position, ranked[1].T_world_hand[:3, 3], atol=1e-6)
     g = ranked[app.controller.state.view.selected_grasp]
-    app.gui.phase.value = 0.0  # back to the pre-grasp pose, open hand
+    app.gui.phase.value = 0.0  # back to the pre-grasp pose, open hand (pauses)
+    assert not app.controller.state.view.playing
     pre = s.result.pool[int(_pregrasp_index(g))]
     np.testing.assert_allclose(frame.position, pre.T_world_hand[:3, 3], atol=1e-6)
     # play: the app's animation thread advances the clock by itself; pause stops it
+    app.gui.speed.value = 0.5
     app.gui.play.value = True
     deadline = time.monotonic() + 10
     while app.controller.state.view.anim_t <= 0.05:
@@ -152,13 +157,25 @@ def test_plan_ranks_grasps_and_animates_the_hand(app):
     assert app.controller.state.view.anim_t == t_paused
     # the clock itself, without the thread: speed 1 is one cycle (0 -> 1) per 2 s
     app.close()
+    app.gui.speed.value = 1.0
+    app.gui.phase.value = 0.0
     app.controller.play()
-    t0 = app.controller.state.view.anim_t
     app.controller.tick(0.5)
-    assert app.controller.state.view.anim_t == pytest.approx(t0 + 0.25)
+    assert app.controller.state.view.anim_t == pytest.approx(0.25)
     app.gui.speed.value = 2.0
     app.controller.tick(0.5)
-    assert app.controller.state.view.anim_t == pytest.approx(t0 + 0.75)
+    assert app.controller.state.view.anim_t == pytest.approx(0.75)
+    app.controller.tick(0.5)  # past the end: stops on the closed hand
+    assert app.controller.state.view.anim_t == 1.0 and not app.controller.state.view.playing
+    np.testing.assert_allclose(frame.position, g.T_world_hand[:3, 3], atol=1e-6)
+
+
+def _wait_closed(app, timeout: float = 30.0) -> None:
+    """Wait until the played animation has stopped on the closed hand (phase 1)."""
+    deadline = time.monotonic() + timeout
+    while app.controller.state.view.playing or app.controller.state.view.anim_t < 1.0:
+        assert time.monotonic() < deadline, "the grasp animation does not finish"
+        time.sleep(0.05)
 
 
 def _pregrasp_index(g):

@@ -94,6 +94,11 @@ def test_plan_shows_ranked_table_and_pick_a_grasp(page, live_app, shots_dir):
             break
         page.wait_for_timeout(100)
     assert live_app.controller.state.view.selected_grasp == 1
+    for _ in range(300):  # the choice plays the approach and closing (2 s at speed 1)
+        v = live_app.controller.state.view
+        if not v.playing and v.anim_t == 1.0:
+            break
+        page.wait_for_timeout(100)
     frame = live_app.scene.handle("hand_frame")
     assert frame.visible
     assert abs(frame.position - ranked[1].T_world_hand[:3, 3]).max() < 1e-6
