@@ -28,6 +28,7 @@ points raise :class:`~pregrasp_core.errors.DegenerateGeometryError`.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass
@@ -491,51 +492,71 @@ def _n_levels(p: MvbbParams) -> int:
     return max(1, int(np.ceil(np.log2(p.step_start / p.step_min))))
 
 
+@functools.lru_cache(maxsize=16)
+def _stencils_t(step_start: float, n_levels: int) -> np.ndarray:
+    """(L, 26, 3, 3) read-only: the transposed stencil rotations ``S.T`` of every level, rotations
+    by ``step_start / 2**k`` about the 26 stencil directions (cached: the same for every call)."""
+    steps = step_start * 0.5 ** np.arange(n_levels)  # (L,)
+    S = _rodrigues((steps[:, None, None] * _STENCIL_DIRS[None]).reshape(-1, 3))
+    St = np.ascontiguousarray(S.reshape(n_levels, -1, 3, 3).transpose(0, 1, 3, 2))
+    St.setflags(write=False)
+    return St
+
+
 def _pattern_search(
     cur: np.ndarray, Vf: np.ndarray, p: MvbbParams, start: int, stop: int
 ) -> np.ndarray:
     """Polish rotations ``cur`` (T, 3, 3) around points ``Vf`` (3, f) by a pattern search over
     rotations about the 26 stencil directions. Step level k is the step ``step_start / 2**k``;
     every candidate starts at level ``start`` and moves one level down on failure until level
-    ``stop``. Returns (T, 3, 3)."""
-    cur = cur.copy()
+    ``stop``. Returns (T, 3, 3).
+
+    The rotations are kept transposed (rows = box axes), so that a trial's axes are the rows of
+    ``S.T @ C.T``; the extent along trial axis k is measured on the active points of axis k only.
+    """
+    cur_t = np.ascontiguousarray(cur.transpose(0, 2, 1))  # (T, 3, 3), rows = axes
     cur_vol = _volumes(cur, Vf)
     radius = float(np.sqrt((Vf * Vf).sum(axis=0).max()))  # rotations are about the origin
     n_levels = stop
     steps = p.step_start * 0.5 ** np.arange(n_levels)  # (L,)
-    stencils = _rodrigues((steps[:, None, None] * _STENCIL_DIRS[None]).reshape(-1, 3))
-    stencils = stencils.reshape(n_levels, -1, 3, 3)  # (L, 26, 3, 3)
+    stencils_t = _stencils_t(float(p.step_start), int(n_levels))  # (L, 26, 3, 3)
     level = np.full(len(cur), start, dtype=np.int64)  # per-candidate step level
-    active, spent, budget = Vf, 0.0, -1.0
+    active: list[np.ndarray] = [Vf, Vf, Vf]
+    spent, budget = 0.0, -1.0
     for _ in range(p.max_iterations):
         live = np.flatnonzero(level < n_levels)
-        if len(live) == 0:
+        n_live = len(live)
+        if n_live == 0:
             break
-        C, lv = cur[live], level[live]  # (T', 3, 3), (T',)
+        Ct, lv = cur_t[live], level[live]  # (T', 3, 3), (T',)
         step = float(steps[lv].max())
         if spent + step > budget:
-            # Active set: rotations of total angle <= budget move a coordinate by at most
-            # radius * budget, so only points within 2 * radius * budget of a face of a current
-            # box can become extreme before the set is rebuilt.
+            # Active sets: rotations of total angle <= budget move a coordinate by at most
+            # radius * budget, so only points within 2 * radius * budget of face +-k of a current
+            # box can become extreme along axis k before the sets are rebuilt.
             budget, spent = p.active_reach * step, 0.0
-            proj = (C.transpose(0, 2, 1).reshape(-1, 3) @ Vf).reshape(len(live), 3, -1)
+            proj = (Ct.reshape(-1, 3) @ Vf).reshape(n_live, 3, -1)
             margin = 2.0 * radius * budget * (1.0 + 1e-9)
             near = (proj >= proj.max(axis=2, keepdims=True) - margin) | (
                 proj <= proj.min(axis=2, keepdims=True) + margin
-            )
-            active = np.compress(near.any(axis=(0, 1)), Vf, axis=1)  # (3, a)
-        trial = C[:, None] @ stencils[lv]  # (T', 26, 3, 3)
-        tv = _volumes(trial.reshape(-1, 3, 3), active).reshape(len(live), -1)
+            )  # (T', 3, f)
+            near_k = near.any(axis=0)  # (3, f)
+            active = [np.compress(near_k[k], Vf, axis=1) for k in range(3)]  # (3, a_k) each
+        trial_t = stencils_t[lv] @ Ct[:, None]  # (T', 26, 3, 3): rows = trial axes
+        tv = np.ones((n_live, 26))
+        for k in range(3):
+            pk = trial_t[:, :, k, :].reshape(-1, 3) @ active[k]  # (T' * 26, a_k)
+            tv *= (pk.max(axis=1) - pk.min(axis=1)).reshape(n_live, 26)
         j = np.argmin(tv, axis=1)
-        tbest = tv[np.arange(len(live)), j]
+        tbest = tv[np.arange(n_live), j]
         better = tbest < cur_vol[live] * (1.0 - 1e-12)
         if np.any(better):
             spent += step
             up = live[better]
-            cur[up] = trial[better, j[better]]
+            cur_t[up] = trial_t[better, j[better]]
             cur_vol[up] = tbest[better]
         level[live[~better]] += 1
-    return cur
+    return np.ascontiguousarray(cur_t.transpose(0, 2, 1))
 
 
 def _flat_rotation(q2: np.ndarray, R_pca: np.ndarray) -> np.ndarray:
