@@ -313,11 +313,12 @@ def _sweep(V: np.ndarray, cand: np.ndarray, n_angles: int) -> tuple[np.ndarray, 
     proj = (frames.transpose(0, 2, 1).reshape(-1, 3) @ V).reshape(len(cand), 3, -1)  # (K, 3, h)
     height = proj[:, 2].max(axis=1) - proj[:, 2].min(axis=1)  # (K,) shared by all angles
     angles = _sweep_angles(n_angles)
-    c, s = np.cos(angles)[None, :, None], np.sin(angles)[None, :, None]
-    u, v = proj[:, None, 0], proj[:, None, 1]  # (K, 1, h)
-    x = c * u + s * v  # (K, M, h)
-    y = c * v - s * u
-    area = (x.max(axis=2) - x.min(axis=2)) * (y.max(axis=2) - y.min(axis=2))  # (K, M)
+    c, s = np.cos(angles), np.sin(angles)
+    # In-plane coordinates of every angle in one product: rows x_m = c u + s v, y_m = c v - s u.
+    rot2 = np.concatenate([np.stack([c, s], axis=1), np.stack([-s, c], axis=1)])  # (2M, 2)
+    xy = rot2 @ proj[:, :2]  # (K, 2M, h)
+    ext = xy.max(axis=2) - xy.min(axis=2)  # (K, 2M)
+    area = ext[:, :n_angles] * ext[:, n_angles:]  # (K, M)
     return frames, area * height[:, None]
 
 
@@ -368,9 +369,10 @@ def _search(
     # that angle, axis order and signs ignored).
     cosines = np.abs(np.einsum("iab,jac->ijbc", top, top)).max(axis=3).min(axis=2)  # (B, B)
     same = cosines >= np.cos(2.0 * p.step_start)
+    same_rows = same.tolist()  # Python bools: cheaper than numpy scalars in this small loop
     chosen: list[int] = []
     for i in range(len(top)):
-        if not any(same[i, j] for j in chosen):
+        if not any(same_rows[i][j] for j in chosen):
             chosen.append(i)
         if len(chosen) == p.n_refine:
             break
