@@ -1,5 +1,6 @@
 """The real app in headless Chromium: load the page, change a threshold and see the number of
-boxes change, plan and see the ranked table, pick a grasp, save screenshots.
+boxes change (and a second tab see the same), plan and see the ranked table, pick a grasp, save
+screenshots, upload a broken file and see the error notification.
 
 What the page shows is checked against what the server's scene holds (the box handles under
 their fixed names), so the "boxes: N" label cannot drift from the scene.
@@ -103,3 +104,22 @@ def test_plan_shows_ranked_table_and_pick_a_grasp(page, live_app, shots_dir):
     assert frame.visible
     assert abs(frame.position - ranked[1].T_world_hand[:3, 3]).max() < 1e-6
     page.screenshot(path=str(shots_dir / "browser_grasp.png"))
+
+
+def test_bad_upload_shows_a_notification(page, live_app):
+    s0 = live_app.controller.state
+    page.locator("input[type=file]").first.set_input_files(
+        files=[
+            {
+                "name": "broken.ply",
+                "mimeType": "application/octet-stream",
+                "buffer": b"ply\nformat junk\n",
+            }
+        ]
+    )
+    # viser first shows its own "Uploading broken.ply" notice; the app's error follows
+    note = page.locator(".mantine-Notification-root", has_text="Cannot do that")
+    note.first.wait_for(timeout=LOAD_TIMEOUT_MS)
+    assert "broken.ply" in note.first.inner_text()
+    s = live_app.controller.state
+    assert s.result is s0.result and "broken.ply" in s.error  # the object stays loaded
