@@ -54,6 +54,17 @@ class ViewerConfig:
     params: Any = field(default=None)
     """``PipelineParams`` to start with (defaults when ``None``)."""
 
+    def __post_init__(self) -> None:
+        if not 0 <= int(self.port) <= 65535:
+            raise ValueError(f"port must be in [0, 65535], got {self.port}")
+        for name, lo in (("n_points", 10), ("max_upload_bytes", 1), ("max_ghosts", 0)):
+            if int(getattr(self, name)) < lo:
+                raise ValueError(f"{name} must be at least {lo}, got {getattr(self, name)}")
+        if int(self.seed) < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        if not float(self.animate_hz) > 0:
+            raise ValueError(f"animate_hz must be > 0, got {self.animate_hz}")
+
 
 class App:
     """A running app: its controller, scene and GUI, plus the animation thread."""

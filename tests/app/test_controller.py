@@ -20,7 +20,7 @@ from app.scene import (
     ranked_grasps,
     wxyz_from_matrices,
 )
-from app.server import access_lines
+from app.server import ViewerConfig, access_lines
 from pregrasp_core.box import OrientedBox
 from pregrasp_core.errors import InputError
 
@@ -296,3 +296,17 @@ def test_view_malformed_file_is_a_clean_error(capsys, tmp_path):
     err = capsys.readouterr().err
     assert code == 2
     assert "broken.ply" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "match"),
+    [
+        ("port", 70000, r"port must be in \[0, 65535\], got 70000"),
+        ("n_points", 3, "n_points must be at least 10, got 3"),
+        ("seed", -1, "seed must be >= 0, got -1"),
+        ("animate_hz", 0, "animate_hz must be > 0"),
+    ],
+)
+def test_viewer_config_validation(field, value, match):
+    with pytest.raises(ValueError, match=match):
+        ViewerConfig(**{field: value})
