@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .box import OrientedBox, _as_points
+from .box import OrientedBox, _as_points, canonical_axes
 from .errors import DegenerateGeometryError
 from .mvbb import MvbbParams, minimum_volume_box
 from .tolerances import FLAT_EXTENT
@@ -268,6 +268,17 @@ def best_cut(p_box: np.ndarray, min_points: int) -> tuple[int, int, np.ndarray, 
     return best
 
 
+def _frame_box(box: OrientedBox, q: np.ndarray) -> OrientedBox:
+    """The tightest box with the axes of ``box`` around points ``q`` (3, m) given in the frame
+    of ``box`` (coordinates relative to its centre), canonicalised; the same box as
+    ``OrientedBox.from_points_in_frame(world points, box.rotation)`` up to round-off."""
+    lo, hi = q.min(axis=1), q.max(axis=1)
+    Rc, ext = canonical_axes(box.rotation, hi - lo)
+    return OrientedBox(
+        center=box.center + box.rotation @ ((lo + hi) / 2.0), rotation=Rc, extents=ext
+    )
+
+
 def _refit(
     points: np.ndarray,
     R_parent: np.ndarray,
@@ -311,6 +322,7 @@ def decompose(points: np.ndarray, params: DecompositionParams | None = None) -> 
     if not np.all(np.isfinite(pts)):
         raise ValueError("points contain NaN or inf; drop those rows first")
 
+    pts_t = np.ascontiguousarray(pts.T)  # (3, N)
     parent = [-1]
     children: list[tuple[int, ...]] = [()]
     depth = [0]
@@ -327,17 +339,19 @@ def decompose(points: np.ndarray, params: DecompositionParams | None = None) -> 
         if box.extents[2] < FLAT_EXTENT:
             logger.debug("node %d is flat (%.3g m); not split", k, box.extents[2])
             continue
-        cut = best_cut(box.to_box(pts[idx]), params.min_points)
+        # The node's points in its box frame, (3, n): column gathers and a 3 x 3 product are
+        # much cheaper than the same work on (n, 3) rows.
+        q = box.rotation.T @ (np.take(pts_t, idx, axis=1) - box.center[:, None])
+        cut = best_cut(q.T, params.min_points)
         if cut is None:
             continue
         axis, i, order, v_frame = cut
-        left = np.sort(idx[order[: i + 1]])
-        right = np.sort(idx[order[i + 1 :]])
-        if right.size > left.size:  # the child with more points first (rigid-motion invariant)
-            left, right = right, left
+        sides = [order[: i + 1], order[i + 1 :]]  # positions into idx
+        if sides[1].size > sides[0].size:  # the child with more points first (invariant)
+            sides.reverse()
+        left, right = np.sort(idx[sides[0]]), np.sort(idx[sides[1]])
         p1, p2 = pts[left], pts[right]
-        f1 = OrientedBox.from_points_in_frame(p1, box.rotation)
-        f2 = OrientedBox.from_points_in_frame(p2, box.rotation)
+        f1, f2 = (_frame_box(box, np.take(q, side, axis=1)) for side in sides)
         if not (f1.volume + f2.volume) / box.volume < params.volume_ratio:
             # Two-stage test: the full refits only when quick refits come close to the threshold.
             q_ratio = (
