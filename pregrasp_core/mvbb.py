@@ -86,7 +86,8 @@ class MvbbParams:
     """Hull facets whose normal is within this angle of an axis of the polished box are tried as
     exact flush faces (step 4), radians."""
     snap_max: int = 4
-    """At most this many snapped boxes (smallest lower bounds first) are judged exactly."""
+    """At most this many snapped boxes (smallest lower bounds first) are judged exactly; 0 skips
+    the snap (step 4) altogether."""
     snap_grid: int = 16
     """Columns per side of the grid that thins the points near the box faces before the snap's
     hull."""
