@@ -181,7 +181,9 @@ def minimum_volume_box(points: np.ndarray, params: MvbbParams = DEFAULT_PARAMS) 
     Vc = np.take(S, hull.vertices, axis=1)  # (3, h) coarse hull vertices
     # Only fine-kernel points outside the coarse hull (or on it) can be extreme in some direction.
     eq = hull.equations  # (faces, 4): unit outward normal, offset
-    outside = (eq[:, :3] @ F + eq[:, 3:]).max(axis=0) > -GEOM_EPS * float(ext[0])
+    signed = eq[:, :3] @ F  # (faces, m)
+    signed += eq[:, 3:]  # in place: a second large temporary costs ~10x more here
+    outside = signed.max(axis=0) > -GEOM_EPS * float(ext[0])
     R_local = _search(Vc, eq[:, :3], _face_areas(S, hull.simplices), fine[outside], q, params)
     return _tight_box(PT, R_pca @ R_local, origin)
 
