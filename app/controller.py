@@ -33,6 +33,7 @@ logger = logging.getLogger(__name__)
 DEFAULT_MAX_UPLOAD_BYTES = 50 * 1024 * 1024
 """Largest upload accepted (bytes): 50 MiB, about 2 million points of binary PLY."""
 
+
 class Controller:
     """Owns the app state; every change goes through one of its methods under its lock.
 
@@ -390,7 +391,7 @@ class Controller:
         data = self.result_json()
         name = Path(self._state.source.name).stem + ".pregrasp.json"
         target = client if client is not None else self.server
-        target.send_file_download(name, data)
+        target.send_file_download(name, data, save_immediately=True)
 
     def screenshot(self, client: Any) -> None:
         """Render ``client``'s current view at its canvas size; send it back as a PNG download."""
@@ -402,7 +403,9 @@ class Controller:
         height, width = max(int(cam.image_height), 64), max(int(cam.image_width), 64)
         img = client.get_render(height=height, width=width, transport_format="png", timeout=30)
         name = Path(self._state.source.name).stem + ".png"
-        client.send_file_download(name, iio.imwrite("<bytes>", img, extension=".png"))
+        client.send_file_download(
+            name, iio.imwrite("<bytes>", img, extension=".png"), save_immediately=True
+        )
 
     # ------------------------------------------------------------------ the core
     def _run(

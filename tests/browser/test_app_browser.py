@@ -9,6 +9,7 @@ their fixed names), so the "boxes: N" label cannot drift from the scene.
 from __future__ import annotations
 
 import dataclasses
+import json
 import re
 
 import pytest
@@ -123,3 +124,21 @@ def test_bad_upload_shows_a_notification(page, live_app):
     assert "broken.ply" in note.first.inner_text()
     s = live_app.controller.state
     assert s.result is s0.result and "broken.ply" in s.error  # the object stays loaded
+
+
+def test_export_downloads_result_and_screenshot(page, live_app, shots_dir):
+    with page.expect_download(timeout=LOAD_TIMEOUT_MS) as dl:
+        page.get_by_role("button", name="download result (JSON)").click()
+    path = shots_dir / "export.pregrasp.json"
+    dl.value.save_as(path)
+    doc = json.loads(path.read_text())
+    assert doc["schema"] == "pregrasp/1"
+    assert dl.value.suggested_filename == "mug_handle.pregrasp.json"
+    with page.expect_download(timeout=LOAD_TIMEOUT_MS) as dl:
+        page.get_by_role("button", name="screenshot (PNG)").click()
+    png = shots_dir / "export_screenshot.png"
+    dl.value.save_as(png)
+    data = png.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"  # a PNG rendered by the browser's own canvas
+    width, height = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    assert width >= 64 and height >= 64
