@@ -3,8 +3,8 @@
 It owns every scene handle, each under a fixed name (see :data:`NAMES`), and updates them inside
 ``server.atomic()`` so a browser never sees half an update. It redraws only what changed between
 the state it drew last and the new one (compared by identity: the state's parts are immutable),
-batches similar objects (all face quads of one kind in one batched mesh, all ghosts of one grasp
-type in one batched mesh, box edges and friction cones as line segments) and sends the point
+batches similar objects (all face quads of one kind in one batched mesh, all ghosts of one
+preshape in one batched mesh, box edges and friction cones as line segments) and sends the point
 cloud with ``precision="float32"``. It never computes anything the core computes.
 """
 
@@ -37,7 +37,6 @@ NAMES = {
     "hand": "/grasp/hand",
     "contacts": "/grasp/contacts",
     "cones": "/grasp/cones",
-    "normals": "/grasp/normals",
 }
 """Fixed scene names of everything the renderer draws."""
 
@@ -419,7 +418,7 @@ class SceneRenderer:
         return mesh
 
     def _draw_grasp(self, state: AppState) -> None:
-        for key in ("contacts", "cones", "normals"):
+        for key in ("contacts", "cones"):
             self._remove(key)
         self.n_contacts_shown = 0
         g = selected_grasp(state)

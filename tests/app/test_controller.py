@@ -16,6 +16,7 @@ from app.scene import (
     NAMES,
     animation_pose,
     box_edge_segments,
+    face_quads,
     friction_cone_segments,
     ranked_grasps,
     wxyz_from_matrices,
@@ -310,3 +311,21 @@ def test_view_malformed_file_is_a_clean_error(capsys, tmp_path):
 def test_viewer_config_validation(field, value, match):
     with pytest.raises(ValueError, match=match):
         ViewerConfig(**{field: value})
+
+
+def test_face_quads_follow_the_facemask_numbering():
+    from pregrasp_core.facemask import FACE_AXIS, FACE_NORMAL
+
+    rng = np.random.default_rng(5)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    q[:, 2] *= np.sign(np.linalg.det(q))
+    ext = np.array([0.3, 0.2, 0.1])
+    box = OrientedBox(center=rng.normal(size=3), rotation=q, extents=ext)
+    pos, R, size = face_quads([box], offset=0.0)
+    for f in range(6):
+        n = box.rotation @ FACE_NORMAL[f]  # the core's outward normal of face f
+        np.testing.assert_allclose(R[f][:, 2], n, atol=1e-12)
+        np.testing.assert_allclose(np.linalg.det(R[f]), 1.0, atol=1e-12)
+        np.testing.assert_allclose(pos[f], box.center + n * ext[FACE_AXIS[f]] / 2, atol=1e-12)
+        others = np.delete(ext, FACE_AXIS[f])
+        np.testing.assert_allclose(size[f][:2], others, atol=1e-12)
