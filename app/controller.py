@@ -297,7 +297,7 @@ class Controller:
         return self._set_view(**changes)
 
     # ------------------------------------------------------------------ planner
-    def plan(self, client: Any = None) -> AppState:
+    def plan(self) -> AppState:
         """Run the slicing planner on the pool; ranks the grasps and selects the best."""
         with self._lock:
             s = self._state

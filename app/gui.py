@@ -115,7 +115,7 @@ class Gui:
 
         with gui.add_folder("Planner"):
             self.plan = gui.add_button("plan grasps")
-            self.plan.on_click(lambda e: self._do(e, c.plan, e.client))
+            self.plan.on_click(lambda e: self._do(e, c.plan))
             self.progress = gui.add_progress_bar(0.0, visible=False, animated=True)
             self.grasp = gui.add_dropdown("grasp", ("(plan first)",), disabled=True)
             self.grasp.on_update(lambda e: self._do(e, c.select_grasp, _rank(e.target.value)))
