@@ -127,7 +127,13 @@ class Controller:
         return self._load(ObjectSource(name=p.stem if demo else p.name, path=str(p)))
 
     def load_demo(self, name: str) -> AppState:
-        """Load the demo object ``name`` (file stem or file name in ``assets/objects/``)."""
+        """Load the demo object ``name`` (file stem or file name in ``assets/objects/``).
+
+        Choosing the object already shown (e.g. an uploaded file listed in the chooser) keeps it.
+        """
+        src = self._state.source
+        if src is not None and name == src.name:
+            return self._state
         for p in demo_objects():
             if name in (p.stem, p.name):
                 return self._load(ObjectSource(name=p.stem, path=str(p)))

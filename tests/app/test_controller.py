@@ -48,8 +48,13 @@ def test_upload_of_a_point_cloud_replaces_the_object(app):
     s = app.controller.state
     assert s.source.name == "block.xyz" and s.error == ""
     np.testing.assert_allclose(s.cloud.points, pts, atol=1e-6)
-    assert app.gui.demo.value == "block.xyz"
+    assert app.gui.demo.value == "block.xyz" and "block.xyz" in app.gui.demo.options
     assert app.scene.n_boxes == len(s.tree.leaves())
+    app.gui.demo.value = "bottle"  # the chooser loads a demo object
+    assert app.controller.state.source.name == "bottle" and app.controller.state.error == ""
+    app.gui.demo.value = "block.xyz"  # no demo has that name: an error, the bottle stays
+    assert "no demo object named 'block.xyz'" in app.controller.state.error
+    assert app.controller.state.source.name == "bottle" and app.gui.demo.value == "bottle"
 
 
 def test_upload_errors_become_notifications_and_keep_the_state(app):
