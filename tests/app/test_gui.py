@@ -223,3 +223,20 @@ def test_concurrent_callbacks_leave_scene_and_state_consistent(app):
     colors = app.server.scene.get_handle_by_name(NAMES["cloud"]).colors
     for i in s.shown_nodes():
         assert np.all(colors[s.tree.node(i).indices] == np.array(node_color(i)))
+
+
+def test_every_level_shows_the_cut_of_the_tree(app):
+    """Each slider position shows exactly the core's cut after that many splits."""
+    app.gui.params[("decomposition", "min_points")].value = 100  # more parts: more levels
+    s = app.controller.state
+    n = s.tree.n_splits
+    assert n >= 2, "the mug at 100 points per part should split at least twice"
+    for k in range(n + 1):
+        app.gui.level.value = k
+        want = sorted(s.tree.cut_at_level(k))
+        assert sorted(_box_handles(app)) == want == app.scene.box_ids
+        assert _boxes_label(app) == len(want)
+        labels = s.tree.point_labels(want)
+        colors = app.server.scene.get_handle_by_name(NAMES["cloud"]).colors
+        for i in want:
+            assert np.all(colors[labels == i] == np.array(node_color(i)))
