@@ -334,3 +334,17 @@ def test_face_quads_follow_the_facemask_numbering():
         np.testing.assert_allclose(pos[f], box.center + n * ext[FACE_AXIS[f]] / 2, atol=1e-12)
         others = np.delete(ext, FACE_AXIS[f])
         np.testing.assert_allclose(size[f][:2], others, atol=1e-12)
+
+
+def test_every_demo_object_loads_and_renders(app):
+    """Every shipped object goes through the whole app (pipeline, scene, GUI) without error."""
+    from pregrasp_core.paths import demo_objects
+
+    for p in demo_objects():
+        app.gui.demo.value = p.stem
+        s = app.controller.state
+        assert s.error == "" and s.source.name == p.stem, (p.stem, s.error)
+        assert app.scene.n_boxes == len(s.tree.leaves()) >= 1
+        free, blocked = app.scene.n_faces_shown
+        assert free + blocked == 6 * app.scene.n_boxes
+        assert app.scene.n_ghosts_shown == min(len(s.result.pool), app.scene.max_ghosts)
