@@ -370,7 +370,9 @@ def _search(
     top = np.concatenate(frames)[k_best] @ _rot_z(_sweep_angles(p.n_angles)[m_best])  # (B, 3, 3)
     # same[i, j]: boxes i and j are within 2 steps (every axis of i has an axis of j within
     # that angle, axis order and signs ignored).
-    cosines = np.abs(np.einsum("iab,jac->ijbc", top, top)).max(axis=3).min(axis=2)  # (B, B)
+    B = len(top)
+    gram = top.transpose(0, 2, 1).reshape(3 * B, 3) @ top.transpose(1, 0, 2).reshape(3, 3 * B)
+    cosines = np.abs(gram.reshape(B, 3, B, 3)).max(axis=3).min(axis=1)  # (B, B)
     same = cosines >= np.cos(2.0 * p.step_start)
     same_rows = same.tolist()  # Python bools: cheaper than numpy scalars in this small loop
     chosen: list[int] = []
