@@ -491,8 +491,16 @@ def _snap(R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams) -> np.ndar
     cp, sp = c[pick, 0], s[pick, 0]
     Rz = np.zeros((len(pick), 3, 3))
     Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = cp, -sp, sp, cp, 1.0
-    Rs = np.concatenate([R[None], frames[k_i[pick]] @ Rz])  # (1 + k, 3, 3)
-    best_R = Rs[int(np.argmin(_volumes(Rs, Q)))]
+    Rs = frames[k_i[pick]] @ Rz  # (k, 3, 3), increasing lower bound
+    # Judged one by one on the whole cloud, in increasing order of the lower bound, until the
+    # bound reaches the best true volume (usually after one or two).
+    best_R, best_vol = R, true_vol
+    for R_snap, bound in zip(Rs, vol[pick].tolist(), strict=True):
+        if bound >= best_vol:
+            break
+        v = float(_volumes(R_snap[None], Q)[0])
+        if v < best_vol:
+            best_R, best_vol = R_snap, v
     return best_R
 
 
