@@ -395,6 +395,7 @@ def _search(
     # round runs only if the box on the polishing set is not the box on the whole cloud.
     radius = float(np.sqrt((Q * Q).sum(axis=0).max()))  # rotations are about the origin
     margin = 2.0 * radius * p.step_start * 0.5**mid
+    proj = None  # box-frame coordinates of cur[0], when known
     for k in range(p.max_rounds):
         proj = cur[0].T @ Q  # (3, N) box-frame coordinates
         lo, hi = proj.min(axis=1), proj.max(axis=1)
@@ -402,6 +403,7 @@ def _search(
             v_set = float(_volumes(cur, Vf)[0])
             if float(np.prod(hi - lo)) <= v_set * (1.0 + 1e-12):
                 break
+        proj = None  # cur moves below
         near = np.flatnonzero(
             np.any((proj >= hi[:, None] - margin) | (proj <= lo[:, None] + margin), axis=0)
         )
@@ -409,10 +411,12 @@ def _search(
         fine = np.union1d(fine, near)
         Vf = np.take(Q, fine, axis=1)
         cur = _pattern_search(cur, Vf, p, mid, n_levels)
-    return _snap(cur[0], Q, radius, p)
+    return _snap(cur[0], Q, radius, p, proj)
 
 
-def _snap(R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams) -> np.ndarray:
+def _snap(
+    R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams, proj: np.ndarray | None = None
+) -> np.ndarray:
     """Snap the polished box ``R`` (3, 3) onto the exact hull faces near its faces.
 
     The pattern search ends within ``step_min`` of a local optimum. When that optimum has a face
@@ -422,10 +426,12 @@ def _snap(R: np.ndarray, Q: np.ndarray, radius: float, p: MvbbParams) -> np.ndar
     and for every hull facet whose normal is within ``snap_angle`` of a box axis, the box flush
     with that facet is completed by the exact minimum-area rectangle of the projected hull
     (rotating calipers over the projected silhouette edges). The best of these and ``R`` wins.
+    ``proj``: ``R.T @ Q`` (3, N) when the caller has it.
     """
     if p.snap_max <= 0:
         return R
-    proj = R.T @ Q  # (3, N)
+    if proj is None:
+        proj = R.T @ Q  # (3, N)
     lo, hi = proj.min(axis=1), proj.max(axis=1)
     # Facets within snap_angle of a face are spanned by points within 2 * radius * snap_angle
     # of it: hull those, thinned to the column extremes of a snap_grid grid. (The snapped boxes
