@@ -403,7 +403,6 @@ def _search(
             v_set = float(_volumes(cur, Vf)[0])
             if float(np.prod(hi - lo)) <= v_set * (1.0 + 1e-12):
                 break
-        proj = None  # cur moves below
         near = np.flatnonzero(
             np.any((proj >= hi[:, None] - margin) | (proj <= lo[:, None] + margin), axis=0)
         )
@@ -411,6 +410,7 @@ def _search(
         fine = np.union1d(fine, near)
         Vf = np.take(Q, fine, axis=1)
         cur = _pattern_search(cur, Vf, p, mid, n_levels)
+        proj = None  # cur has moved
     return _snap(cur[0], Q, radius, p, proj)
 
 
