@@ -46,15 +46,28 @@ POOL_CONTROLS: tuple[tuple[str, str, str, float, float, float], ...] = (
 """Controls of the pre-grasp panel (booleans become checkboxes, enums dropdowns)."""
 
 
-def _fmt_mask(mask: np.ndarray) -> str:
-    """A 6 x 5 face mask as a markdown table (rows: face f with its l, d, r, u neighbours)."""
+def _fmt_mask(mask: np.ndarray, blocked_by: list[str] | None = None) -> str:
+    """A 6 x 5 face mask as a markdown table (rows: face f with its l, d, r, u neighbours),
+    with what blocks each face (node ids, "table" for the support plane) when given."""
     from pregrasp_core.facemask import FACE_NAMES
 
-    rows = ["| face | f | l | d | r | u |", "|---|---|---|---|---|---|"]
+    rows = ["| face | f | l | d | r | u | blocked by |", "|---|---|---|---|---|---|---|"]
     for f in range(mask.shape[0]):
         cells = " | ".join(str(int(x)) for x in mask[f])
-        rows.append(f"| {f} ({FACE_NAMES[f]}) | {cells} |")
+        by = blocked_by[f] if blocked_by is not None else ""
+        rows.append(f"| {f} ({FACE_NAMES[f]}) | {cells} | {by} |")
     return "\n".join(rows)
+
+
+def _blocked_by(masks: Any, node: int) -> list[str]:
+    """Per face of ``node``: the ids of the boxes blocking it, and "table" for the support."""
+    out = []
+    for f in range(6):
+        who = [f"node {b}" for b in masks.blockers[node][f]]
+        if bool(masks.by_support[node][f]):
+            who.append("table")
+        out.append(", ".join(who))
+    return out
 
 
 class Gui:
@@ -357,7 +370,8 @@ def node_info(s: AppState) -> str:
     if masks is not None:
         from .scene import _mask_matrix
 
-        lines += ["", "face mask (0 free, 1 blocked):", "", _fmt_mask(_mask_matrix(masks, i))]
+        table = _fmt_mask(_mask_matrix(masks, i), _blocked_by(masks, i))
+        lines += ["", "face mask (0 free, 1 blocked):", "", table]
     return "\n".join(lines)
 
 

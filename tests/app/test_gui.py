@@ -110,8 +110,15 @@ def test_click_on_box_selects_node_and_shows_its_card(app):
     assert f"points: {len(s.tree.node(leaf).indices)}" in text
     rows = [ln for ln in text.splitlines() if ln.startswith("| ") and ln[2].isdigit()]
     assert len(rows) == 6
-    mask = np.array([[int(x) for x in r.strip("| ").split(" | ")[1:]] for r in rows])
+    cells = [r.strip("| ").split(" | ") for r in rows]
+    mask = np.array([[int(x) for x in c[1:6]] for c in cells])
     np.testing.assert_array_equal(mask, s.result.masks.mask(leaf))
+    for f, c in enumerate(cells):  # "blocked by" names the core's blockers of each face
+        by = c[6] if len(c) > 6 else ""
+        want = [f"node {b}" for b in s.result.masks.blockers[leaf][f]]
+        want += ["table"] if s.result.masks.by_support[leaf][f] else []
+        assert by == ", ".join(want)
+        assert bool(by) == bool(mask[f, 0])  # blocked exactly when something blocks it
     assert app.server.scene.get_handle_by_name(f"{NAMES['boxes']}/node_{leaf}").opacity == 0.35
 
 
