@@ -92,6 +92,7 @@ class MvbbParams:
     """Columns per side of the grid that thins the points near the box faces before the snap's
     hull."""
 
+
 DEFAULT_PARAMS = MvbbParams()
 
 
