@@ -135,7 +135,7 @@ def minimum_volume_box(points: np.ndarray, params: MvbbParams = DEFAULT_PARAMS) 
         raise InputError(
             f"{bad} of {n} points contain NaN or inf: drop those rows before fitting a box"
         )
-    PT = np.ascontiguousarray(pts.T)  # (3, N): reductions along axis 1 are fast
+    PT = pts.T.copy(order="C")  # (3, N), always a copy: modified in place below
     origin = PT.mean(axis=1)
     PT -= origin[:, None]
 

@@ -90,3 +90,15 @@ def test_snap_makes_a_face_flush_optimum_exact():
     np.testing.assert_allclose(snapped.extents, ext, rtol=1e-9)
     plain = minimum_volume_box(pts, MvbbParams(snap_max=0))
     assert plain.volume >= snapped.volume * (1.0 - 1e-12)
+
+
+def test_input_is_never_modified():
+    """A column-major (N, 3) array (the transpose of a (3, N) array) is not shifted in place."""
+    rng = np.random.default_rng(6)
+    cols = np.ascontiguousarray(rng.normal(size=(3, 500)) * [[0.3], [0.2], [0.1]] + 1.0)
+    pts = cols.T  # (500, 3), Fortran order: pts.T is contiguous
+    before = pts.copy()
+    first = minimum_volume_box(pts)
+    np.testing.assert_array_equal(pts, before)
+    second = minimum_volume_box(pts)
+    np.testing.assert_array_equal(second.extents, first.extents)
