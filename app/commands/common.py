@@ -109,6 +109,17 @@ def add_shape_args(p: argparse.ArgumentParser) -> None:
     )
 
 
+def add_output_arg(p: argparse.ArgumentParser) -> None:
+    """``-o/--output OUT.json``: where the pregrasp/1 result goes (``-`` for stdout)."""
+    p.add_argument(
+        "-o",
+        "--output",
+        metavar="OUT.json",
+        default=None,
+        help="write the result JSON here ('-' for stdout)",
+    )
+
+
 def input_path(args: argparse.Namespace) -> str:
     """The input file of ``args`` (the default object when INPUT was optional and omitted)."""
     return str(DEFAULT_OBJECT if args.input is None else args.input)

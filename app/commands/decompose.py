@@ -15,6 +15,7 @@ from pathlib import Path
 from app.commands.common import (
     add_decomposition_args,
     add_input_args,
+    add_output_arg,
     add_shape_args,
     decomposition_params,
     load_cloud,
@@ -38,13 +39,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--include-indices", action="store_true", help="store each node's point indices in the JSON"
     )
-    p.add_argument(
-        "-o",
-        "--output",
-        metavar="OUT.json",
-        default=None,
-        help="write the result JSON here ('-' for stdout)",
-    )
+    add_output_arg(p)
     p.set_defaults(func=run)
 
 

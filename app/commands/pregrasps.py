@@ -22,6 +22,7 @@ import numpy as np
 from app.commands.common import (
     add_decomposition_args,
     add_input_args,
+    add_output_arg,
     add_shape_args,
     decomposition_params,
     load_cloud,
@@ -173,13 +174,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_decomposition_args(p)
     add_shape_args(p)
     add_pool_args(p)
-    p.add_argument(
-        "-o",
-        "--output",
-        metavar="OUT.json",
-        default=None,
-        help="write the result JSON here ('-' for stdout)",
-    )
+    add_output_arg(p)
     p.set_defaults(func=run)
 
 
