@@ -735,10 +735,10 @@ class Hand:
 
         # ---- phase 1: both joints close together (clipped at their limits)
         def path1(t: np.ndarray) -> np.ndarray:  # (K,) -> (K, 2)
-            return np.stack(
-                [np.minimum(q0[0] + t, f.upper[0]), np.minimum(q0[1] + coupling * t, f.upper[1])],
-                axis=1,
-            )
+            out = np.empty((t.shape[0], 2))
+            np.minimum(q0[0] + t, f.upper[0], out=out[:, 0])
+            np.minimum(q0[1] + coupling * t, f.upper[1], out=out[:, 1])
+            return out
 
         t_end = max(f.upper[0] - q0[0], (f.upper[1] - q0[1]) / coupling, 0.0)
         ev1 = _first_event(geo, Pr, path1, t_end, n_steps, links=(True, True))
@@ -790,7 +790,10 @@ class Hand:
         q1 = q_free[0]
 
         def path2(t: np.ndarray) -> np.ndarray:
-            return np.stack([np.full_like(t, q1), np.minimum(q_free[1] + t, f.upper[1])], axis=1)
+            out = np.empty((t.shape[0], 2))
+            out[:, 0] = q1
+            np.minimum(q_free[1] + t, f.upper[1], out=out[:, 1])
+            return out
 
         t_end2 = max(f.upper[1] - q_free[1], 0.0)
         ev2 = _first_event(geo, Pr, path2, t_end2, n_steps, links=(False, True))
@@ -970,14 +973,46 @@ class Hand:
     def self_collisions(self, q: np.ndarray) -> list[tuple[str, str]]:
         """The link pairs (of :attr:`self_collision_pairs_checked`) whose boxes intersect at
         configuration ``q`` (J,), by python-fcl."""
-        objs = self.collision_objects(q)
+        Q, single = self._as_q(q)
+        if not single:
+            raise ValueError(f"q must have shape ({self.n_joints},), got {Q.shape}")
+        Tb = self.box_poses(Q[0])  # (L, 4, 4)
+        ia, ib, reach = self._self_pair_spheres
+        # exact pre-test: boxes whose circumscribed balls are apart cannot intersect; only the
+        # other pairs go to python-fcl (same answer, far fewer fcl calls)
+        gap = np.linalg.norm(Tb[ia, :3, 3] - Tb[ib, :3, 3], axis=1) - reach
+        near = np.flatnonzero(gap <= 1e-6)  # indices into the checked pairs, in order
+        if len(near) == 0:
+            return []
+        geoms = self._link_fcl_boxes
+        objs: dict[int, fcl.CollisionObject] = {}
+        for li in np.unique(np.concatenate([ia[near], ib[near]])):  # loop over <= L links
+            objs[int(li)] = fcl.CollisionObject(
+                geoms[li], fcl.Transform(Tb[li, :3, :3], Tb[li, :3, 3])
+            )
         hits = []
         req = fcl.CollisionRequest()
-        for a, b in self.self_collision_pairs_checked:
+        pairs = self.self_collision_pairs_checked
+        for k in near:  # loop over the nearby link pairs (a few)
             res = fcl.CollisionResult()
-            if fcl.collide(objs[a], objs[b], req, res) > 0:
-                hits.append((a, b))
+            if fcl.collide(objs[int(ia[k])], objs[int(ib[k])], req, res) > 0:
+                hits.append(pairs[k])
         return hits
+
+    @functools.cached_property
+    def _self_pair_spheres(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per checked self-collision pair: link indices a, b (P,) and the sum of the two
+        boxes' circumscribed radii (P,)."""
+        index = {n: i for i, n in enumerate(self.link_names)}
+        ia = np.array([index[a] for a, _ in self.self_collision_pairs_checked], dtype=np.int64)
+        ib = np.array([index[b] for _, b in self.self_collision_pairs_checked], dtype=np.int64)
+        r = np.linalg.norm(np.asarray(self.link_box_half, dtype=np.float64), axis=1)
+        return ia, ib, r[ia] + r[ib]
+
+    @functools.cached_property
+    def _link_fcl_boxes(self) -> tuple[fcl.Box, ...]:
+        """python-fcl box geometry of every link (immutable; shared by the collision objects)."""
+        return tuple(fcl.Box(*(2.0 * h)) for h in np.asarray(self.link_box_half, dtype=np.float64))
 
     def self_collision(self, q: np.ndarray) -> bool:
         """True when two non-adjacent links' collision boxes intersect at ``q`` (J,)."""
@@ -1077,14 +1112,22 @@ class _FingerGeometry:
         """For configurations Q (K, 2) and points P (M, 2): (middle (K, M), distal (K, M),
         palm (K,)) bool; a link touches a point within ``margin``."""
         f, m, h = self.f, self.m, self.h
+        K, M = Q.shape[0], P.shape[0]
+        # d (K, 2) along a link, n (K, 2) across it; filled in place (no np.stack: this runs
+        # ~40 times per closing on small arrays, where numpy's call overhead dominates)
         a1 = Q[:, 0]
         a2 = Q[:, 0] + Q[:, 1]
-        d1 = np.stack([np.cos(a1), np.sin(a1)], axis=1)  # (K, 2) along the middle link
-        d2 = np.stack([np.cos(a2), np.sin(a2)], axis=1)
-        n1 = np.stack([-d1[:, 1], d1[:, 0]], axis=1)
-        n2 = np.stack([-d2[:, 1], d2[:, 0]], axis=1)
+        d1 = np.empty((K, 2))
+        d2 = np.empty((K, 2))
+        np.cos(a1, out=d1[:, 0])
+        np.sin(a1, out=d1[:, 1])
+        np.cos(a2, out=d2[:, 0])
+        np.sin(a2, out=d2[:, 1])
+        n1 = d1[:, ::-1].copy()
+        n1[:, 0] *= -1.0
+        n2 = d2[:, ::-1].copy()
+        n2[:, 0] *= -1.0
         o2 = f.middle_length * d1  # (K, 2) second joint
-        K, M = Q.shape[0], P.shape[0]
         mid = np.zeros((K, M), dtype=bool)
         dis = np.zeros((K, M), dtype=bool)
         if M:
@@ -1093,8 +1136,9 @@ class _FingerGeometry:
                 r = n1 @ P.T  # (K, M) across
                 mid = (s >= -m) & (s <= f.middle_length + m) & (np.abs(r) <= h + m)
             if links[1]:
-                s = d2 @ P.T - np.sum(d2 * o2, axis=1)[:, None]
-                r = n2 @ P.T - np.sum(n2 * o2, axis=1)[:, None]
+                # sum over 2 terms written out (bit-identical to np.sum(., axis=1))
+                s = d2 @ P.T - (d2[:, 0] * o2[:, 0] + d2[:, 1] * o2[:, 1])[:, None]
+                r = n2 @ P.T - (n2[:, 0] * o2[:, 0] + n2[:, 1] * o2[:, 1])[:, None]
                 dis = (s >= -m) & (s <= f.distal_length + m) & (np.abs(r) <= h + m)
         palm = np.zeros(K, dtype=bool)
         palm_mid = np.zeros(K, dtype=bool)
