@@ -57,6 +57,10 @@ DEFAULT_CLOSING_STEPS: int = 64
 _REFINE_SAMPLES: int = 32
 """Closing model: most samples per refinement level of the bracket around the first touch."""
 
+_SWEEP_CHUNK: int = 8
+"""Closing model: samples in the first chunk of a phase's sweep (the chunks double; the sweep
+stops at the first chunk that touches)."""
+
 _REFINE_BUDGET: int = 2000
 """Closing model: a refinement level evaluates about this many (sample, point) pairs: many
 samples per level for small slices (few numpy calls), plain bisection for large ones."""
@@ -1184,11 +1188,21 @@ def _first_event(
     geo: _FingerGeometry, P: np.ndarray, path, t_end: float, n_steps: int, links: tuple[bool, bool]
 ) -> _Event:
     t = np.linspace(0.0, t_end, n_steps + 1) if t_end > 0 else np.zeros(1)
-    mid, dis, pmid, pdis = geo.hits(path(t), P, links)
-    any_hit = mid.any(axis=1) | dis.any(axis=1) | pmid | pdis  # (K,)
-    if not any_hit.any():
+    Q = path(t)  # (K, 2)
+    # the samples in growing chunks, in order, up to the first chunk that touches: the samples
+    # after the first touch are never needed (same first touching sample as testing all at once)
+    k = -1
+    lo_k, size = 0, _SWEEP_CHUNK
+    while lo_k < len(t):
+        hi_k = min(lo_k + size, len(t))
+        mid, dis, pmid, pdis = geo.hits(Q[lo_k:hi_k], P, links)
+        any_hit = mid.any(axis=1) | dis.any(axis=1) | pmid | pdis  # (chunk,)
+        if any_hit.any():
+            k = lo_k + int(np.argmax(any_hit))
+            break
+        lo_k, size = hi_k, 2 * size
+    if k < 0:
         return _Event(t_samples=t, t_free=float(t[-1]), t_hit=None, k_hit=None)
-    k = int(np.argmax(any_hit))
     if k == 0:
         lo = hi = 0.0
     else:
