@@ -380,9 +380,16 @@ def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray, p_h: np.ndarray) -> 
     # within its footprint across the approach (the hand-frame AABB of its box grown by c).
     # The z test runs on all (point, link) pairs, the x/y tests only on its survivors; a short
     # first window (most approaches end within a few centimetres) keeps that set small.
-    x, y, z = p_h[:, 0], p_h[:, 1], p_h[:, 2]
     s_obj = np.inf
     S_eff = min(S, s_sup)  # the hand cannot travel past the support plane
+    # points outside the union of every link's window (the AABB of all links, grown by c, and
+    # by S_eff ahead) form no pair at all: drop them first (same pairs, in the same order)
+    glo, ghi = lo.min(axis=0) - c, hi.max(axis=0) + c
+    ghi[2] += S_eff
+    inside = np.all((p_h >= glo) & (p_h <= ghi), axis=1)
+    if not inside.all():
+        p_h = p_h[inside]
+    x, y, z = p_h[:, 0], p_h[:, 1], p_h[:, 2]
     for window in (min(APPROACH_WINDOW, S_eff), S_eff):  # at most two passes
         in_z = (z[:, None] >= lo[None, :, 2] - c) & (z[:, None] <= hi[None, :, 2] + c + window)
         ip, il = np.nonzero(in_z)  # (K,) point and link of each candidate pair
