@@ -1132,18 +1132,27 @@ class _FingerGeometry:
         n2 = d2[:, ::-1].copy()
         n2[:, 0] *= -1.0
         o2 = f.middle_length * d1  # (K, 2) second joint
-        mid = np.zeros((K, M), dtype=bool)
-        dis = np.zeros((K, M), dtype=bool)
+        mid = dis = None
         if M:
             if links[0]:
                 s = d1 @ P.T  # (K, M) along the link
                 r = n1 @ P.T  # (K, M) across
-                mid = (s >= -m) & (s <= f.middle_length + m) & (np.abs(r) <= h + m)
+                mid = s >= -m  # the same three tests, combined in place
+                mid &= s <= f.middle_length + m
+                mid &= np.abs(r, out=r) <= h + m
             if links[1]:
                 # sum over 2 terms written out (bit-identical to np.sum(., axis=1))
-                s = d2 @ P.T - (d2[:, 0] * o2[:, 0] + d2[:, 1] * o2[:, 1])[:, None]
-                r = n2 @ P.T - (n2[:, 0] * o2[:, 0] + n2[:, 1] * o2[:, 1])[:, None]
-                dis = (s >= -m) & (s <= f.distal_length + m) & (np.abs(r) <= h + m)
+                s = d2 @ P.T
+                s -= (d2[:, 0] * o2[:, 0] + d2[:, 1] * o2[:, 1])[:, None]
+                r = n2 @ P.T
+                r -= (n2[:, 0] * o2[:, 0] + n2[:, 1] * o2[:, 1])[:, None]
+                dis = s >= -m
+                dis &= s <= f.distal_length + m
+                dis &= np.abs(r, out=r) <= h + m
+        if mid is None:
+            mid = np.zeros((K, M), dtype=bool)
+        if dis is None:
+            dis = np.zeros((K, M), dtype=bool)
         palm = np.zeros(K, dtype=bool)
         palm_mid = np.zeros(K, dtype=bool)
         if self.palm:
