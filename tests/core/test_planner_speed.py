@@ -1,0 +1,78 @@
+"""The planner's speed paths (issue 5) give the same answers as the straightforward ones.
+
+* ``Hand.close_finger`` sweeps a phase in growing chunks and stops at the first chunk that
+  touches; with one chunk holding every sample (the straightforward sweep) every field of the
+  result must be identical, on random slices and start configurations.
+* ``Hand.self_collisions`` skips the link pairs whose circumscribed balls are apart; python-fcl
+  on every checked pair (the straightforward test) must find the same pairs, in the same order.
+"""
+
+from __future__ import annotations
+
+import fcl
+import numpy as np
+import pytest
+
+import pregrasp_core.hand as hand_module
+from pregrasp_core.hand import load_hand
+
+
+@pytest.fixture(scope="module")
+def hand():
+    return load_hand()
+
+
+def _same_closing(a, b) -> None:
+    assert a.finger == b.finger
+    np.testing.assert_array_equal(a.q, b.q)
+    np.testing.assert_array_equal(a.path, b.path)
+    assert a.contact_link == b.contact_link
+    assert a.contact_index == b.contact_index
+    assert [(c.link, c.index) for c in a.contacts] == [(c.link, c.index) for c in b.contacts]
+    for ca, cb in zip(a.contacts, b.contacts, strict=True):
+        np.testing.assert_array_equal(ca.point, cb.point)
+    flags = ("stopped_middle", "stopped_distal", "palm_stop", "at_limits", "start_in_contact")
+    assert [getattr(a, k) for k in flags] == [getattr(b, k) for k in flags]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_chunked_closing_sweep_equals_the_full_sweep(hand, monkeypatch, seed):
+    rng = np.random.default_rng(seed)
+    n_touch = 0
+    for f in hand.fingers:  # loop over the 3 fingers
+        reach = f.middle_length + f.distal_length
+        for _ in range(8):  # random slices: a blob ahead of the finger, sometimes nothing
+            m = int(rng.integers(0, 400))
+            centre = rng.uniform([0.2, 0.1], [0.9, 0.9]) * reach
+            pts = centre + rng.normal(scale=0.15 * reach, size=(m, 2))
+            q0 = rng.uniform(f.lower, 0.5 * (f.lower + f.upper))
+            margin = float(rng.choice([0.0, 0.001]))
+            monkeypatch.setattr(hand_module, "_SWEEP_CHUNK", 8)
+            fast = hand.close_finger(f, pts, q0, margin=margin)
+            monkeypatch.setattr(hand_module, "_SWEEP_CHUNK", 10_000)  # one chunk: every sample
+            full = hand.close_finger(f, pts, q0, margin=margin)
+            _same_closing(fast, full)
+            n_touch += fast.contact_link is not None
+    assert n_touch > 0  # the comparison covered closings that touched the slice
+
+
+def _self_collisions_all_pairs(hand, q) -> list[tuple[str, str]]:
+    objs = hand.collision_objects(q)
+    out = []
+    for a, b in hand.self_collision_pairs_checked:
+        if fcl.collide(objs[a], objs[b], fcl.CollisionRequest(), fcl.CollisionResult()) > 0:
+            out.append((a, b))
+    return out
+
+
+def test_self_collision_ball_pretest_equals_fcl_on_every_pair(hand):
+    rng = np.random.default_rng(7)
+    lower = np.asarray(hand.lower, dtype=np.float64)
+    upper = np.asarray(hand.upper, dtype=np.float64)
+    Q = rng.uniform(lower, upper, size=(300, hand.n_joints))
+    n_hit = 0
+    for q in Q:  # loop over sampled configurations
+        expected = _self_collisions_all_pairs(hand, q)
+        assert hand.self_collisions(q) == expected
+        n_hit += bool(expected)
+    assert 0 < n_hit < len(Q)  # both colliding and free configurations were compared
