@@ -1193,6 +1193,30 @@ class _Event:
     distal_idx: int | None = None
 
 
+def _may_touch(
+    geo: _FingerGeometry, P: np.ndarray, Q_bracket: np.ndarray, links: tuple[bool, bool]
+) -> np.ndarray:
+    """(M,) bool: which points ``P`` (M, 2) may touch a link (``links``: middle, distal) at some
+    configuration between ``Q_bracket[0]`` and ``Q_bracket[1]`` (2, 2) along a monotone path.
+
+    Exact superset: a link touches a point when its box-distance (:meth:`_FingerGeometry.distance`,
+    1-Lipschitz in the point's link-frame coordinates) is <= margin. Turning the first joint by
+    d1 and the sum of the joints by d2 moves a point's middle-link coordinates by at most
+    ``|p| d1`` and its distal-link coordinates by at most ``(|p| + Lm) d2 + Lm d1``."""
+    qa, qb = Q_bracket
+    d1 = abs(float(qb[0] - qa[0]))
+    d2 = abs(float((qb[0] + qb[1]) - (qa[0] + qa[1])))
+    rho = np.sqrt(np.einsum("ij,ij->i", P, P))  # (M,) distance to the first joint
+    lm = geo.f.middle_length
+    slack = 1e-9  # metres, far above the rounding of the two ways of computing the distance
+    keep = np.zeros(len(P), dtype=bool)
+    if links[0]:
+        keep |= geo.distance(qb, P, 0) <= geo.m + rho * d1 + slack
+    if links[1]:
+        keep |= geo.distance(qb, P, 1) <= geo.m + (rho + lm) * d2 + lm * d1 + slack
+    return keep
+
+
 def _first_event(
     geo: _FingerGeometry, P: np.ndarray, path, t_end: float, n_steps: int, links: tuple[bool, bool]
 ) -> _Event:
@@ -1219,9 +1243,11 @@ def _first_event(
         # refine [last free, first touching] by sampling it densely, all samples at once, until
         # it is narrower than the tolerance (each level shrinks it n_ref + 1 times)
         n_ref = max(1, min(_REFINE_SAMPLES, _REFINE_BUDGET // max(P.shape[0], 1)))
+        # only the points that can touch a link inside the bracket take part in refining it
+        P_ref = P[_may_touch(geo, P, path(np.array([lo, hi])), links)] if len(P) > 16 else P
         while hi - lo > HAND_CLOSING_ANGLE_TOL:
             ts = np.linspace(lo, hi, n_ref + 2)[1:-1]
-            a, b, c, d = geo.hits(path(ts), P, links)
+            a, b, c, d = geo.hits(path(ts), P_ref, links)
             hit = a.any(axis=1) | b.any(axis=1) | c | d
             if hit.any():
                 j = int(np.argmax(hit))

@@ -76,3 +76,45 @@ def test_self_collision_ball_pretest_equals_fcl_on_every_pair(hand):
         assert hand.self_collisions(q) == expected
         n_hit += bool(expected)
     assert 0 < n_hit < len(Q)  # both colliding and free configurations were compared
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_refinement_point_filter_equals_refining_with_every_point(hand, monkeypatch, seed):
+    rng = np.random.default_rng(100 + seed)
+    everything = lambda geo, P, Q, links: np.ones(len(P), dtype=bool)  # noqa: E731
+    real = hand_module._may_touch
+    n_touch = 0
+    for f in hand.fingers:  # loop over the 3 fingers
+        reach = f.middle_length + f.distal_length
+        for _ in range(6):
+            pts = rng.uniform(-0.2, 1.0, size=(int(rng.integers(20, 600)), 2)) * reach
+            q0 = rng.uniform(f.lower, 0.5 * (f.lower + f.upper))
+            monkeypatch.setattr(hand_module, "_may_touch", real)
+            fast = hand.close_finger(f, pts, q0, margin=0.001)
+            monkeypatch.setattr(hand_module, "_may_touch", everything)
+            full = hand.close_finger(f, pts, q0, margin=0.001)
+            _same_closing(fast, full)
+            n_touch += fast.contact_link is not None
+    assert n_touch > 0
+
+
+def test_may_touch_keeps_every_point_touched_inside_the_bracket(hand):
+    """Dense sampling of random brackets: every point some sample touches is kept, and the
+    filter does drop points (else it would be pointless)."""
+    rng = np.random.default_rng(5)
+    f = hand.fingers[0]
+    geo = hand_module._FingerGeometry(f, 0.001, palm=True)
+    reach = f.middle_length + f.distal_length
+    n_dropped = n_touched = 0
+    for _ in range(40):  # random brackets and point sets
+        P = rng.uniform(-0.3, 1.0, size=(500, 2)) * reach
+        qa = rng.uniform(f.lower, f.upper)
+        qb = np.minimum(qa + rng.uniform(0.0, 0.1, size=2), f.upper)
+        keep = hand_module._may_touch(geo, P, np.stack([qa, qb]), (True, True))
+        Q = qa + np.linspace(0.0, 1.0, 201)[:, None] * (qb - qa)  # (201, 2) dense samples
+        mid, dis, _, _ = geo.hits(Q, P, (True, True))
+        touched = (mid | dis).any(axis=0)
+        assert not np.any(touched & ~keep)
+        n_dropped += int(np.count_nonzero(~keep))
+        n_touched += int(np.count_nonzero(touched))
+    assert n_touched > 0 and n_dropped > 0
