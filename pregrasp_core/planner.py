@@ -512,7 +512,10 @@ def _close_fingers(
     closings = []
     for f in hand.fingers_for(gt):  # loop over <= 3 fingers
         plane = ctx.plane(f, spread)
-        p2, off = plane.to_plane(p_h)
+        # the offsets first (as FlexionPlane.to_plane computes them), the 2D coordinates only for
+        # the points within the finger's width
+        band = np.flatnonzero(np.abs((p_h - plane.origin) @ plane.normal) <= 0.5 * f.width)
+        p2, off = plane.to_plane(p_h[band])
         # the moving links never get farther than Lm + hypot(Ld, h) from the first joint
         r_f = f.middle_length + np.hypot(f.distal_length, 0.5 * f.thickness) + prm.closing_margin
         in_slice = (np.abs(off) <= 0.5 * f.width) & (
