@@ -18,6 +18,12 @@ are wall-clock on one machine; under load they are noisy, so compare rows of one
 
 from __future__ import annotations
 
+import os
+
+# one BLAS thread, as the `pregrasp` console script sets (app/__init__.py); before numpy loads
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
 import argparse
 import platform
 import re
