@@ -18,5 +18,7 @@ if [ ! -x /usr/bin/chromium ]; then
     echo "test.sh: the browser tests need Debian's chromium: sudo apt-get install -y chromium" >&2
   fi
 fi
+# the core's matrix products are tiny: BLAS threads only slow them down (docs/benchmarks.md)
+export OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-1}" OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}"
 .venv/bin/ruff check .
 .venv/bin/python -m pytest "$@"
