@@ -26,7 +26,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import argparse  # noqa: E402
 import platform  # noqa: E402
 import time  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
@@ -34,31 +33,17 @@ from scipy.optimize import minimize  # noqa: E402
 from scipy.spatial import ConvexHull  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
+from pregrasp_core.io import load_point_cloud  # noqa: E402
 from pregrasp_core.mvbb import minimum_volume_box, pca_box  # noqa: E402
-
-SHARED_OBJECTS = Path("/work/shared/objects")
+from pregrasp_core.paths import demo_objects  # noqa: E402
 
 
 def load_clouds(n_points: int) -> dict[str, np.ndarray]:
-    """Demo objects -> (N, 3) clouds. Uses pregrasp_core.io when it exists, else trimesh."""
-    try:
-        from pregrasp_core.io import load_point_cloud
-        from pregrasp_core.paths import demo_objects
-
-        paths = demo_objects()
-    except ImportError:
-        load_point_cloud, paths = None, []
-    if not paths:
-        paths = sorted(SHARED_OBJECTS.glob("*.obj"))
-    clouds = {}
-    for path in paths:
-        if load_point_cloud is not None:
-            clouds[path.stem] = load_point_cloud(path, n_points=n_points, seed=0).points
-        else:
-            mesh = trimesh.load(path, force="mesh")
-            pts, _ = trimesh.sample.sample_surface(mesh, n_points, seed=0)
-            clouds[path.stem] = np.asarray(pts, dtype=np.float64)
-    return clouds
+    """Demo objects of ``assets/objects/`` -> (N, 3) clouds, sampled with seed 0."""
+    return {
+        path.stem: load_point_cloud(path, n_points=n_points, seed=0).points
+        for path in demo_objects()
+    }
 
 
 def trimesh_volume(points: np.ndarray) -> float:
