@@ -175,6 +175,12 @@ class SceneRenderer:
 
     # ------------------------------------------------------------------ public API
     @property
+    def rendered(self) -> AppState | None:
+        """The state the scene last finished drawing (the controller publishes a state before
+        it is drawn; a reader that needs the picture to match waits until this is that state)."""
+        return self._last
+
+    @property
     def n_boxes(self) -> int:
         """Number of box nodes the scene holds right now."""
         return len(self._boxes)

@@ -177,9 +177,13 @@ def test_plan_ranks_grasps_and_animates_the_hand(app):
 
 
 def _wait_closed(app, timeout: float = 30.0) -> None:
-    """Wait until the played animation has stopped on the closed hand (phase 1)."""
+    """Wait until the played animation has stopped on the closed hand (phase 1) and the scene
+    has drawn that state (the controller publishes a state just before drawing it)."""
     deadline = time.monotonic() + timeout
-    while app.controller.state.view.playing or app.controller.state.view.anim_t < 1.0:
+    while True:
+        s = app.controller.state
+        if not s.view.playing and s.view.anim_t >= 1.0 and app.scene.rendered is s:
+            return
         assert time.monotonic() < deadline, "the grasp animation does not finish"
         time.sleep(0.05)
 

@@ -97,9 +97,9 @@ def test_plan_shows_ranked_table_and_pick_a_grasp(page, live_app, shots_dir):
         page.wait_for_timeout(100)
     assert live_app.controller.state.view.selected_grasp == 1
     for _ in range(300):  # the choice plays the approach and closing (2 s at speed 1)
-        v = live_app.controller.state.view
-        if not v.playing and v.anim_t == 1.0:
-            break
+        s = live_app.controller.state
+        if not s.view.playing and s.view.anim_t == 1.0 and live_app.scene.rendered is s:
+            break  # the scene has drawn the closed hand, not just been told of it
         page.wait_for_timeout(100)
     frame = live_app.scene.handle("hand_frame")
     assert frame.visible
