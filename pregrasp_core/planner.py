@@ -36,6 +36,7 @@ reason from :data:`REJECTION_REASONS`), so the whole trace is in the result file
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -70,6 +71,10 @@ the support followed by a retreat so that the fingers close on the object (``max
 
 LIFT_STEP: float = 0.005
 """Retreat step (metres) when the support plane stops the fingers (see ``max_lift``)."""
+
+_BALL_SLACK: float = 1e-7
+"""Metres added to every k-d tree gathering ball (a superset: exact tests follow), far above
+the rounding of moving points between the world and a hand frame."""
 
 
 @dataclass(frozen=True)
@@ -361,48 +366,55 @@ class _Context:
         return self._boxes[key]
 
 
-def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray, p_h: np.ndarray) -> tuple[float, str]:
+def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray) -> tuple[float, str]:
     """Travel along hand +z until a box is ``approach_clearance`` from the cloud/support.
 
-    p_h: (M, 3) cloud points in the frame of the hand at the pre-grasp pose."""
+    The candidate (point, link) pairs are the cloud points in each link's swept window: the
+    hand-frame AABB of its box grown by the clearance and stretched ahead by the travel window.
+    The k-d tree gathers them (one ball per link around its window, a superset); the exact
+    window test and the exact slab sweep run on those only, so the whole cloud is never moved
+    into the hand frame."""
     prm = ctx.params
     c = prm.approach_clearance
     S = prm.max_approach
     Tb, lo, hi = ctx.boxes(q)
+    R0, t0 = T0[:3, :3], T0[:3, 3]
     s_sup = np.inf
     if ctx.support is not None:
         n = np.asarray(ctx.support.normal, dtype=np.float64)
-        corners = _box_corners(Tb, ctx.half) @ T0[:3, :3].T + T0[:3, 3]  # (8L, 3) world
+        corners = _box_corners(Tb, ctx.half) @ R0.T + t0  # (8L, 3) world
         heights = corners @ n - (ctx.support.height + c)
         rate = float(n @ T0[:3, 2])  # height change per metre of approach
         s_sup = max(float(heights.min()), 0.0) / -rate if rate < -GEOM_EPS else np.inf
-    # (point, link) pairs: the point lies in front of the link within the travel window, and
-    # within its footprint across the approach (the hand-frame AABB of its box grown by c).
-    # The z test runs on all (point, link) pairs, the x/y tests only on its survivors; a short
-    # first window (most approaches end within a few centimetres) keeps that set small.
     s_obj = np.inf
     S_eff = min(S, s_sup)  # the hand cannot travel past the support plane
-    # points outside the union of every link's window (the AABB of all links, grown by c, and
-    # by S_eff ahead) form no pair at all: drop them first (same pairs, in the same order)
-    glo, ghi = lo.min(axis=0) - c, hi.max(axis=0) + c
-    ghi[2] += S_eff
-    inside = np.all((p_h >= glo) & (p_h <= ghi), axis=1)
-    if not inside.all():
-        p_h = p_h[inside]
-    x, y, z = p_h[:, 0], p_h[:, 1], p_h[:, 2]
-    for window in (min(APPROACH_WINDOW, S_eff), S_eff):  # at most two passes
-        in_z = (z[:, None] >= lo[None, :, 2] - c) & (z[:, None] <= hi[None, :, 2] + c + window)
-        ip, il = np.nonzero(in_z)  # (K,) point and link of each candidate pair
-        ok = (
-            (x[ip] >= lo[il, 0] - c)
-            & (x[ip] <= hi[il, 0] + c)
-            & (y[ip] >= lo[il, 1] - c)
-            & (y[ip] <= hi[il, 1] + c)
+    wlo, whi = lo - c, hi + c  # (L, 3) each link's window across the approach
+    # two passes: a short first window (most approaches end within a few centimetres); a hit
+    # beyond it may hide an earlier one by a point it did not gather, so then the full window
+    for window in (min(APPROACH_WINDOW, S_eff), S_eff):
+        top = whi[:, 2] + window
+        centre = 0.5 * (wlo + whi)
+        centre[:, 2] = 0.5 * (wlo[:, 2] + top)
+        half_diag = 0.5 * np.sqrt(
+            np.sum((whi[:, :2] - wlo[:, :2]) ** 2, axis=1) + (top - wlo[:, 2]) ** 2
         )
-        ip, il = ip[ok], il[ok]
+        lists = ctx.tree.query_ball_point(
+            centre @ R0.T + t0, half_diag + _BALL_SLACK, return_sorted=False
+        )
+        ip, il = _pairs(lists)
         if len(ip):
-            s_obj = _sweep_pairs(p_h[ip], Tb[il], ctx.half[il] + c)[0]
-        # a hit beyond the window may hide an earlier one by a point not gathered: re-test all
+            p = (ctx.points[ip] - t0) @ R0  # (K, 3) hand frame at the pre-grasp pose
+            ok = (
+                (p[:, 2] >= wlo[il, 2])
+                & (p[:, 2] <= top[il])
+                & (p[:, 0] >= wlo[il, 0])
+                & (p[:, 0] <= whi[il, 0])
+                & (p[:, 1] >= wlo[il, 1])
+                & (p[:, 1] <= whi[il, 1])
+            )
+            if ok.any():
+                il = il[ok]
+                s_obj = _sweep_pairs(p[ok], Tb[il], ctx.half[il] + c)[0]
         if s_obj <= window or window >= S_eff:
             break
     s = min(s_obj, s_sup)
@@ -457,6 +469,14 @@ def _link_distances(
     return ids, dists
 
 
+def _pairs(lists: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Flatten the lists of a k-d tree ball query with K balls into (point, ball) index pairs."""
+    n_per = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(lists))
+    total = int(n_per.sum())
+    ip = np.fromiter(itertools.chain.from_iterable(lists), dtype=np.int64, count=total)
+    return ip, np.repeat(np.arange(len(lists)), n_per)
+
+
 def _support_line_2d(
     ctx: _Context, T: np.ndarray, plane: Any, half_width: float, reach: float
 ) -> np.ndarray:
@@ -504,9 +524,9 @@ def _close_fingers(
     ctx: _Context, T: np.ndarray, p_h: np.ndarray, q0: np.ndarray, gt: str, spread: float
 ) -> tuple[np.ndarray, list]:
     """Slice and close every finger of the grasp type for the hand at pose ``T`` (``p_h``: the
-    nearby cloud points in that hand frame). Returns the joint vector and, per finger,
-    ``(finger, FingerClosing, n_slice, links touched on cloud points, stopped by the support)``.
-    """
+    nearby cloud points in that hand frame, in ascending cloud order). Returns the joint vector
+    and, per finger, ``(finger, FingerClosing, n_slice, links touched on cloud points, stopped by
+    the support)``."""
     hand, prm = ctx.hand, ctx.params
     q = q0.copy()
     closings = []
@@ -596,27 +616,19 @@ def _plan_one(ctx: _Context, pool: Any, i: int) -> Grasp:
     def rejected(reason: str, detail: str, T=T0, s=0.0, stop="", q=q0, fingers=()) -> Grasp:
         return Grasp(i, gt, T, s, stop, q, tuple(fingers), (), 0.0, 0.0, None, reason, detail)
 
-    # the cloud in the frame of the hand at the pre-grasp pose, culled to the region the hand
-    # can reach during the approach and the closing
-    p_all = (ctx.points - T0[:3, 3]) @ T0[:3, :3]  # (N, 3)
-    r = ctx.reach + prm.contact_distance
-    keep = np.flatnonzero(
-        (np.abs(p_all[:, 0]) <= r)
-        & (np.abs(p_all[:, 1]) <= r)
-        & (p_all[:, 2] >= -r)
-        & (p_all[:, 2] <= r + prm.max_approach)
-    )
-    p_h0 = p_all[keep]
-
     # 1. approach
-    s, stop = _approach(ctx, T0, q0, p_h0)
+    s, stop = _approach(ctx, T0, q0)
     if not np.isfinite(s):
         return rejected("nothing_ahead", f"no cloud point within {prm.max_approach:.3f} m ahead")
     T = T0.copy()
     T[:3, 3] += s * T0[:3, 2]
-    p_h = p_h0 - np.array([0.0, 0.0, s])  # points in the frame of the hand after the approach
-    in_reach = np.flatnonzero(p_h[:, 2] <= r)
-    p_h = p_h[in_reach]
+    # the cloud points the hand can reach after the approach (a box about the hand), in
+    # ascending cloud order, in the frame of the hand there
+    r = ctx.reach + prm.contact_distance
+    p_all = (ctx.points - T0[:3, 3]) @ T0[:3, :3]  # (N, 3) frame of the pre-grasp
+    x, y, z = p_all[:, 0], p_all[:, 1], p_all[:, 2]
+    keep = np.flatnonzero((np.abs(x) <= r) & (np.abs(y) <= r) & (z >= -r) & (z <= r + s))
+    p_h = p_all[keep] - np.array([0.0, 0.0, s])
 
     # 2. slicing and closing, per finger of the grasp type
     q, closings = _close_fingers(ctx, T, p_h, q0, gt, spread)
