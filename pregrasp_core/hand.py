@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import functools
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -829,6 +830,184 @@ class Hand:
             f, q_stop, contacts, stopped_middle, stopped_distal, palm_stop, start_in_contact, path
         )
 
+    def close_fingers(
+        self,
+        slices: Sequence[tuple[str | Finger, np.ndarray, np.ndarray]],
+        n_steps: int = DEFAULT_CLOSING_STEPS,
+        margin: float = 0.0,
+        coupling: float = DEFAULT_COUPLING,
+        palm: bool = True,
+    ) -> list[FingerClosing]:
+        """:meth:`close_finger` for many slices at once: result ``i`` equals
+        ``close_finger(*slices[i], n_steps, margin, coupling, palm)``.
+
+        ``slices``: ``(finger, points_2d (M_i, 2), q_start (2,))`` per slice, any fingers and
+        sizes (``M_i`` may be 0). The same model and the same sampling as :meth:`close_finger`
+        (coarse steps, refinement of the bracket of the first touch level by level, the event
+        at its end), each stage evaluated for the (sample, point) pairs of all slices together,
+        every point with its own slice's path; the work is chunked to at most ``_BATCH_PAIRS``
+        pairs at once. The hit tests write each 2-term dot product out where
+        :meth:`close_finger` uses a matrix product (equal up to the last bit, which can only
+        matter for a point exactly on a link's boundary)."""
+        if n_steps < 1:
+            raise ValueError(f"n_steps must be >= 1, got {n_steps}")
+        if coupling <= 0:
+            raise ValueError(f"coupling must be > 0, got {coupling}")
+        if len(slices) == 0:
+            return []
+        fingers: list[Finger] = []
+        pts: list[np.ndarray] = []
+        q0 = np.empty((len(slices), 2))
+        for i, item in enumerate(slices):  # loop over slices: checks and per-slice inputs
+            try:
+                finger, points_2d, q_start = item
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"slices[{i}] must be (finger, points_2d, q_start), got {type(item).__name__}"
+                ) from None
+            fingers.append(self.finger(finger))
+            P = np.asarray(points_2d, dtype=np.float64)
+            if P.ndim != 2 or P.shape[1] != 2:
+                raise ValueError(f"slices[{i}]: points_2d must have shape (M, 2), got {P.shape}")
+            qs = np.asarray(q_start, dtype=np.float64)
+            if qs.shape != (2,):
+                raise ValueError(f"slices[{i}]: q_start must have shape (2,), got {qs.shape}")
+            pts.append(P)
+            q0[i] = qs
+        S = len(fingers)
+        geom = np.array(
+            [
+                (f.knuckle_length, f.middle_length, f.distal_length, 0.5 * f.thickness)
+                for f in fingers
+            ]
+        )  # (S, 4)
+        lower = np.array([f.lower for f in fingers])  # (S, 2)
+        upper = np.array([f.upper for f in fingers])
+        q0 = np.clip(q0, lower, upper)
+        # only points within a finger's reach from its first joint can ever be touched
+        sizes = np.array([len(P) for P in pts], dtype=np.int64)
+        P_all = np.concatenate(pts) if sizes.sum() else np.zeros((0, 2))
+        seg_all = np.repeat(np.arange(S), sizes)
+        src_all = np.arange(len(P_all)) - np.repeat(np.cumsum(sizes) - sizes, sizes)
+        reach = geom[:, 1] + np.hypot(geom[:, 2], geom[:, 3]) + 2.0 * abs(margin)
+        keep = np.einsum("ij,ij->i", P_all, P_all) <= (reach * reach)[seg_all]
+        seg = seg_all[keep]
+        B = _SliceBatch(
+            fingers=tuple(fingers),
+            Lk=geom[:, 0],
+            Lm=geom[:, 1],
+            Ld=geom[:, 2],
+            h=geom[:, 3],
+            upper=upper,
+            P=P_all[keep],
+            seg=seg,
+            start=np.concatenate([[0], np.cumsum(np.bincount(seg, minlength=S))]),
+            source=src_all[keep],
+            margin=float(margin),
+            palm=bool(palm),
+        )
+
+        # ---- phase 1: both joints close together (clipped at their limits)
+        every = np.arange(S)
+        A1 = np.array([1.0, float(coupling)])
+        t_end = np.maximum(
+            np.maximum(upper[:, 0] - q0[:, 0], (upper[:, 1] - q0[:, 1]) / coupling), 0.0
+        )
+        ev1 = _batch_first_events(B, every, q0, A1, t_end, n_steps, (True, True))
+        Q1 = _paths(q0, A1, upper, ev1.t)  # (S, n_steps + 1, 2) the coarse samples
+        q_free = _paths(q0, A1, upper, ev1.t_free[:, None])[:, 0]  # (S, 2)
+        # ---- phase 2: the middle link stopped; the distal joint closes alone
+        two = np.flatnonzero((ev1.k >= 0) & ~ev1.distal_hit)
+        ev2 = None
+        if len(two):
+            A2 = np.array([0.0, 1.0])
+            t_end2 = np.maximum(upper[two, 1] - q_free[two, 1], 0.0)
+            ev2 = _batch_first_events(B, two, q_free[two], A2, t_end2, n_steps, (False, True))
+            Q2 = _paths(q_free[two], A2, upper[two], ev2.t)
+            q_stop = _paths(q_free[two], A2, upper[two], ev2.t_free[:, None])[:, 0]
+        row2 = np.full(S, -1, dtype=np.int64)
+        row2[two] = np.arange(len(two))
+
+        def contact(link: str, i: int) -> FingerContact:  # i indexes B.P
+            return FingerContact(link, B.P[i].copy(), int(B.source[i]))
+
+        out: list[FingerClosing] = []
+        for s in range(S):  # loop over slices: the small result objects
+            f, nt = fingers[s], int(ev1.n_t[s])
+            if ev1.k[s] < 0:  # no stop: both joints end at their limits
+                path = Q1[s, :nt].copy()
+                out.append(
+                    FingerClosing(
+                        finger=f.name,
+                        q=path[-1].copy(),
+                        contact_link=None,
+                        contact_point=None,
+                        contact_index=None,
+                        contacts=(),
+                        stopped_middle=False,
+                        stopped_distal=False,
+                        palm_stop=False,
+                        at_limits=True,
+                        start_in_contact=False,
+                        path=path,
+                    )
+                )
+                continue
+            t = ev1.t[s, :nt]
+            path = np.concatenate([Q1[s, :nt][t < ev1.t_free[s]], q_free[s][None]])
+            contacts: list[FingerContact] = []
+            stopped_middle = stopped_distal = False
+            start_in_contact = bool(ev1.k[s] == 0)
+            palm_stop = bool(ev1.palm[s])
+            if ev1.middle_idx[s] >= 0:
+                contacts.append(contact(f.links[1], ev1.middle_idx[s]))
+                stopped_middle = True
+            if ev1.distal_hit[s]:  # the distal touched (maybe with the middle): stop
+                if ev1.distal_idx[s] >= 0:
+                    contacts.append(contact(f.links[2], ev1.distal_idx[s]))
+                    stopped_distal = True
+                out.append(
+                    _closing(
+                        f,
+                        q_free[s].copy(),
+                        contacts,
+                        stopped_middle,
+                        stopped_distal,
+                        palm_stop,
+                        start_in_contact,
+                        path,
+                    )
+                )
+                continue
+            r = row2[s]
+            nt2 = int(ev2.n_t[r])
+            t2 = ev2.t[r, :nt2]
+            if ev2.k[r] < 0:
+                path = np.concatenate([path, Q2[r, 1:nt2]])
+                q_end = path[-1].copy()
+            else:
+                path = np.concatenate(
+                    [path, Q2[r, :nt2][(t2 > 0) & (t2 < ev2.t_free[r])], q_stop[r][None]]
+                )
+                q_end = q_stop[r].copy()
+                if ev2.distal_idx[r] >= 0:
+                    contacts.append(contact(f.links[2], ev2.distal_idx[r]))
+                    stopped_distal = True
+                palm_stop = palm_stop or bool(ev2.palm[r])
+            out.append(
+                _closing(
+                    f,
+                    q_end,
+                    contacts,
+                    stopped_middle,
+                    stopped_distal,
+                    palm_stop,
+                    start_in_contact,
+                    path,
+                )
+            )
+        return out
+
     # ---------------------------------------------------------------- points in links
     def points_in_links(self, p_hand: np.ndarray, q: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """(N, L) bool: point n lies inside link l's collision box grown by ``margin`` on every
@@ -1294,6 +1473,384 @@ def _closing(
         at_limits=at_limits,
         start_in_contact=start_in_contact,
         path=path,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Closing model, batched over many slices (Hand.close_fingers)
+# --------------------------------------------------------------------------------------------
+
+
+_BATCH_PAIRS: int = 2_000_000
+"""Batched closing: most (point, sample) pairs evaluated at once (memory: a few arrays of this
+many entries)."""
+
+
+@dataclass(frozen=True)
+class _SliceBatch:
+    """The slices of one :meth:`Hand.close_fingers` call: per-slice finger geometry and the
+    points within reach of every slice, concatenated in slice order."""
+
+    fingers: tuple[Finger, ...]
+    """(S,) the finger of each slice."""
+    Lk: np.ndarray
+    """(S,) knuckle lengths."""
+    Lm: np.ndarray
+    """(S,) middle link lengths."""
+    Ld: np.ndarray
+    """(S,) distal link lengths."""
+    h: np.ndarray
+    """(S,) half thicknesses of the links."""
+    upper: np.ndarray
+    """(S, 2) upper flexion limits."""
+    P: np.ndarray
+    """(N, 2) the points within reach of all slices (``Pr`` of ``close_finger``), slice by slice."""
+    seg: np.ndarray
+    """(N,) int64 slice of each point (non-decreasing)."""
+    start: np.ndarray
+    """(S + 1,) int64: the points of slice ``s`` are ``P[start[s]:start[s + 1]]``."""
+    source: np.ndarray
+    """(N,) int64 index of each point in its slice's ``points_2d``."""
+    margin: float
+    """Contact margin (metres)."""
+    palm: bool
+    """Whether the palm's inner face stops a link."""
+
+    @property
+    def count(self) -> np.ndarray:
+        """(S,) number of points within reach per slice."""
+        return np.diff(self.start)
+
+
+@dataclass(frozen=True)
+class _Configs:
+    """Link directions of configurations ``Q (R, C, 2)`` (one row of C samples per slice), as
+    ``_FingerGeometry.hits`` computes them."""
+
+    d1x: np.ndarray
+    d1y: np.ndarray
+    d2x: np.ndarray
+    d2y: np.ndarray
+    cs: np.ndarray  # (R, C) d2 . o2
+    cr: np.ndarray  # (R, C) n2 . o2
+    palm_mid: np.ndarray  # (R, C) bool
+    palm_dis: np.ndarray  # (R, C) bool
+
+    @classmethod
+    def of(cls, B: _SliceBatch, sl: np.ndarray, Q: np.ndarray, links: tuple[bool, bool]):
+        a1 = Q[..., 0]
+        a2 = Q[..., 0] + Q[..., 1]
+        d1x, d1y, d2x, d2y = np.cos(a1), np.sin(a1), np.cos(a2), np.sin(a2)
+        Lm = B.Lm[sl][:, None]
+        o2x, o2y = Lm * d1x, Lm * d1y
+        cs = d2x * o2x + d2y * o2y
+        cr = -d2y * o2x + d2x * o2y
+        palm_mid = np.zeros(Q.shape[:2], dtype=bool)
+        palm_dis = np.zeros(Q.shape[:2], dtype=bool)
+        if B.palm:
+            h = B.h[sl][:, None]
+            floor = -B.Lk[sl][:, None] + B.margin
+            if links[0]:
+                low_mid = np.minimum(0.0, Lm * d1x) - h * np.abs(d1y)
+                palm_mid = low_mid < floor
+            if links[1]:
+                low_dis = o2x + np.minimum(0.0, B.Ld[sl][:, None] * d2x) - h * np.abs(d2y)
+                palm_dis = low_dis < floor
+        return cls(d1x, d1y, d2x, d2y, cs, cr, palm_mid, palm_dis)
+
+
+def _pair_hits(
+    B: _SliceBatch, cfg: _Configs, rows: np.ndarray, pts: np.ndarray, links: tuple[bool, bool]
+) -> tuple[np.ndarray, np.ndarray]:
+    """(middle, distal) (Np, C) bool: does point ``pts[i]`` touch the link at the C
+    configurations of row ``rows[i]`` of ``cfg``. The same tests as ``_FingerGeometry.hits``,
+    with each 2-term dot product written out (the single-slice version uses a matrix product,
+    which may round the last bit differently)."""
+    m = B.margin
+    px = B.P[pts, 0][:, None]
+    py = B.P[pts, 1][:, None]
+    sl = B.seg[pts]
+    C = cfg.d1x.shape[1]
+    mid = dis = None
+    hm = (B.h[sl] + m)[:, None]
+    if links[0]:
+        dx, dy = cfg.d1x[rows], cfg.d1y[rows]  # (Np, C)
+        s = dx * px + dy * py
+        r = -dy * px + dx * py
+        mid = s >= -m
+        mid &= s <= (B.Lm[sl] + m)[:, None]
+        mid &= np.abs(r, out=r) <= hm
+    if links[1]:
+        dx, dy = cfg.d2x[rows], cfg.d2y[rows]
+        s = dx * px + dy * py
+        s -= cfg.cs[rows]
+        r = -dy * px + dx * py
+        r -= cfg.cr[rows]
+        dis = s >= -m
+        dis &= s <= (B.Ld[sl] + m)[:, None]
+        dis &= np.abs(r, out=r) <= hm
+    if mid is None:
+        mid = np.zeros((len(pts), C), dtype=bool)
+    if dis is None:
+        dis = np.zeros((len(pts), C), dtype=bool)
+    return mid, dis
+
+
+def _any_hit_rows(
+    B: _SliceBatch, cfg: _Configs, pts: np.ndarray, rows: np.ndarray, links: tuple[bool, bool]
+) -> np.ndarray:
+    """(R, C) bool: some point of the row's slice (``pts`` with their rows ``rows``, sorted by
+    row) or the palm touches a link at each configuration of ``cfg``."""
+    out = cfg.palm_mid | cfg.palm_dis
+    C = out.shape[1]
+    step = max(1, _BATCH_PAIRS // max(C, 1))
+    for b0 in range(0, len(pts), step):  # chunks of points (memory)
+        p, rw = pts[b0 : b0 + step], rows[b0 : b0 + step]
+        mid, dis = _pair_hits(B, cfg, rw, p, links)
+        mid |= dis
+        first = np.flatnonzero(np.concatenate([[True], rw[1:] != rw[:-1]]))
+        out[rw[first]] |= np.logical_or.reduceat(mid, first, axis=0)
+    return out
+
+
+def _any_hit_ragged(
+    B: _SliceBatch,
+    cfg: _Configs,
+    pts: np.ndarray,
+    rows: np.ndarray,
+    n_row: np.ndarray,
+    links: tuple[bool, bool],
+) -> np.ndarray:
+    """(R, C) bool as :func:`_any_hit_rows`, but row ``i`` uses only its first ``n_row[i]``
+    configurations (the others are False): each point is paired with its row's samples only."""
+    R, C = cfg.d1x.shape
+    out = cfg.palm_mid | cfg.palm_dis
+    out &= np.arange(C)[None, :] < n_row[:, None]
+    flat = _Configs(*(getattr(cfg, k).reshape(-1, 1) for k in _Configs.__dataclass_fields__))
+    reps = n_row[rows]  # (Np,) samples per point
+    ends = np.cumsum(reps)
+    step = max(1, _BATCH_PAIRS)
+    b0 = 0
+    while b0 < len(pts):  # chunks of points (memory)
+        b1 = int(np.searchsorted(ends, ends[b0 - 1] + step if b0 else step, side="right"))
+        b1 = max(b1, b0 + 1)
+        p, rw, rp = pts[b0:b1], rows[b0:b1], reps[b0:b1]
+        T = int(rp.sum())
+        pair_pt = np.repeat(p, rp)  # (T,)
+        j = np.arange(T) - np.repeat(np.cumsum(rp) - rp, rp)  # sample of each pair
+        cfg_i = np.repeat(rw, rp) * C + j  # (T,) configuration of each pair
+        mid, dis = _pair_hits(B, flat, cfg_i, pair_pt, links)
+        mid |= dis
+        hit_cfg = cfg_i[mid[:, 0]]
+        out.reshape(-1)[hit_cfg] = True
+        b0 = b1
+    return out
+
+
+def _points_of(B: _SliceBatch, sl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The points of the slices ``sl`` (R,) (distinct, increasing) and the row of each in
+    ``sl``: ``(pts (Np,), rows (Np,))``."""
+    row_of = np.full(len(B.start) - 1, -1, dtype=np.int64)
+    row_of[sl] = np.arange(len(sl))
+    pts = np.flatnonzero(row_of[B.seg] >= 0)
+    return pts, row_of[B.seg[pts]]
+
+
+def _paths(qb: np.ndarray, A: np.ndarray, upper: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(R, C, 2) ``min(qb + A t, upper)`` for parameters t (R, C): phase 1 is A = (1, coupling),
+    phase 2 is A = (0, 1) (the proximal joint stays at ``qb[:, 0]``, which is within limits)."""
+    out = np.empty(t.shape + (2,))
+    np.minimum(qb[:, None, 0] + A[0] * t, upper[:, None, 0], out=out[..., 0])
+    np.minimum(qb[:, None, 1] + A[1] * t, upper[:, None, 1], out=out[..., 1])
+    return out
+
+
+def _batch_distance(B: _SliceBatch, q: np.ndarray, pts: np.ndarray, link: int) -> np.ndarray:
+    """(Np,) ``_FingerGeometry.distance`` of points ``pts`` to link 0 (middle) or 1 (distal) at
+    their own configuration ``q`` (Np, 2), 2-term dot products written out."""
+    sl = B.seg[pts]
+    a = q[:, 0] if link == 0 else q[:, 0] + q[:, 1]
+    dx, dy = np.cos(a), np.sin(a)
+    px, py = B.P[pts, 0], B.P[pts, 1]
+    if link == 1:
+        px = px - B.Lm[sl] * np.cos(q[:, 0])
+        py = py - B.Lm[sl] * np.sin(q[:, 0])
+    length = B.Lm[sl] if link == 0 else B.Ld[sl]
+    s = px * dx + py * dy
+    r = px * -dy + py * dx
+    return np.maximum(np.abs(s - 0.5 * length) - 0.5 * length, np.abs(r) - B.h[sl])
+
+
+@dataclass
+class _BatchEvents:
+    """First events of one phase for R slices (arrays (R,) unless noted)."""
+
+    t: np.ndarray  # (R, n_steps + 1) coarse samples (only the first ``n_t`` are used)
+    n_t: np.ndarray  # number of coarse samples (n_steps + 1, or 1 when t_end <= 0)
+    k: np.ndarray  # first touching coarse sample, -1 if none
+    t_free: np.ndarray
+    t_hit: np.ndarray  # nan if none
+    middle_hit: np.ndarray
+    distal_hit: np.ndarray
+    palm: np.ndarray
+    middle_idx: np.ndarray  # point (index into B.P), -1 if none
+    distal_idx: np.ndarray
+
+
+def _batch_first_events(
+    B: _SliceBatch,
+    sl: np.ndarray,
+    qb: np.ndarray,
+    A: np.ndarray,
+    t_end: np.ndarray,
+    n_steps: int,
+    links: tuple[bool, bool],
+) -> _BatchEvents:
+    """``_first_event`` for the slices ``sl`` (R,) (distinct, increasing) with paths
+    ``min(qb + A t, upper)`` (qb (R, 2)) and parameter ranges ``t_end`` (R,), level by level
+    for all slices together."""
+    R = len(sl)
+    upper = B.upper[sl]
+    m = B.margin
+    # coarse samples: np.linspace(0, t_end, n_steps + 1) (arange * step + 0, last = t_end)
+    n_t = np.where(t_end > 0, n_steps + 1, 1)
+    step = np.where(t_end > 0, t_end, 0.0) / n_steps
+    t = np.arange(n_steps + 1, dtype=np.float64)[None, :] * step[:, None]
+    t += 0.0
+    t[:, -1] = np.where(t_end > 0, t_end, 0.0)
+    k = np.full(R, -1, dtype=np.int64)
+    pts_all, rows_all = _points_of(B, sl)
+    # the coarse sweep in growing chunks of samples; slices leave it at their first touch
+    lo_k, size = 0, _SWEEP_CHUNK
+    while lo_k < n_steps + 1:
+        hi_k = min(lo_k + size, n_steps + 1)
+        act = np.flatnonzero((k < 0) & (n_t > lo_k))
+        if len(act) == 0:
+            break
+        Q = _paths(qb[act], A, upper[act], t[act, lo_k:hi_k])
+        cfg = _Configs.of(B, sl[act], Q, links)
+        row_of = np.full(R, -1, dtype=np.int64)
+        row_of[act] = np.arange(len(act))
+        sel = row_of[rows_all] >= 0
+        hit = _any_hit_rows(B, cfg, pts_all[sel], row_of[rows_all[sel]], links)
+        hit &= (lo_k + np.arange(hi_k - lo_k))[None, :] < n_t[act, None]
+        found = hit.any(axis=1)
+        k[act[found]] = lo_k + np.argmax(hit[found], axis=1)
+        lo_k, size = hi_k, 2 * size
+    has = k >= 0
+    lo = np.zeros(R)
+    hi = np.zeros(R)
+    pos = has & (k > 0)
+    lo[pos] = t[pos, k[pos] - 1]
+    hi[pos] = t[pos, k[pos]]
+    # refinement of [last free, first touching], all slices level by level, each with its own
+    # number of samples per level (as _first_event: _REFINE_BUDGET // points within reach)
+    ref = np.flatnonzero(pos)
+    if len(ref):
+        cnt = B.count[sl[ref]]
+        n_ref = np.maximum(1, np.minimum(_REFINE_SAMPLES, _REFINE_BUDGET // np.maximum(cnt, 1)))
+        # the points that may touch a link inside the bracket (_may_touch, an exact superset)
+        Qb = _paths(qb[ref], A, upper[ref], np.stack([lo[ref], hi[ref]], axis=1))  # (F, 2, 2)
+        row_of = np.full(R, -1, dtype=np.int64)
+        row_of[ref] = np.arange(len(ref))
+        sel = row_of[rows_all] >= 0
+        p_ref, r_ref = pts_all[sel], row_of[rows_all[sel]]
+        qa, qz = Qb[r_ref, 0], Qb[r_ref, 1]
+        d1 = np.abs(qz[:, 0] - qa[:, 0])
+        d2 = np.abs((qz[:, 0] + qz[:, 1]) - (qa[:, 0] + qa[:, 1]))
+        rho = np.sqrt(np.einsum("ij,ij->i", B.P[p_ref], B.P[p_ref]))
+        lm = B.Lm[B.seg[p_ref]]
+        keep = np.zeros(len(p_ref), dtype=bool)
+        if links[0]:
+            keep |= _batch_distance(B, qz, p_ref, 0) <= m + rho * d1 + 1e-9
+        if links[1]:
+            keep |= _batch_distance(B, qz, p_ref, 1) <= m + (rho + lm) * d2 + lm * d1 + 1e-9
+        p_ref, r_ref = p_ref[keep], r_ref[keep]
+        f_lo, f_hi = lo[ref], hi[ref]
+        n_max = int(n_ref.max())
+        j_all = np.arange(1, n_max + 1, dtype=np.float64)[None, :]
+        while True:
+            live = np.flatnonzero(f_hi - f_lo > HAND_CLOSING_ANGLE_TOL)
+            if len(live) == 0:
+                break
+            # np.linspace(lo, hi, n_ref + 2)[1:-1] per slice, padded to n_max samples
+            stp = (f_hi[live] - f_lo[live]) / (n_ref[live] + 1)
+            ts = j_all * stp[:, None]
+            ts += f_lo[live][:, None]
+            valid = j_all <= n_ref[live][:, None]
+            ts = np.where(valid, ts, f_hi[live][:, None])
+            Q = _paths(qb[ref[live]], A, upper[ref[live]], ts)
+            cfg = _Configs.of(B, sl[ref[live]], Q, links)
+            row_of = np.full(len(ref), -1, dtype=np.int64)
+            row_of[live] = np.arange(len(live))
+            sel = row_of[r_ref] >= 0
+            hit = _any_hit_ragged(B, cfg, p_ref[sel], row_of[r_ref[sel]], n_ref[live], links)
+            found = hit.any(axis=1)
+            j = np.argmax(hit, axis=1)
+            rows = np.arange(len(live))
+            prev = np.where(j > 0, ts[rows, np.maximum(j - 1, 0)], f_lo[live])
+            f_lo[live] = np.where(found, prev, ts[rows, n_ref[live] - 1])
+            f_hi[live] = np.where(found, ts[rows, j], f_hi[live])
+        lo[ref], hi[ref] = f_lo, f_hi
+    # the event at hi: every point of the slice, the touching point of least distance per link
+    ev = np.flatnonzero(has)
+    mid_idx = np.full(R, -1, dtype=np.int64)
+    dis_idx = np.full(R, -1, dtype=np.int64)
+    middle_hit = np.zeros(R, dtype=bool)
+    distal_hit = np.zeros(R, dtype=bool)
+    palm = np.zeros(R, dtype=bool)
+    if len(ev):
+        Qh = _paths(qb[ev], A, upper[ev], hi[ev][:, None])  # (E, 1, 2)
+        cfg = _Configs.of(B, sl[ev], Qh, links)
+        row_of = np.full(R, -1, dtype=np.int64)
+        row_of[ev] = np.arange(len(ev))
+        sel = row_of[rows_all] >= 0
+        p_ev, r_ev = pts_all[sel], row_of[rows_all[sel]]
+        a, b = _pair_hits(B, cfg, r_ev, p_ev, links)
+        q_free = _paths(qb[ev], A, upper[ev], lo[ev][:, None])[:, 0]  # (E, 2)
+        for link, hits, out in ((0, a[:, 0], mid_idx), (1, b[:, 0], dis_idx)):
+            if not hits.any():
+                continue
+            cand, crow = p_ev[hits], r_ev[hits]
+            dist = _batch_distance(B, q_free[crow], cand, link)
+            order = np.lexsort((cand, dist, crow))  # per row: least distance, then lowest index
+            cand, crow, dist = cand[order], crow[order], dist[order]
+            first = np.flatnonzero(np.concatenate([[True], crow[1:] != crow[:-1]]))
+            best = cand[first]
+            # a near-tie of two distances (the single version's matrix product may round the
+            # last bit otherwise): decide it with _FingerGeometry.distance itself
+            nxt = first + 1
+            ok = nxt < len(crow)
+            tie = np.zeros(len(first), dtype=bool)
+            tie[ok] = (crow[nxt[ok]] == crow[first[ok]]) & (
+                dist[nxt[ok]] - dist[first[ok]] <= 1e-15
+            )
+            for i in np.flatnonzero(tie):  # rare
+                e = crow[first[i]]
+                c = p_ev[hits][r_ev[hits] == e]
+                s = sl[ev[e]]
+                geo = _FingerGeometry(B.fingers[s], m, B.palm)
+                best[i] = c[np.argmin(geo.distance(q_free[e], B.P[c], link))]
+            out[ev[crow[first]]] = best
+        am = np.zeros(len(ev), dtype=bool)
+        bm = np.zeros(len(ev), dtype=bool)
+        am[r_ev[a[:, 0]]] = True
+        bm[r_ev[b[:, 0]]] = True
+        middle_hit[ev] = am | cfg.palm_mid[:, 0]
+        distal_hit[ev] = bm | cfg.palm_dis[:, 0]
+        palm[ev] = cfg.palm_mid[:, 0] | cfg.palm_dis[:, 0]
+    t_free = np.where(has, lo, t[np.arange(R), n_t - 1])
+    return _BatchEvents(
+        t=t,
+        n_t=n_t,
+        k=k,
+        t_free=t_free,
+        t_hit=np.where(has, hi, np.nan),
+        middle_hit=middle_hit,
+        distal_hit=distal_hit,
+        palm=palm,
+        middle_idx=mid_idx,
+        distal_idx=dis_idx,
     )
 
 
