@@ -1596,23 +1596,6 @@ def _pair_hits(
     return mid, dis
 
 
-def _any_hit_rows(
-    B: _SliceBatch, cfg: _Configs, pts: np.ndarray, rows: np.ndarray, links: tuple[bool, bool]
-) -> np.ndarray:
-    """(R, C) bool: some point of the row's slice (``pts`` with their rows ``rows``, sorted by
-    row) or the palm touches a link at each configuration of ``cfg``."""
-    out = cfg.palm_mid | cfg.palm_dis
-    C = out.shape[1]
-    step = max(1, _BATCH_PAIRS // max(C, 1))
-    for b0 in range(0, len(pts), step):  # chunks of points (memory)
-        p, rw = pts[b0 : b0 + step], rows[b0 : b0 + step]
-        mid, dis = _pair_hits(B, cfg, rw, p, links)
-        mid |= dis
-        first = np.flatnonzero(np.concatenate([[True], rw[1:] != rw[:-1]]))
-        out[rw[first]] |= np.logical_or.reduceat(mid, first, axis=0)
-    return out
-
-
 def _any_hit_ragged(
     B: _SliceBatch,
     cfg: _Configs,
@@ -1621,7 +1604,8 @@ def _any_hit_ragged(
     n_row: np.ndarray,
     links: tuple[bool, bool],
 ) -> np.ndarray:
-    """(R, C) bool as :func:`_any_hit_rows`, but row ``i`` uses only its first ``n_row[i]``
+    """(R, C) bool: some point (``pts``, with their rows ``rows``) or the palm touches a link
+    at the configurations of ``cfg``; row ``i`` uses only its first ``n_row[i]``
     configurations (the others are False): each point is paired with its row's samples only."""
     R, C = cfg.d1x.shape
     out = cfg.palm_mid | cfg.palm_dis
@@ -1681,6 +1665,108 @@ def _batch_distance(B: _SliceBatch, q: np.ndarray, pts: np.ndarray, link: int) -
     return np.maximum(np.abs(s - 0.5 * length) - 0.5 * length, np.abs(r) - B.h[sl])
 
 
+def _pair_eval(
+    B: _SliceBatch, flat: dict, ci: np.ndarray, pts: np.ndarray, links: tuple[bool, bool]
+) -> tuple[np.ndarray, np.ndarray]:
+    """For pairs (point ``pts[i]``, configuration ``ci[i]`` of ``flat``, per-configuration 1D
+    arrays built by :func:`_coarse_sweep`): ``(hit (T,) bool, clear (T,))``: a link touches the
+    point (the tests of ``_pair_hits``, same arithmetic), and how long (in path parameter) the
+    point surely stays off both links before and after: its Euclidean distance to each link's
+    rectangle grown by the margin over the largest speed of that rectangle's points (0 when it
+    touches)."""
+    m = B.margin
+    px, py = np.take(B.P[:, 0], pts), np.take(B.P[:, 1], pts)
+    hm = np.take(flat["hm"], ci)  # (T,) half thickness + margin
+    hit = np.zeros(len(pts), dtype=bool)
+    clear = np.full(len(pts), np.inf)
+    for link in (0, 1):  # middle, distal
+        if not links[link]:
+            continue
+        dx = np.take(flat["d1x" if link == 0 else "d2x"], ci)
+        dy = np.take(flat["d1y" if link == 0 else "d2y"], ci)
+        s = dx * px
+        s += dy * py
+        r = dx * py
+        r -= dy * px  # = -dy px + dx py exactly (IEEE sums commute)
+        if link == 1:
+            s -= np.take(flat["cs"], ci)
+            r -= np.take(flat["cr"], ci)
+        top = np.take(flat["top0" if link == 0 else "top1"], ci)
+        np.abs(r, out=r)
+        h_link = s >= -m
+        h_link &= s <= top
+        h_link &= r <= hm
+        hit |= h_link
+        # distance to the grown rectangle: (max(-m - s, s - top, 0), max(r - hm, 0))
+        np.subtract(s, top, out=top)
+        np.negative(s, out=s)
+        s -= m
+        np.maximum(s, top, out=s)
+        np.maximum(s, 0.0, out=s)
+        r -= hm
+        np.maximum(r, 0.0, out=r)
+        s *= s
+        r *= r
+        s += r
+        np.sqrt(s, out=s)
+        s -= 1e-9  # metres; the slack covers the rounding of both ways of computing
+        np.maximum(s, 0.0, out=s)
+        s /= np.take(flat["sp0" if link == 0 else "sp1"], ci)
+        np.minimum(clear, s, out=clear)
+    clear[hit] = 0.0
+    return hit, clear
+
+
+def _coarse_sweep(B, sl, qb, A, upper, t, n_t, step, pts, rows, links):
+    """The first touching coarse sample of every slice (``k`` (R,), -1 if none) without testing
+    every (sample, point) pair: each point is tested at a sample only when its last test leaves
+    it possibly touching there (conservative advancement: a point at Euclidean distance d from a
+    link's rectangle stays off it while the rectangle moves less than d), and not after its
+    slice's first touch. Also ``free`` per point (as ``pts``): the point is off both links for
+    every path parameter in ``[0, free)``."""
+    R, C1 = t.shape
+    Q = _paths(qb, A, upper, t)  # (R, C1, 2) every coarse sample
+    cfg = _Configs.of(B, sl, Q, links)
+    am = abs(B.margin)
+    Lm, h = B.Lm[sl], B.h[sl]
+    speed_mid = A[0] * np.hypot(Lm + am, h + am)  # (R,) joint 1 turns at most A[0] per unit t
+    speed_dis = (A[0] + A[1]) * np.hypot(B.Ld[sl] + am, h + am) + A[0] * Lm
+    flat = {f: getattr(cfg, f).reshape(-1) for f in ("d1x", "d1y", "d2x", "d2y", "cs", "cr")}
+    flat["hm"] = np.repeat(h + B.margin, C1)  # (R * C1,) per configuration
+    flat["top0"] = np.repeat(Lm + B.margin, C1)
+    flat["top1"] = np.repeat(B.Ld[sl] + B.margin, C1)
+    flat["sp0"] = np.repeat(speed_mid, C1)
+    flat["sp1"] = np.repeat(speed_dis, C1)
+    valid = np.arange(C1)[None, :] < n_t[:, None]
+    palm = (cfg.palm_mid | cfg.palm_dis) & valid
+    best = np.where(palm.any(axis=1), np.argmax(palm, axis=1), C1)  # (R,) first touch so far
+    t_flat = t.reshape(-1)
+    inv_step = np.divide(1.0, step, out=np.full(R, np.inf), where=step > 0)
+    free = np.zeros(len(pts))  # each point is off the links for all t in [0, free)
+    live = np.arange(len(pts))  # positions in pts still to be tested
+    kn = np.zeros(len(pts), dtype=np.int64)  # the sample each live point is tested at next
+    while len(live):  # rounds (a few; every point advances at least one sample per round)
+        rw = rows[live]
+        ci = rw * C1 + kn
+        hit, clear = _pair_eval(B, flat, ci, pts[live], links)
+        tk = t_flat[ci]
+        # the certified intervals (tk - clear, tk + clear) of a point chain up from t = 0 (the
+        # next test is at or before tk + clear, unless the point is pushed on a sample)
+        f = free[live]
+        free[live] = np.where(tk - clear < f, np.maximum(f, tk + clear), f)
+        if hit.any():
+            np.minimum.at(best, rw[hit], kn[hit])
+        # next sample that the point may touch at (never beyond the first sample after tk + clear)
+        with np.errstate(invalid="ignore", over="ignore"):
+            nxt = np.floor((tk + clear) * inv_step[rw])
+        nxt = np.where(np.isfinite(nxt), nxt, C1).astype(np.int64, copy=False)
+        kn = np.maximum(kn + 1, np.minimum(nxt, C1))
+        go = ~hit & (kn < np.minimum(n_t[rw], best[rw]))
+        live, kn = live[go], kn[go]
+    k = np.where(best < n_t, best, -1)
+    return k, free
+
+
 @dataclass
 class _BatchEvents:
     """First events of one phase for R slices (arrays (R,) unless noted)."""
@@ -1718,54 +1804,44 @@ def _batch_first_events(
     t = np.arange(n_steps + 1, dtype=np.float64)[None, :] * step[:, None]
     t += 0.0
     t[:, -1] = np.where(t_end > 0, t_end, 0.0)
-    k = np.full(R, -1, dtype=np.int64)
     pts_all, rows_all = _points_of(B, sl)
-    # the coarse sweep in growing chunks of samples; slices leave it at their first touch
-    lo_k, size = 0, _SWEEP_CHUNK
-    while lo_k < n_steps + 1:
-        hi_k = min(lo_k + size, n_steps + 1)
-        act = np.flatnonzero((k < 0) & (n_t > lo_k))
-        if len(act) == 0:
-            break
-        Q = _paths(qb[act], A, upper[act], t[act, lo_k:hi_k])
-        cfg = _Configs.of(B, sl[act], Q, links)
-        row_of = np.full(R, -1, dtype=np.int64)
-        row_of[act] = np.arange(len(act))
-        sel = row_of[rows_all] >= 0
-        hit = _any_hit_rows(B, cfg, pts_all[sel], row_of[rows_all[sel]], links)
-        hit &= (lo_k + np.arange(hi_k - lo_k))[None, :] < n_t[act, None]
-        found = hit.any(axis=1)
-        k[act[found]] = lo_k + np.argmax(hit[found], axis=1)
-        lo_k, size = hi_k, 2 * size
+    k, free = _coarse_sweep(B, sl, qb, A, upper, t, n_t, step, pts_all, rows_all, links)
     has = k >= 0
     lo = np.zeros(R)
     hi = np.zeros(R)
     pos = has & (k > 0)
     lo[pos] = t[pos, k[pos] - 1]
     hi[pos] = t[pos, k[pos]]
+    # the points that may touch a link in [lo, hi]: those that the sweep did not certify off the
+    # links over [0, hi] (an exact superset)
+    r_all = rows_all
+    near = has[r_all] & ~(hi[r_all] < free)
+    p_near, r_near = pts_all[near], r_all[near]
+    # of those, the ones that may touch a link between the bracket's ends along the path
+    # (_may_touch: the same exact superset, from the distances at hi)
+    Qb = _paths(qb, A, upper, np.stack([lo, hi], axis=1))  # (R, 2, 2)
+    qa, qz = Qb[r_near, 0], Qb[r_near, 1]
+    d1 = np.abs(qz[:, 0] - qa[:, 0])
+    d2 = np.abs((qz[:, 0] + qz[:, 1]) - (qa[:, 0] + qa[:, 1]))
+    P_near = B.P[p_near]
+    rho = np.sqrt(np.einsum("ij,ij->i", P_near, P_near))
+    lm = B.Lm[B.seg[p_near]]
+    keep = np.zeros(len(p_near), dtype=bool)
+    if links[0]:
+        keep |= _batch_distance(B, qz, p_near, 0) <= m + rho * d1 + 1e-9
+    if links[1]:
+        keep |= _batch_distance(B, qz, p_near, 1) <= m + (rho + lm) * d2 + lm * d1 + 1e-9
+    p_near, r_near = p_near[keep], r_near[keep]
     # refinement of [last free, first touching], all slices level by level, each with its own
     # number of samples per level (as _first_event: _REFINE_BUDGET // points within reach)
     ref = np.flatnonzero(pos)
     if len(ref):
         cnt = B.count[sl[ref]]
         n_ref = np.maximum(1, np.minimum(_REFINE_SAMPLES, _REFINE_BUDGET // np.maximum(cnt, 1)))
-        # the points that may touch a link inside the bracket (_may_touch, an exact superset)
-        Qb = _paths(qb[ref], A, upper[ref], np.stack([lo[ref], hi[ref]], axis=1))  # (F, 2, 2)
         row_of = np.full(R, -1, dtype=np.int64)
         row_of[ref] = np.arange(len(ref))
-        sel = row_of[rows_all] >= 0
-        p_ref, r_ref = pts_all[sel], row_of[rows_all[sel]]
-        qa, qz = Qb[r_ref, 0], Qb[r_ref, 1]
-        d1 = np.abs(qz[:, 0] - qa[:, 0])
-        d2 = np.abs((qz[:, 0] + qz[:, 1]) - (qa[:, 0] + qa[:, 1]))
-        rho = np.sqrt(np.einsum("ij,ij->i", B.P[p_ref], B.P[p_ref]))
-        lm = B.Lm[B.seg[p_ref]]
-        keep = np.zeros(len(p_ref), dtype=bool)
-        if links[0]:
-            keep |= _batch_distance(B, qz, p_ref, 0) <= m + rho * d1 + 1e-9
-        if links[1]:
-            keep |= _batch_distance(B, qz, p_ref, 1) <= m + (rho + lm) * d2 + lm * d1 + 1e-9
-        p_ref, r_ref = p_ref[keep], r_ref[keep]
+        sel = row_of[r_near] >= 0
+        p_ref, r_ref = p_near[sel], row_of[r_near[sel]]
         f_lo, f_hi = lo[ref], hi[ref]
         n_max = int(n_ref.max())
         j_all = np.arange(1, n_max + 1, dtype=np.float64)[None, :]
@@ -1804,8 +1880,7 @@ def _batch_first_events(
         cfg = _Configs.of(B, sl[ev], Qh, links)
         row_of = np.full(R, -1, dtype=np.int64)
         row_of[ev] = np.arange(len(ev))
-        sel = row_of[rows_all] >= 0
-        p_ev, r_ev = pts_all[sel], row_of[rows_all[sel]]
+        p_ev, r_ev = p_near, row_of[r_near]
         a, b = _pair_hits(B, cfg, r_ev, p_ev, links)
         q_free = _paths(qb[ev], A, upper[ev], lo[ev][:, None])[:, 0]  # (E, 2)
         for link, hits, out in ((0, a[:, 0], mid_idx), (1, b[:, 0], dis_idx)):
