@@ -72,6 +72,12 @@ the support followed by a retreat so that the fingers close on the object (``max
 LIFT_STEP: float = 0.005
 """Retreat step (metres) when the support plane stops the fingers (see ``max_lift``)."""
 
+_CHUNK: int = 64
+"""Pre-grasps whose fingers are closed together in one call of the batched closing model."""
+
+CONTACT_TIE: float = 1e-12
+"""Metres: cloud points this close to a link's least distance tie for its contact."""
+
 _BALL_SLACK: float = 1e-7
 """Metres added to every k-d tree gathering ball (a superset: exact tests follow), far above
 the rounding of moving points between the world and a hand frame."""
@@ -457,16 +463,19 @@ def _link_distances(
 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Per link: cloud indices of the points within ``reach`` of its box (candidates from the
     k-d tree: the box's circumscribed ball grown by ``reach``) and their exact signed distances
-    to the box, for the hand at pose ``T`` and configuration ``q``."""
-    Tb = T @ ctx.boxes(q)[0]  # (L, 4, 4) world
+    to the box, for the hand at pose ``T`` and configuration ``q``. The distances of all
+    (point, link) pairs are computed together."""
+    Tw = T @ ctx.boxes(q)[0]  # (L, 4, 4) world
     radius = np.linalg.norm(ctx.half, axis=1) + reach
-    lists = ctx.tree.query_ball_point(Tb[:, :3, 3], radius, return_sorted=False)
-    ids, dists = [], []
-    for j, lst in enumerate(lists):  # loop over the ~10 links
-        sel = np.asarray(lst, dtype=np.int64)
-        ids.append(sel)
-        dists.append(box_signed_distance(ctx.points[sel], Tb[j : j + 1], ctx.half[j : j + 1])[:, 0])
-    return ids, dists
+    lists = ctx.tree.query_ball_point(Tw[:, :3, 3], radius, return_sorted=False)
+    ip, il = _pairs(lists)
+    v = ctx.points[ip] - Tw[il, :3, 3]  # (K, 3)
+    R = Tw[il, :3, :3]  # (K, 3, 3) box axes as columns
+    local = v[:, 0:1] * R[:, 0, :] + v[:, 1:2] * R[:, 1, :] + v[:, 2:3] * R[:, 2, :]
+    qd = np.abs(local) - ctx.half[il]
+    d = np.sqrt(np.sum(np.maximum(qd, 0.0) ** 2, axis=1)) + np.minimum(qd.max(axis=1), 0.0)
+    cuts = np.cumsum([len(x) for x in lists])[:-1]
+    return np.split(ip, cuts), np.split(d, cuts)
 
 
 def _pairs(lists: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -520,44 +529,89 @@ def _thin_2d(p2: np.ndarray, cell: float) -> np.ndarray:
     return p2[np.sort(first)]
 
 
-def _close_fingers(
+@dataclass
+class _Slice:
+    """One finger's slice, ready for the closing model."""
+
+    finger: Any
+    points_2d: np.ndarray  # (M + S, 2) the thinned slice points, then the support trace
+    q_start: np.ndarray  # (2,) the finger's preshape flexion
+    n_obj: int  # rows of points_2d that are cloud points (the rest: the support plane)
+    has_table: bool  # the support plane crosses the finger's reach
+    n_slice: int  # cloud points in the slice before thinning
+
+
+def _slices(
     ctx: _Context, T: np.ndarray, p_h: np.ndarray, q0: np.ndarray, gt: str, spread: float
-) -> tuple[np.ndarray, list]:
-    """Slice and close every finger of the grasp type for the hand at pose ``T`` (``p_h``: the
-    nearby cloud points in that hand frame, in ascending cloud order). Returns the joint vector
-    and, per finger, ``(finger, FingerClosing, n_slice, links touched on cloud points, stopped by
-    the support)``."""
-    hand, prm = ctx.hand, ctx.params
-    q = q0.copy()
-    closings = []
-    for f in hand.fingers_for(gt):  # loop over <= 3 fingers
-        plane = ctx.plane(f, spread)
-        # the offsets first (as FlexionPlane.to_plane computes them), the 2D coordinates only for
-        # the points within the finger's width
-        band = np.flatnonzero(np.abs((p_h - plane.origin) @ plane.normal) <= 0.5 * f.width)
-        p2, off = plane.to_plane(p_h[band])
+) -> list[_Slice]:
+    """The slice of every finger of the grasp type for the hand at pose ``T`` (``p_h``: the
+    nearby cloud points in that hand frame, in ascending cloud order)."""
+    prm = ctx.params
+    out = []
+    fingers = ctx.hand.fingers_for(gt)
+    planes = [ctx.plane(f, spread) for f in fingers]
+    # a first cut for all fingers with one matrix product: the offsets along each flexion
+    # plane's normal, with a margin far above their rounding (the exact test follows)
+    nrm = np.array([pl.normal for pl in planes]).T  # (3, F)
+    shift = np.array([pl.origin @ pl.normal for pl in planes])  # (F,)
+    half_w = np.array([0.5 * f.width for f in fingers])
+    near_band = np.abs(p_h @ nrm - shift) <= half_w + 1e-9  # (M, F)
+    for j, (f, plane) in enumerate(zip(fingers, planes, strict=True)):  # <= 3 fingers
+        # the 2D coordinates and offsets (FlexionPlane.to_plane) of the points near the band
+        p2, off = plane.to_plane(p_h[near_band[:, j]])
         # the moving links never get farther than Lm + hypot(Ld, h) from the first joint
         r_f = f.middle_length + np.hypot(f.distal_length, 0.5 * f.thickness) + prm.closing_margin
         in_slice = (np.abs(off) <= 0.5 * f.width) & (
             p2[:, 0] ** 2 + p2[:, 1] ** 2 <= (r_f + 1e-9) ** 2
         )
         p_slice = _thin_2d(p2[in_slice], prm.slice_resolution)
-        n_obj = len(p_slice)
         table = _support_line_2d(ctx, T, plane, 0.5 * f.width, r_f)
-        cl = hand.close_finger(
-            f,
-            np.concatenate([p_slice, table]),
-            q0[list(f.flex_index)],
-            n_steps=prm.closing_steps,
-            margin=prm.closing_margin,
+        out.append(
+            _Slice(
+                f,
+                np.concatenate([p_slice, table]),
+                q0[list(f.flex_index)],
+                len(p_slice),
+                len(table) > 0,
+                int(np.count_nonzero(in_slice)),
+            )
         )
+    return out
+
+
+def _close_slices(ctx: _Context, slices: list[_Slice]) -> list:
+    """Close the fingers of many slices with one call of the hand's batched closing model."""
+    prm = ctx.params
+    return ctx.hand.close_fingers(
+        [(sl.finger, sl.points_2d, sl.q_start) for sl in slices],
+        n_steps=prm.closing_steps,
+        margin=prm.closing_margin,
+    )
+
+
+def _closing_records(q0: np.ndarray, slices: list[_Slice], cls: list) -> tuple[np.ndarray, list]:
+    """The joint vector after closing and, per finger, ``(finger, FingerClosing, n_slice, links
+    touched on cloud points, stopped by the support)``."""
+    q = q0.copy()
+    closings = []
+    for sl, cl in zip(slices, cls, strict=True):  # loop over <= 3 fingers
+        f = sl.finger
         q[list(f.flex_index)] = cl.q
-        touched = tuple(c.link for c in cl.contacts if c.index < n_obj)
-        on_table = any(c.index >= n_obj for c in cl.contacts) or (
-            cl.start_in_contact and not touched and len(table) > 0
+        touched = tuple(c.link for c in cl.contacts if c.index < sl.n_obj)
+        on_table = any(c.index >= sl.n_obj for c in cl.contacts) or (
+            cl.start_in_contact and not touched and sl.has_table
         )
-        closings.append((f, cl, int(np.count_nonzero(in_slice)), touched, on_table))
+        closings.append((f, cl, sl.n_slice, touched, on_table))
     return q, closings
+
+
+def _close_fingers(
+    ctx: _Context, T: np.ndarray, p_h: np.ndarray, q0: np.ndarray, gt: str, spread: float
+) -> tuple[np.ndarray, list]:
+    """Slice and close every finger of the grasp type for the hand at pose ``T`` (see
+    :func:`_slices` and :func:`_closing_records`)."""
+    slices = _slices(ctx, T, p_h, q0, gt, spread)
+    return _closing_records(q0, slices, _close_slices(ctx, slices))
 
 
 def _open_self_collisions(
@@ -606,20 +660,42 @@ def _open_self_collisions(
     return q, not hand.self_collisions(q)
 
 
-def _plan_one(ctx: _Context, pool: Any, i: int) -> Grasp:
-    hand, prm = ctx.hand, ctx.params
+@dataclass
+class _Prepared:
+    """A pre-grasp after its approach, with its finger slices (see :func:`_prepare`)."""
+
+    i: int
+    gt: str
+    T0: np.ndarray
+    q0: np.ndarray
+    spread: float
+    T: np.ndarray  # hand pose after the approach
+    s: float
+    stop: str
+    p_h: np.ndarray  # nearby cloud points in the frame of T, ascending cloud order
+    slices: list[_Slice]
+
+
+def _rejected(
+    i: int, gt: str, T: np.ndarray, q: np.ndarray, reason: str, detail: str, s: float = 0.0,
+    stop: str = "", fingers: tuple = (),
+) -> Grasp:  # fmt: skip
+    return Grasp(i, gt, T, s, stop, q, tuple(fingers), (), 0.0, 0.0, None, reason, detail)
+
+
+def _prepare(ctx: _Context, pool: Any, i: int) -> _Prepared | Grasp:
+    """Approach and slicing of pre-grasp ``i``; a rejected ``Grasp`` when nothing is ahead."""
+    prm = ctx.params
     gt = str(pool.grasp_type[i])
     T0 = np.asarray(pool.T_world_hand[i], dtype=np.float64)
     q0 = np.asarray(pool.q[i], dtype=np.float64)
     spread = float(pool.spread[i])
 
-    def rejected(reason: str, detail: str, T=T0, s=0.0, stop="", q=q0, fingers=()) -> Grasp:
-        return Grasp(i, gt, T, s, stop, q, tuple(fingers), (), 0.0, 0.0, None, reason, detail)
-
     # 1. approach
     s, stop = _approach(ctx, T0, q0)
     if not np.isfinite(s):
-        return rejected("nothing_ahead", f"no cloud point within {prm.max_approach:.3f} m ahead")
+        detail = f"no cloud point within {prm.max_approach:.3f} m ahead"
+        return _rejected(i, gt, T0, q0, "nothing_ahead", detail)
     T = T0.copy()
     T[:3, 3] += s * T0[:3, 2]
     # the cloud points the hand can reach after the approach (a box about the hand), in
@@ -629,9 +705,20 @@ def _plan_one(ctx: _Context, pool: Any, i: int) -> Grasp:
     x, y, z = p_all[:, 0], p_all[:, 1], p_all[:, 2]
     keep = np.flatnonzero((np.abs(x) <= r) & (np.abs(y) <= r) & (z >= -r) & (z <= r + s))
     p_h = p_all[keep] - np.array([0.0, 0.0, s])
+    # 2. the slices (closed for many pre-grasps at once by the caller)
+    return _Prepared(i, gt, T0, q0, spread, T, s, stop, p_h, _slices(ctx, T, p_h, q0, gt, spread))
 
-    # 2. slicing and closing, per finger of the grasp type
-    q, closings = _close_fingers(ctx, T, p_h, q0, gt, spread)
+
+def _finish(ctx: _Context, pre: _Prepared, cls: list) -> Grasp:
+    """Closing (given), retreat from the support, 3D verification, contacts and quality."""
+    hand, prm = ctx.hand, ctx.params
+    i, gt, T0, q0, spread = pre.i, pre.gt, pre.T0, pre.q0, pre.spread
+    T, s, stop, p_h = pre.T.copy(), pre.s, pre.stop, pre.p_h
+
+    def rejected(reason: str, detail: str, T=T0, s=0.0, stop="", q=q0, fingers=()) -> Grasp:
+        return _rejected(i, gt, T, q, reason, detail, s, stop, fingers)
+
+    q, closings = _closing_records(q0, pre.slices, cls)
     lift = 0.0
     if ctx.support is not None and prm.max_lift > 0.0 and stop in ("support", "start"):
         # the table, not the object, ended the approach: fingers that closed on the table (or
@@ -719,11 +806,20 @@ def _plan_one(ctx: _Context, pool: Any, i: int) -> Grasp:
         detail = f"{below} below the support plane"
         return rejected("support_collision", detail, T, s, stop, q, fingers)
 
-    # 4. contacts: one per link, the nearest cloud point within contact_distance
+    # 4. contacts: one per link, the nearest cloud point within contact_distance. Points as
+    # near as it (within CONTACT_TIE: a face of the object parallel to the link's face) form a
+    # patch; the contact is its point nearest the link box's centre (then the lowest cloud
+    # index), so the choice never depends on rounding or on the k-d tree's order
+    centres = (T @ ctx.boxes(q)[0])[:, :3, 3]  # (L, 3) link box centres, world
     links, local, dist = [], [], []
     for j, (sel, d) in enumerate(zip(ids, dists, strict=True)):  # loop over the ~10 links
         if len(d) and d.min() <= prm.contact_distance:
-            k = int(np.argmin(d))
+            tie = np.flatnonzero(d <= d.min() + CONTACT_TIE)
+            if len(tie) > 1:
+                off = np.sum((ctx.points[sel[tie]] - centres[j]) ** 2, axis=1)
+                k = int(tie[np.lexsort((sel[tie], off))[0]])
+            else:
+                k = int(tie[0])
             links.append(j)
             local.append(sel[k])
             dist.append(float(d[k]))
@@ -792,12 +888,24 @@ def plan_grasps(
     ctx = _Context(pts, nrm, hand, prm, support)
     grasps: list[Grasp] = []
     step = max(1, P // 100)
-    # one pre-grasp at a time: each has its own point sets, closing and hull; every step inside
-    # is vectorised over points, links and closing steps
-    for i in range(P):
-        grasps.append(_plan_one(ctx, pool, i))
-        if progress is not None and ((i + 1) % step == 0 or i + 1 == P):
-            progress(i + 1, P)
+    # chunks of pre-grasps: approach and slicing per pre-grasp, the closing of every finger of
+    # the chunk in one call of the batched closing model, then verification and quality per
+    # pre-grasp (every step inside is vectorised over points, links and closing steps)
+    done = 0
+    for c0 in range(0, P, _CHUNK):  # loop over chunks of pre-grasps
+        preps = [_prepare(ctx, pool, i) for i in range(c0, min(P, c0 + _CHUNK))]
+        todo = [p for p in preps if isinstance(p, _Prepared)]
+        cls = _close_slices(ctx, [sl for p in todo for sl in p.slices])
+        k = 0
+        for p in preps:  # loop over the chunk's pre-grasps
+            if isinstance(p, _Prepared):
+                grasps.append(_finish(ctx, p, cls[k : k + len(p.slices)]))
+                k += len(p.slices)
+            else:
+                grasps.append(p)
+            done += 1
+            if progress is not None and (done % step == 0 or done == P):
+                progress(done, P)
     order = rank_grasps(grasps)
     ranked = list(grasps)
     for r, k in enumerate(order):

@@ -451,6 +451,10 @@ class _BlindHand:
     def close_finger(self, finger, points_2d, q_start, **kw):
         return self._hand.close_finger(finger, np.zeros((0, 2)), q_start, **kw)
 
+    def close_fingers(self, slices, **kw):  # the batched form the planner calls
+        blind = [(f, np.zeros((0, 2)), q) for f, _, q in slices]
+        return self._hand.close_fingers(blind, **kw)
+
 
 def test_fingers_closed_into_the_object_are_opened_back_or_rejected(hand):
     mesh, pool = _cylinder_scene(hand, n_dirs=3)
