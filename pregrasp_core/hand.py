@@ -1666,19 +1666,22 @@ def _batch_distance(B: _SliceBatch, q: np.ndarray, pts: np.ndarray, link: int) -
 
 
 def _pair_eval(
-    B: _SliceBatch, flat: dict, ci: np.ndarray, pts: np.ndarray, links: tuple[bool, bool]
+    flat: dict,
+    ci: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    m: float,
+    links: tuple[bool, bool],
 ) -> tuple[np.ndarray, np.ndarray]:
-    """For pairs (point ``pts[i]``, configuration ``ci[i]`` of ``flat``, per-configuration 1D
-    arrays built by :func:`_coarse_sweep`): ``(hit (T,) bool, clear (T,))``: a link touches the
-    point (the tests of ``_pair_hits``, same arithmetic), and how long (in path parameter) the
-    point surely stays off both links before and after: its Euclidean distance to each link's
-    rectangle grown by the margin over the largest speed of that rectangle's points (0 when it
-    touches)."""
-    m = B.margin
-    px, py = np.take(B.P[:, 0], pts), np.take(B.P[:, 1], pts)
+    """For pairs (point ``(px[i], py[i])``, configuration ``ci[i]`` of ``flat``: 1D arrays per
+    configuration built by :func:`_coarse_sweep`): ``(hit (T,) bool, clear (T,))``. ``hit``: a
+    link touches the point (the tests of ``_pair_hits``, same arithmetic); ``clear``: how long
+    (in path parameter) the point surely stays off both links before and after, its Euclidean
+    distance to each link's rectangle grown by the margin over the largest speed of that
+    rectangle's points (0 when it touches)."""
     hm = np.take(flat["hm"], ci)  # (T,) half thickness + margin
-    hit = np.zeros(len(pts), dtype=bool)
-    clear = np.full(len(pts), np.inf)
+    hit = np.zeros(len(ci), dtype=bool)
+    clear = np.full(len(ci), np.inf)
     for link in (0, 1):  # middle, distal
         if not links[link]:
             continue
@@ -1745,11 +1748,11 @@ def _coarse_sweep(B, sl, qb, A, upper, t, n_t, step, pts, rows, links):
     free = np.zeros(len(pts))  # each point is off the links for all t in [0, free)
     live = np.arange(len(pts))  # positions in pts still to be tested
     kn = np.zeros(len(pts), dtype=np.int64)  # the sample each live point is tested at next
+    px, py, rw = B.P[pts, 0], B.P[pts, 1], rows  # of the live points
     while len(live):  # rounds (a few; every point advances at least one sample per round)
-        rw = rows[live]
         ci = rw * C1 + kn
-        hit, clear = _pair_eval(B, flat, ci, pts[live], links)
-        tk = t_flat[ci]
+        hit, clear = _pair_eval(flat, ci, px, py, B.margin, links)
+        tk = np.take(t_flat, ci)
         # the certified intervals (tk - clear, tk + clear) of a point chain up from t = 0 (the
         # next test is at or before tk + clear, unless the point is pushed on a sample)
         f = free[live]
@@ -1761,8 +1764,8 @@ def _coarse_sweep(B, sl, qb, A, upper, t, n_t, step, pts, rows, links):
             nxt = np.floor((tk + clear) * inv_step[rw])
         nxt = np.where(np.isfinite(nxt), nxt, C1).astype(np.int64, copy=False)
         kn = np.maximum(kn + 1, np.minimum(nxt, C1))
-        go = ~hit & (kn < np.minimum(n_t[rw], best[rw]))
-        live, kn = live[go], kn[go]
+        go = ~hit & (kn < np.minimum(n_t, best)[rw])
+        live, kn, px, py, rw = live[go], kn[go], px[go], py[go], rw[go]
     k = np.where(best < n_t, best, -1)
     return k, free
 
