@@ -360,15 +360,31 @@ class _Context:
             self._planes[key] = self.hand.flexion_plane(finger, spread)
         return self._planes[key]
 
+    def prefetch_boxes(self, Q: np.ndarray) -> None:
+        """Compute and cache the box poses of many configurations ``Q`` (B, J) at once."""
+        Q = np.ascontiguousarray(Q, dtype=np.float64)
+        new = [b for b in range(len(Q)) if Q[b].tobytes() not in self._boxes]
+        if not new:
+            return
+        Tb_all = self.hand.box_poses(Q[new])  # (B', L, 4, 4)
+        corners = _box_corners(Tb_all.reshape(-1, 4, 4), np.tile(self.half, (len(new), 1)))
+        corners = corners.reshape(len(new), -1, 8, 3)
+        lo, hi = corners.min(axis=2), corners.max(axis=2)
+        for k, b in enumerate(new):  # loop over the configurations: fill the cache
+            self._store(Q[b].tobytes(), (Tb_all[k], lo[k], hi[k]))
+
+    def _store(self, key: bytes, value: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        self._boxes[key] = value
+        if len(self._boxes) > 4096:  # a bound for pools of arbitrary preshapes
+            self._boxes.pop(next(iter(self._boxes)))
+
     def boxes(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Box poses (L, 4, 4) and their hand-frame AABBs lo, hi (L, 3) at ``q`` (cached)."""
         key = q.tobytes()
         if key not in self._boxes:
             Tb = self.hand.box_poses(q)
             corners = _box_corners(Tb, self.half).reshape(-1, 8, 3)
-            self._boxes[key] = (Tb, corners.min(axis=1), corners.max(axis=1))
-            if len(self._boxes) > 4096:  # a bound for pools of arbitrary preshapes
-                self._boxes.pop(next(iter(self._boxes)))
+            self._store(key, (Tb, corners.min(axis=1), corners.max(axis=1)))
         return self._boxes[key]
 
 
@@ -709,8 +725,9 @@ def _prepare(ctx: _Context, pool: Any, i: int) -> _Prepared | Grasp:
     return _Prepared(i, gt, T0, q0, spread, T, s, stop, p_h, _slices(ctx, T, p_h, q0, gt, spread))
 
 
-def _finish(ctx: _Context, pre: _Prepared, cls: list) -> Grasp:
-    """Closing (given), retreat from the support, 3D verification, contacts and quality."""
+def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Grasp:
+    """After the closing (``q`` and ``closings`` from :func:`_closing_records`): retreat from
+    the support, 3D verification, contacts and quality."""
     hand, prm = ctx.hand, ctx.params
     i, gt, T0, q0, spread = pre.i, pre.gt, pre.T0, pre.q0, pre.spread
     T, s, stop, p_h = pre.T.copy(), pre.s, pre.stop, pre.p_h
@@ -718,7 +735,6 @@ def _finish(ctx: _Context, pre: _Prepared, cls: list) -> Grasp:
     def rejected(reason: str, detail: str, T=T0, s=0.0, stop="", q=q0, fingers=()) -> Grasp:
         return _rejected(i, gt, T, q, reason, detail, s, stop, fingers)
 
-    q, closings = _closing_records(q0, pre.slices, cls)
     lift = 0.0
     if ctx.support is not None and prm.max_lift > 0.0 and stop in ("support", "start"):
         # the table, not the object, ended the approach: fingers that closed on the table (or
@@ -896,11 +912,15 @@ def plan_grasps(
         preps = [_prepare(ctx, pool, i) for i in range(c0, min(P, c0 + _CHUNK))]
         todo = [p for p in preps if isinstance(p, _Prepared)]
         cls = _close_slices(ctx, [sl for p in todo for sl in p.slices])
-        k = 0
+        records, k = {}, 0
+        for p in todo:  # loop over the chunk's pre-grasps
+            records[p.i] = _closing_records(p.q0, p.slices, cls[k : k + len(p.slices)])
+            k += len(p.slices)
+        if records:  # the link boxes of every closed hand of the chunk: one batched FK
+            ctx.prefetch_boxes(np.array([q for q, _ in records.values()]))
         for p in preps:  # loop over the chunk's pre-grasps
             if isinstance(p, _Prepared):
-                grasps.append(_finish(ctx, p, cls[k : k + len(p.slices)]))
-                k += len(p.slices)
+                grasps.append(_finish(ctx, p, *records[p.i]))
             else:
                 grasps.append(p)
             done += 1
