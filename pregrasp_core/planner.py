@@ -714,12 +714,15 @@ def _prepare(ctx: _Context, pool: Any, i: int) -> _Prepared | Grasp:
         return _rejected(i, gt, T0, q0, "nothing_ahead", detail)
     T = T0.copy()
     T[:3, 3] += s * T0[:3, 2]
-    # the cloud points the hand can reach after the approach (a box about the hand), in
-    # ascending cloud order, in the frame of the hand there
+    # the cloud points the hand can reach after the approach (a box about the hand, r on every
+    # side; below the palm also from up to max_lift higher up), in ascending cloud order, in
+    # the frame of the hand there
     r = ctx.reach + prm.contact_distance
+    lift = prm.max_lift if ctx.support is not None else 0.0
     p_all = (ctx.points - T0[:3, 3]) @ T0[:3, :3]  # (N, 3) frame of the pre-grasp
     x, y, z = p_all[:, 0], p_all[:, 1], p_all[:, 2]
-    keep = np.flatnonzero((np.abs(x) <= r) & (np.abs(y) <= r) & (z >= -r) & (z <= r + s))
+    z_lo = max(-r, s - r - lift)
+    keep = np.flatnonzero((np.abs(x) <= r) & (np.abs(y) <= r) & (z >= z_lo) & (z <= r + s))
     p_h = p_all[keep] - np.array([0.0, 0.0, s])
     # 2. the slices (closed for many pre-grasps at once by the caller)
     return _Prepared(i, gt, T0, q0, spread, T, s, stop, p_h, _slices(ctx, T, p_h, q0, gt, spread))
