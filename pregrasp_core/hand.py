@@ -1722,11 +1722,11 @@ def _pair_eval(
 
 def _coarse_sweep(B, sl, qb, A, upper, t, n_t, step, pts, rows, links):
     """The first touching coarse sample of every slice (``k`` (R,), -1 if none) without testing
-    every (sample, point) pair: each point is tested at a sample only when its last test leaves
-    it possibly touching there (conservative advancement: a point at Euclidean distance d from a
-    link's rectangle stays off it while the rectangle moves less than d), and not after its
-    slice's first touch. Also ``free`` per point (as ``pts``): the point is off both links for
-    every path parameter in ``[0, free)``."""
+    every (sample, point) pair: the samples go in order, and each point is tested at a sample
+    only when its last test leaves it possibly touching there (conservative advancement: a point
+    at Euclidean distance d from a link's rectangle stays off it while the rectangle moves less
+    than d), and not after its slice's first touch. Also ``free`` per point (as ``pts``): the
+    point is off both links for every path parameter in ``[0, free)``."""
     R, C1 = t.shape
     Q = _paths(qb, A, upper, t)  # (R, C1, 2) every coarse sample
     cfg = _Configs.of(B, sl, Q, links)
@@ -1746,26 +1746,53 @@ def _coarse_sweep(B, sl, qb, A, upper, t, n_t, step, pts, rows, links):
     t_flat = t.reshape(-1)
     inv_step = np.divide(1.0, step, out=np.full(R, np.inf), where=step > 0)
     free = np.zeros(len(pts))  # each point is off the links for all t in [0, free)
-    live = np.arange(len(pts))  # positions in pts still to be tested
-    kn = np.zeros(len(pts), dtype=np.int64)  # the sample each live point is tested at next
-    px, py, rw = B.P[pts, 0], B.P[pts, 1], rows  # of the live points
-    while len(live):  # rounds (a few; every point advances at least one sample per round)
-        ci = rw * C1 + kn
-        hit, clear = _pair_eval(flat, ci, px, py, B.margin, links)
+    px, py = B.P[pts, 0], B.P[pts, 1]
+    lim = np.minimum(n_t, best)  # (R,) samples beyond this need no test
+    # buckets[k]: the points (positions in pts) to test at coarse sample k; every point starts at
+    # sample 0 and, untouched, moves on to the first sample its clearance does not cover
+    buckets: list[list[np.ndarray]] = [[] for _ in range(C1)]
+    buckets[0].append(np.arange(len(pts)))
+    for k in range(C1):  # loop over closing steps, in order: a slice stops at its first touch
+        if not buckets[k]:
+            continue
+        if k == 0 and np.all(lim > 0):  # every point (no gathers)
+            pos, rw, ppx, ppy = buckets[0][0], rows, px, py
+        else:
+            pos = np.concatenate(buckets[k])
+            pos = pos[lim[rows[pos]] > k]
+            if len(pos) == 0:
+                buckets[k] = []
+                continue
+            rw, ppx, ppy = rows[pos], px[pos], py[pos]
+        buckets[k] = []
+        ci = rw * C1 + k
+        hit, clear = _pair_eval(flat, ci, ppx, ppy, B.margin, links)
         tk = np.take(t_flat, ci)
-        # the certified intervals (tk - clear, tk + clear) of a point chain up from t = 0 (the
-        # next test is at or before tk + clear, unless the point is pushed on a sample)
-        f = free[live]
-        free[live] = np.where(tk - clear < f, np.maximum(f, tk + clear), f)
+        # the certified intervals (tk - clear, tk + clear) of a point chain up from t = 0 (its
+        # next test is at or before tk + clear, unless it is pushed to the next sample)
+        if k == 0:
+            free[pos] = np.where(clear > 0.0, clear, 0.0)
+        else:
+            f = free[pos]
+            free[pos] = np.where(tk - clear < f, np.maximum(f, tk + clear), f)
         if hit.any():
-            np.minimum.at(best, rw[hit], kn[hit])
+            best[rw[hit]] = k  # the first touch of these slices (the samples go in order)
+            lim = np.minimum(n_t, best)
         # next sample that the point may touch at (never beyond the first sample after tk + clear)
         with np.errstate(invalid="ignore", over="ignore"):
             nxt = np.floor((tk + clear) * inv_step[rw])
-        nxt = np.where(np.isfinite(nxt), nxt, C1).astype(np.int64, copy=False)
-        kn = np.maximum(kn + 1, np.minimum(nxt, C1))
-        go = ~hit & (kn < np.minimum(n_t, best)[rw])
-        live, kn, px, py, rw = live[go], kn[go], px[go], py[go], rw[go]
+        nxt = np.where(np.isfinite(nxt), np.minimum(nxt, C1), C1).astype(np.int64)
+        nxt = np.maximum(nxt, k + 1)
+        go = ~hit & (nxt < lim[rw])
+        pos, nxt = pos[go], nxt[go]
+        if len(pos) == 0:
+            continue
+        # (a radix sort for 16-bit keys)
+        order = np.argsort(nxt.astype(np.int16) if C1 < 2**15 else nxt, kind="stable")
+        pos, nxt = pos[order], nxt[order]
+        cut = np.flatnonzero(np.diff(nxt)) + 1
+        for part, kk in zip(np.split(pos, cut), nxt[np.concatenate([[0], cut])], strict=True):
+            buckets[int(kk)].append(part)  # loop over distinct next samples (< n_steps)
     k = np.where(best < n_t, best, -1)
     return k, free
 
