@@ -922,7 +922,15 @@ class Hand:
         if len(two):
             A2 = np.array([0.0, 1.0])
             t_end2 = np.maximum(upper[two, 1] - q_free[two, 1], 0.0)
-            ev2 = _batch_first_events(B, two, q_free[two], A2, t_end2, n_steps, (False, True))
+            # the distal joint stays where it is: only the points within the distal link's
+            # circumradius (grown by the margin) of it can be touched
+            o2 = B.Lm[:, None] * np.stack([np.cos(q_free[:, 0]), np.sin(q_free[:, 0])], axis=1)
+            r2 = np.hypot(B.Ld + abs(margin), B.h + abs(margin)) + 1e-9  # (S,)
+            d = B.P - o2[B.seg]
+            near2 = np.einsum("ij,ij->i", d, d) <= (r2 * r2)[B.seg]
+            ev2 = _batch_first_events(
+                B, two, q_free[two], A2, t_end2, n_steps, (False, True), may_touch=near2
+            )
             Q2 = _paths(q_free[two], A2, upper[two], ev2.t)
             q_stop = _paths(q_free[two], A2, upper[two], ev2.t_free[:, None])[:, 0]
         row2 = np.full(S, -1, dtype=np.int64)
@@ -1821,10 +1829,12 @@ def _batch_first_events(
     t_end: np.ndarray,
     n_steps: int,
     links: tuple[bool, bool],
+    may_touch: np.ndarray | None = None,
 ) -> _BatchEvents:
     """``_first_event`` for the slices ``sl`` (R,) (distinct, increasing) with paths
     ``min(qb + A t, upper)`` (qb (R, 2)) and parameter ranges ``t_end`` (R,), level by level
-    for all slices together."""
+    for all slices together. ``may_touch`` (N,) bool: only these points can touch a link along
+    the paths (an exact superset; None: all points)."""
     R = len(sl)
     upper = B.upper[sl]
     m = B.margin
@@ -1835,6 +1845,9 @@ def _batch_first_events(
     t += 0.0
     t[:, -1] = np.where(t_end > 0, t_end, 0.0)
     pts_all, rows_all = _points_of(B, sl)
+    if may_touch is not None:
+        sel = may_touch[pts_all]
+        pts_all, rows_all = pts_all[sel], rows_all[sel]
     k, free = _coarse_sweep(B, sl, qb, A, upper, t, n_t, step, pts_all, rows_all, links)
     has = k >= 0
     lo = np.zeros(R)
