@@ -150,3 +150,19 @@ def test_empty_list_and_bad_input(hand):
         hand.close_fingers([good], n_steps=0)
     with pytest.raises(ValueError, match="coupling must be > 0"):
         hand.close_fingers([good], coupling=0.0)
+
+
+def test_equal_distances_pick_the_first_point(hand):
+    """Duplicated points touch at equal distances: the contact is the first of them, as in
+    close_finger (the batch settles such ties with close_finger's own distance)."""
+    rng = np.random.default_rng(3)
+    slices = []
+    for f in FINGERS:
+        P = _arc(rng, 300, (0.06, 0.06), 0.03)
+        P = np.concatenate([P, P[::-1]])  # every point twice
+        slices.append((f, P, np.array([-0.5, 0.0])))
+    got = hand.close_fingers(slices, margin=0.001)
+    for i, (s, g) in enumerate(zip(slices, got, strict=True)):
+        ref = hand.close_finger(*s, margin=0.001)
+        assert_same(g, ref, f"slice {i}")
+        assert g.contacts and all(c.index < 300 for c in g.contacts)
