@@ -1704,11 +1704,9 @@ def _pair_eval(
             r -= np.take(flat["cr"], ci)
         top = np.take(flat["top0" if link == 0 else "top1"], ci)
         np.abs(r, out=r)
-        h_link = s >= -m
-        h_link &= s <= top
-        h_link &= r <= hm
-        hit |= h_link
-        # distance to the grown rectangle: (max(-m - s, s - top, 0), max(r - hm, 0))
+        # distance to the grown rectangle: (max(-m - s, s - top, 0), max(|r| - hm, 0)); a
+        # rounded difference has the sign of the exact one, so it is 0 exactly when
+        # s >= -m, s <= top and |r| <= hm: the tests of _FingerGeometry.hits
         np.subtract(s, top, out=top)
         np.negative(s, out=s)
         s -= m
@@ -1719,6 +1717,7 @@ def _pair_eval(
         s *= s
         r *= r
         s += r
+        hit |= s == 0.0
         np.sqrt(s, out=s)
         s -= 1e-9  # metres; the slack covers the rounding of both ways of computing
         np.maximum(s, 0.0, out=s)
