@@ -38,6 +38,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import logging
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -230,6 +231,9 @@ class GraspSet:
     """Names of the joints of ``Grasp.q``."""
     rejected: dict[str, int]
     """Number of rejected pre-grasps per reason (every key of :data:`REJECTION_REASONS`)."""
+    phase_seconds: dict[str, float] = field(default_factory=dict)
+    """Wall time per planner phase over the whole pool: ``approach_slicing``, ``closing``,
+    ``verification`` (retreat from the support, 3D checks, contacts) and ``quality``."""
 
     def __len__(self) -> int:
         return len(self.grasps)
@@ -343,6 +347,7 @@ class _Context:
         self.link_names = tuple(hand.link_names)
         self.half = np.asarray(hand.link_box_half, dtype=np.float64)
         self.link_index = {n: i for i, n in enumerate(self.link_names)}
+        self.clock = dict.fromkeys(("approach_slicing", "closing", "verification", "quality"), 0.0)
         self._planes: dict[tuple[str, float], Any] = {}
         self._boxes: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         # reach: half side of a cube about the palm origin that holds every link box at any
@@ -856,7 +861,10 @@ def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Gra
         for k, (j, p) in enumerate(zip(links, pid, strict=True))
     )  # fmt: skip
     # 5. quality
+    t_q = time.perf_counter()
     qual: GraspQuality = grasp_quality(ctx.points[pid], normals_in, prm.quality, tangents=tangents)
+    dt = time.perf_counter() - t_q
+    ctx.clock["quality"] += dt
     return Grasp(
         i, gt, T, s, stop, q, fingers, contacts, qual.epsilon, qual.volume, None, None, qual.reason
     )
@@ -911,10 +919,16 @@ def plan_grasps(
     # the chunk in one call of the batched closing model, then verification and quality per
     # pre-grasp (every step inside is vectorised over points, links and closing steps)
     done = 0
+    clock = ctx.clock
     for c0 in range(0, P, _CHUNK):  # loop over chunks of pre-grasps
+        t0 = time.perf_counter()
         preps = [_prepare(ctx, pool, i) for i in range(c0, min(P, c0 + _CHUNK))]
         todo = [p for p in preps if isinstance(p, _Prepared)]
+        t1 = time.perf_counter()
         cls = _close_slices(ctx, [sl for p in todo for sl in p.slices])
+        t2, q_before = time.perf_counter(), clock["quality"]
+        clock["approach_slicing"] += t1 - t0
+        clock["closing"] += t2 - t1
         records, k = {}, 0
         for p in todo:  # loop over the chunk's pre-grasps
             records[p.i] = _closing_records(p.q0, p.slices, cls[k : k + len(p.slices)])
@@ -929,6 +943,7 @@ def plan_grasps(
             done += 1
             if progress is not None and (done % step == 0 or done == P):
                 progress(done, P)
+        clock["verification"] += time.perf_counter() - t2 - (clock["quality"] - q_before)
     order = rank_grasps(grasps)
     ranked = list(grasps)
     for r, k in enumerate(order):
@@ -945,7 +960,7 @@ def plan_grasps(
         sum(g.epsilon > 0 for g in ranked),
         rejected,
     )
-    return GraspSet(tuple(ranked), order, joint_names, rejected)
+    return GraspSet(tuple(ranked), order, joint_names, rejected, dict(clock))
 
 
 def cloud_normals(cloud: Any, params: NormalParams | None = None) -> np.ndarray:
