@@ -10,8 +10,10 @@ planner's ``_thin_2d`` (0.7 mm), the preshape's flexion as ``q_start``, the plan
 ``close_finger`` calls (same run, same slices), and every result is compared (q, path, contacts,
 flags). Timings are medians of ``--repeats`` runs of the process's CPU time, one BLAS thread.
 
-Usage: .venv/bin/python benchmarks/bench_closing.py [--repeats 5] [--chunk 0]
-``--chunk N`` also times batches of N pre-grasps' slices (the planner's chunks).
+Usage: .venv/bin/python benchmarks/bench_closing.py [--repeats 5] [--chunk 64] [--truncate 200 5]
+``--chunk N`` also times batches of N pre-grasps' slices (the planner's chunks); ``--truncate``
+the same slices cut to their first N points (small slices, where ``close_finger`` is mostly
+numpy call overhead).
 """
 
 from __future__ import annotations
@@ -93,6 +95,13 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--chunk", type=int, default=64, help="pre-grasps per batch (0: skip)")
     ap.add_argument("--objects", nargs="+", default=["mug_handle", "bottle"])
+    ap.add_argument(
+        "--truncate",
+        nargs="*",
+        type=int,
+        default=[200, 5],
+        help="also time the same slices cut to their first N points (small slices)",
+    )
     args = ap.parse_args()
     hand = load_hand()
     prm = PlannerParams()
@@ -135,8 +144,18 @@ def main() -> None:
                 for a, b in zip([c for cs in batched() for c in cs], ref, strict=True)
             )
             rows.append((f"{args.chunk} pre-grasps", slices, t_loop, t_chunks, n_bad_c))
+        for n_keep in args.truncate:
+            cut = [(f, P[:n_keep], q) for f, P, q in slices]
+            ref_c = [hand.close_finger(*s, **kw) for s in cut]
+            bad_c = sum(
+                not same(a, b) for a, b in zip(hand.close_fingers(cut, **kw), ref_c, strict=True)
+            )
+            tl = median_time(lambda sl=cut: [hand.close_finger(*s, **kw) for s in sl], args.repeats)
+            tb = median_time(lambda sl=cut: hand.close_fingers(sl, **kw), args.repeats)
+            rows.append((f"all, first {n_keep} points", cut, tl, tb, bad_c))
         for label, sl, tl, tb, bad in rows:
             n = len(sl)
+            sizes = np.array([len(s[1]) for s in sl])
             print(
                 f"| {name} | {label} | {n} | {int(np.median(sizes))} / {int(sizes.max())} "
                 f"| {tl * 1e3:.0f} ms | {tb * 1e3:.0f} ms "
