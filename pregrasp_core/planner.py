@@ -393,55 +393,48 @@ class _Context:
         return self._boxes[key]
 
 
-def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray) -> tuple[float, str]:
+def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray, p_all: np.ndarray) -> tuple[float, str]:
     """Travel along hand +z until a box is ``approach_clearance`` from the cloud/support.
 
-    The candidate (point, link) pairs are the cloud points in each link's swept window: the
-    hand-frame AABB of its box grown by the clearance and stretched ahead by the travel window.
-    The k-d tree gathers them (one ball per link around its window, a superset); the exact
-    window test and the exact slab sweep run on those only, so the whole cloud is never moved
-    into the hand frame."""
+    ``p_all`` (N, 3): the cloud in the frame of the hand at the pre-grasp pose. The candidate
+    (point, link) pairs are the points in each link's swept window: the hand-frame AABB of its
+    box grown by the clearance and stretched ahead by the travel window. One pass over the cloud
+    keeps the points in the union of the windows; the per-link window test and the exact slab
+    sweep run on those only."""
     prm = ctx.params
     c = prm.approach_clearance
     S = prm.max_approach
     Tb, lo, hi = ctx.boxes(q)
-    R0, t0 = T0[:3, :3], T0[:3, 3]
     s_sup = np.inf
     if ctx.support is not None:
         n = np.asarray(ctx.support.normal, dtype=np.float64)
-        corners = _box_corners(Tb, ctx.half) @ R0.T + t0  # (8L, 3) world
+        corners = _box_corners(Tb, ctx.half) @ T0[:3, :3].T + T0[:3, 3]  # (8L, 3) world
         heights = corners @ n - (ctx.support.height + c)
         rate = float(n @ T0[:3, 2])  # height change per metre of approach
         s_sup = max(float(heights.min()), 0.0) / -rate if rate < -GEOM_EPS else np.inf
     s_obj = np.inf
     S_eff = min(S, s_sup)  # the hand cannot travel past the support plane
     wlo, whi = lo - c, hi + c  # (L, 3) each link's window across the approach
+    glo, ghi = wlo.min(axis=0), whi.max(axis=0)
+    x, y, z = p_all[:, 0], p_all[:, 1], p_all[:, 2]
+    across = (x >= glo[0]) & (x <= ghi[0]) & (y >= glo[1]) & (y <= ghi[1]) & (z >= glo[2])
     # two passes: a short first window (most approaches end within a few centimetres); a hit
     # beyond it may hide an earlier one by a point it did not gather, so then the full window
     for window in (min(APPROACH_WINDOW, S_eff), S_eff):
         top = whi[:, 2] + window
-        centre = 0.5 * (wlo + whi)
-        centre[:, 2] = 0.5 * (wlo[:, 2] + top)
-        half_diag = 0.5 * np.sqrt(
-            np.sum((whi[:, :2] - wlo[:, :2]) ** 2, axis=1) + (top - wlo[:, 2]) ** 2
-        )
-        lists = ctx.tree.query_ball_point(
-            centre @ R0.T + t0, half_diag + _BALL_SLACK, return_sorted=False
-        )
-        ip, il = _pairs(lists)
+        sub = np.flatnonzero(across & (z <= top.max()))
+        ps = p_all[sub]
+        px, py, pz = ps[:, 0:1], ps[:, 1:2], ps[:, 2:3]
+        ip, il = np.nonzero(
+            (pz >= wlo[:, 2])
+            & (pz <= top)
+            & (px >= wlo[:, 0])
+            & (px <= whi[:, 0])
+            & (py >= wlo[:, 1])
+            & (py <= whi[:, 1])
+        )  # (K,) candidate pairs: row of ps, link
         if len(ip):
-            p = (ctx.points[ip] - t0) @ R0  # (K, 3) hand frame at the pre-grasp pose
-            ok = (
-                (p[:, 2] >= wlo[il, 2])
-                & (p[:, 2] <= top[il])
-                & (p[:, 0] >= wlo[il, 0])
-                & (p[:, 0] <= whi[il, 0])
-                & (p[:, 1] >= wlo[il, 1])
-                & (p[:, 1] <= whi[il, 1])
-            )
-            if ok.any():
-                il = il[ok]
-                s_obj = _sweep_pairs(p[ok], Tb[il], ctx.half[il] + c)[0]
+            s_obj = _sweep_pairs(ps[ip], Tb[il], ctx.half[il] + c)[0]
         if s_obj <= window or window >= S_eff:
             break
     s = min(s_obj, s_sup)
@@ -712,8 +705,9 @@ def _prepare(ctx: _Context, pool: Any, i: int) -> _Prepared | Grasp:
     q0 = np.asarray(pool.q[i], dtype=np.float64)
     spread = float(pool.spread[i])
 
-    # 1. approach
-    s, stop = _approach(ctx, T0, q0)
+    # 1. approach, with the cloud in the frame of the hand at the pre-grasp pose
+    p_all = (ctx.points - T0[:3, 3]) @ T0[:3, :3]  # (N, 3)
+    s, stop = _approach(ctx, T0, q0, p_all)
     if not np.isfinite(s):
         detail = f"no cloud point within {prm.max_approach:.3f} m ahead"
         return _rejected(i, gt, T0, q0, "nothing_ahead", detail)
@@ -724,7 +718,6 @@ def _prepare(ctx: _Context, pool: Any, i: int) -> _Prepared | Grasp:
     # the frame of the hand there
     r = ctx.reach + prm.contact_distance
     lift = prm.max_lift if ctx.support is not None else 0.0
-    p_all = (ctx.points - T0[:3, 3]) @ T0[:3, :3]  # (N, 3) frame of the pre-grasp
     x, y, z = p_all[:, 0], p_all[:, 1], p_all[:, 2]
     z_lo = max(-r, s - r - lift)
     keep = np.flatnonzero((np.abs(x) <= r) & (np.abs(y) <= r) & (z >= z_lo) & (z <= r + s))
