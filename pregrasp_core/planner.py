@@ -473,23 +473,39 @@ def _support_collision(ctx: _Context, T: np.ndarray, q: np.ndarray) -> str | Non
 
 
 def _link_distances(
-    ctx: _Context, T: np.ndarray, q: np.ndarray, reach: float
+    ctx: _Context, p_h: np.ndarray, idx: np.ndarray, q: np.ndarray, reach: float
 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Per link: cloud indices of the points within ``reach`` of its box (candidates from the
-    k-d tree: the box's circumscribed ball grown by ``reach``) and their exact signed distances
-    to the box, for the hand at pose ``T`` and configuration ``q``. The distances of all
-    (point, link) pairs are computed together."""
-    Tw = T @ ctx.boxes(q)[0]  # (L, 4, 4) world
-    radius = np.linalg.norm(ctx.half, axis=1) + reach
-    lists = ctx.tree.query_ball_point(Tw[:, :3, 3], radius, return_sorted=False)
-    ip, il = _pairs(lists)
-    v = ctx.points[ip] - Tw[il, :3, 3]  # (K, 3)
-    R = Tw[il, :3, :3]  # (K, 3, 3) box axes as columns
+    """Per link of the hand at configuration ``q``: cloud indices of the points within
+    ``reach`` of its box and their exact signed distances to it (< 0 inside), in ascending
+    cloud order. ``p_h`` (M, 3): the cloud points near the hand, in its frame; ``idx`` (M,)
+    their cloud indices. Candidates: the points in the AABB of a box grown by ``reach`` (first
+    the AABB of all of them, one pass over ``p_h``); all pairs' distances at once."""
+    Tb, lo, hi = ctx.boxes(q)  # hand frame
+    blo, bhi = lo - reach, hi + reach  # (L, 3)
+    glo, ghi = blo.min(axis=0), bhi.max(axis=0)
+    x, y, z = p_h[:, 0], p_h[:, 1], p_h[:, 2]
+    sub = np.flatnonzero(
+        (x >= glo[0])
+        & (x <= ghi[0])
+        & (y >= glo[1])
+        & (y <= ghi[1])
+        & (z >= glo[2])
+        & (z <= ghi[2])
+    )
+    ps = p_h[sub].T  # (3, M')
+    inside = (ps[0] >= blo[:, 0:1]) & (ps[0] <= bhi[:, 0:1])  # (L, M')
+    inside &= (ps[1] >= blo[:, 1:2]) & (ps[1] <= bhi[:, 1:2])
+    inside &= (ps[2] >= blo[:, 2:3]) & (ps[2] <= bhi[:, 2:3])
+    il, ip = np.nonzero(inside)  # pairs grouped by link, points ascending
+    v = ps[:, ip].T - Tb[il, :3, 3]  # (K, 3)
+    R = Tb[il, :3, :3]  # (K, 3, 3) box axes as columns
     local = v[:, 0:1] * R[:, 0, :] + v[:, 1:2] * R[:, 1, :] + v[:, 2:3] * R[:, 2, :]
     qd = np.abs(local) - ctx.half[il]
     d = np.sqrt(np.sum(np.maximum(qd, 0.0) ** 2, axis=1)) + np.minimum(qd.max(axis=1), 0.0)
-    cuts = np.cumsum([len(x) for x in lists])[:-1]
-    return np.split(ip, cuts), np.split(d, cuts)
+    near = d <= reach
+    il, d, cloud = il[near], d[near], idx[sub[ip[near]]]
+    cuts = np.searchsorted(il, np.arange(1, len(Tb)))
+    return np.split(cloud, cuts), np.split(d, cuts)
 
 
 def _pairs(lists: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -687,6 +703,7 @@ class _Prepared:
     s: float
     stop: str
     p_h: np.ndarray  # nearby cloud points in the frame of T, ascending cloud order
+    idx: np.ndarray  # their cloud indices
     slices: list[_Slice]
 
 
@@ -715,15 +732,17 @@ def _prepare(ctx: _Context, pool: Any, i: int) -> _Prepared | Grasp:
     T[:3, 3] += s * T0[:3, 2]
     # the cloud points the hand can reach after the approach (a box about the hand, r on every
     # side; below the palm also from up to max_lift higher up), in ascending cloud order, in
-    # the frame of the hand there
-    r = ctx.reach + prm.contact_distance
+    # the frame of the hand there: every point a link can touch or hold, for the slices and
+    # the 3D checks (r = the hand's reach + the largest contact or penetration distance)
+    r = ctx.reach + max(prm.contact_distance, prm.penetration_tol)
     lift = prm.max_lift if ctx.support is not None else 0.0
     x, y, z = p_all[:, 0], p_all[:, 1], p_all[:, 2]
     z_lo = max(-r, s - r - lift)
     keep = np.flatnonzero((np.abs(x) <= r) & (np.abs(y) <= r) & (z >= z_lo) & (z <= r + s))
     p_h = p_all[keep] - np.array([0.0, 0.0, s])
     # 2. the slices (closed for many pre-grasps at once by the caller)
-    return _Prepared(i, gt, T0, q0, spread, T, s, stop, p_h, _slices(ctx, T, p_h, q0, gt, spread))
+    slices = _slices(ctx, T, p_h, q0, gt, spread)
+    return _Prepared(i, gt, T0, q0, spread, T, s, stop, p_h, keep, slices)
 
 
 def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Grasp:
@@ -767,7 +786,7 @@ def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Gra
     q_checked = q.copy()
     # depth of the nearby cloud points in every link
     reach = max(prm.contact_distance, prm.penetration_tol)
-    ids, dists = _link_distances(ctx, T, q, reach)
+    ids, dists = _link_distances(ctx, p_h, pre.idx, q, reach)
     bad = {ctx.link_names[j] for j, d in enumerate(dists) if np.any(d < -prm.penetration_tol)}
     if bad:
         for f, cl, *_ in closings:
@@ -792,7 +811,7 @@ def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Gra
                     lo, hi = (mid, hi) if clear(mid) else (lo, mid)
                 q[list(f.flex_index)] = cl.path[hi if clear(hi) else lo]
                 corrected[f.name] = True
-        ids, dists = _link_distances(ctx, T, q, reach)
+        ids, dists = _link_distances(ctx, p_h, pre.idx, q, reach)
     fingers = tuple(
         FingerTrace(
             f.name,
