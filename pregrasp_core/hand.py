@@ -933,85 +933,75 @@ class Hand:
             )
             Q2 = _paths(q_free[two], A2, upper[two], ev2.t)
             q_stop = _paths(q_free[two], A2, upper[two], ev2.t_free[:, None])[:, 0]
+        # ---- the results, per slice: which case, the end configuration, flags, path lengths
+        found1 = ev1.k >= 0
+        stop1 = found1 & ev1.distal_hit  # phase 1 ended by the distal (or its palm test)
+        in2 = np.zeros(S, dtype=bool)
+        in2[two] = True
+        found2 = np.zeros(S, dtype=bool)
+        q_end = Q1[every, ev1.n_t - 1].copy()  # (S, 2) no stop: the last coarse sample
+        q_end[stop1] = q_free[stop1]
+        valid1 = np.arange(n_steps + 1)[None, :] < ev1.n_t[:, None]
+        j1 = np.count_nonzero((ev1.t < ev1.t_free[:, None]) & valid1, axis=1)  # a prefix
+        dis2 = np.full(S, -1, dtype=np.int64)
+        palm2 = np.zeros(S, dtype=bool)
         row2 = np.full(S, -1, dtype=np.int64)
-        row2[two] = np.arange(len(two))
-
-        def contact(link: str, i: int) -> FingerContact:  # i indexes B.P
-            return FingerContact(link, B.P[i].copy(), int(B.source[i]))
+        j2 = np.zeros(S, dtype=np.int64)
+        if len(two):
+            row2[two] = np.arange(len(two))
+            f2 = ev2.k >= 0
+            found2[two] = f2
+            q_end[two] = np.where(f2[:, None], q_stop, Q2[np.arange(len(two)), ev2.n_t - 1])
+            valid2 = np.arange(n_steps + 1)[None, :] < ev2.n_t[:, None]
+            j2[two] = np.count_nonzero((ev2.t < ev2.t_free[:, None]) & valid2, axis=1)
+            dis2[two] = np.where(f2, ev2.distal_idx, -1)
+            palm2[two] = f2 & ev2.palm
+        mid1 = np.where(found1, ev1.middle_idx, -1)
+        dis1 = np.where(stop1, ev1.distal_idx, -1)
+        stopped_middle = mid1 >= 0
+        stopped_distal = (dis1 >= 0) | (dis2 >= 0)
+        palm_stop = found1 & (ev1.palm | palm2)
+        at_limits = ~found1 | (
+            np.all(np.abs(q_end - upper) <= HAND_CLOSING_ANGLE_TOL, axis=1) & ~stopped_distal
+        )
+        q_out = np.where(found1[:, None], np.clip(q_end, lower, upper), q_end)
+        c_idx = np.stack([mid1, dis1, dis2])  # (3, S) the contacts' points in B.P, -1 for none
+        P_c = B.P[np.maximum(c_idx, 0)] if len(B.P) else np.zeros((3, S, 2))  # (3, S, 2)
+        src = B.source[np.maximum(c_idx, 0)] if len(B.P) else np.zeros((3, S), dtype=np.int64)
 
         out: list[FingerClosing] = []
         for s in range(S):  # loop over slices: the small result objects
-            f, nt = fingers[s], int(ev1.n_t[s])
-            if ev1.k[s] < 0:  # no stop: both joints end at their limits
-                path = Q1[s, :nt].copy()
-                out.append(
-                    FingerClosing(
-                        finger=f.name,
-                        q=path[-1].copy(),
-                        contact_link=None,
-                        contact_point=None,
-                        contact_index=None,
-                        contacts=(),
-                        stopped_middle=False,
-                        stopped_distal=False,
-                        palm_stop=False,
-                        at_limits=True,
-                        start_in_contact=False,
-                        path=path,
-                    )
-                )
-                continue
-            t = ev1.t[s, :nt]
-            path = np.concatenate([Q1[s, :nt][t < ev1.t_free[s]], q_free[s][None]])
-            contacts: list[FingerContact] = []
-            stopped_middle = stopped_distal = False
-            start_in_contact = bool(ev1.k[s] == 0)
-            palm_stop = bool(ev1.palm[s])
-            if ev1.middle_idx[s] >= 0:
-                contacts.append(contact(f.links[1], ev1.middle_idx[s]))
-                stopped_middle = True
-            if ev1.distal_hit[s]:  # the distal touched (maybe with the middle): stop
-                if ev1.distal_idx[s] >= 0:
-                    contacts.append(contact(f.links[2], ev1.distal_idx[s]))
-                    stopped_distal = True
-                out.append(
-                    _closing(
-                        f,
-                        q_free[s].copy(),
-                        contacts,
-                        stopped_middle,
-                        stopped_distal,
-                        palm_stop,
-                        start_in_contact,
-                        path,
-                    )
-                )
-                continue
-            r = row2[s]
-            nt2 = int(ev2.n_t[r])
-            t2 = ev2.t[r, :nt2]
-            if ev2.k[r] < 0:
-                path = np.concatenate([path, Q2[r, 1:nt2]])
-                q_end = path[-1].copy()
+            f = fingers[s]
+            if not found1[s]:  # no stop: both joints end at their limits
+                path = Q1[s, : ev1.n_t[s]].copy()
+            elif not in2[s]:
+                path = np.concatenate([Q1[s, : j1[s]], q_free[s : s + 1]])
             else:
-                path = np.concatenate(
-                    [path, Q2[r, :nt2][(t2 > 0) & (t2 < ev2.t_free[r])], q_stop[r][None]]
+                r = row2[s]
+                tail = (
+                    [Q2[r, 1 : j2[s]], q_stop[r : r + 1]] if found2[s] else [Q2[r, 1 : ev2.n_t[r]]]
                 )
-                q_end = q_stop[r].copy()
-                if ev2.distal_idx[r] >= 0:
-                    contacts.append(contact(f.links[2], ev2.distal_idx[r]))
-                    stopped_distal = True
-                palm_stop = palm_stop or bool(ev2.palm[r])
+                path = np.concatenate([Q1[s, : j1[s]], q_free[s : s + 1], *tail])
+            contacts = tuple(
+                FingerContact(f.links[1 if c == 0 else 2], P_c[c, s], int(src[c, s]))
+                for c, i in enumerate((mid1[s], dis1[s], dis2[s]))
+                if i >= 0
+            )
+            last = contacts[-1] if contacts else None
             out.append(
-                _closing(
-                    f,
-                    q_end,
-                    contacts,
-                    stopped_middle,
-                    stopped_distal,
-                    palm_stop,
-                    start_in_contact,
-                    path,
+                FingerClosing(
+                    finger=f.name,
+                    q=q_out[s],
+                    contact_link=None if last is None else last.link,
+                    contact_point=None if last is None else last.point,
+                    contact_index=None if last is None else last.index,
+                    contacts=contacts,
+                    stopped_middle=bool(stopped_middle[s]),
+                    stopped_distal=bool(stopped_distal[s]),
+                    palm_stop=bool(palm_stop[s]),
+                    at_limits=bool(at_limits[s]),
+                    start_in_contact=bool(ev1.k[s] == 0),
+                    path=path,
                 )
             )
         return out

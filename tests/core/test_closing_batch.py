@@ -135,6 +135,18 @@ def test_contact_index_refers_to_the_given_points(hand):
     np.testing.assert_array_equal(c.contact_point, P[5])
 
 
+def test_batches_without_any_point_in_reach(hand):
+    """Only empty slices, or only points out of reach: every finger closes free (palm or limits)."""
+    far = np.full((4, 2), 0.3)
+    for P in (np.zeros((0, 2)), far):
+        slices = [(f, P, np.array([-0.5, 0.1])) for f in FINGERS]
+        for palm in (True, False):
+            got = hand.close_fingers(slices, palm=palm)
+            for s, g in zip(slices, got, strict=True):
+                assert_same(g, hand.close_finger(*s, palm=palm))
+                assert g.contacts == () and (g.palm_stop if palm else g.at_limits)
+
+
 def test_empty_list_and_bad_input(hand):
     assert hand.close_fingers([]) == []
     good = ("f1", np.zeros((3, 2)), np.zeros(2))
