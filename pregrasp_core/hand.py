@@ -1743,32 +1743,31 @@ def _coarse_sweep(B, sl, qb, A, upper, t, n_t, step, pts, rows, links):
     t_flat = t.reshape(-1)
     inv_step = np.divide(1.0, step, out=np.full(R, np.inf), where=step > 0)
     free = np.zeros(len(pts))  # each point is off the links for all t in [0, free)
+    px, py = B.P[pts, 0], B.P[pts, 1]
     lim = np.minimum(n_t, best)  # (R,) samples beyond this need no test
-    # buckets[k]: the points to test at coarse sample k, as (positions in pts, rows, x, y, free
-    # so far); every point starts at sample 0 and, untouched, moves on to the first sample its
+    # buckets[k]: the points (positions in pts, increasing in each part) to test at coarse
+    # sample k; every point starts at sample 0 and, untouched, moves on to the first sample its
     # clearance does not cover
-    buckets: list[list[tuple]] = [[] for _ in range(C1)]
-    buckets[0].append((np.arange(len(pts)), rows, B.P[pts, 0], B.P[pts, 1], free.copy()))
+    buckets: list[list[np.ndarray]] = [[] for _ in range(C1)]
+    buckets[0].append(np.arange(len(pts)))
     for k in range(C1):  # loop over closing steps, in order: a slice stops at its first touch
         if not buckets[k]:
             continue
         parts, buckets[k] = buckets[k], []
-        if len(parts) == 1:
-            pos, rw, px, py, f = parts[0]
+        if k == 0 and np.all(lim > 0):  # every point (no gathers)
+            pos, rw, ppx, ppy, f = parts[0], rows, px, py, free
         else:
-            pos, rw, px, py, f = (np.concatenate(c) for c in zip(*parts, strict=True))
-        ok = lim[rw] > k
-        if not ok.all():  # slices that touched at an earlier sample
-            free[pos[~ok]] = f[~ok]
-            pos, rw, px, py, f = pos[ok], rw[ok], px[ok], py[ok], f[ok]
+            pos = parts[0] if len(parts) == 1 else np.concatenate(parts)
+            pos = pos[lim[rows[pos]] > k]
             if len(pos) == 0:
                 continue
+            rw, ppx, ppy, f = rows[pos], px[pos], py[pos], free[pos]
         ci = rw * C1 + k
-        hit, clear = _pair_eval(flat, ci, px, py, B.margin, links)
+        hit, clear = _pair_eval(flat, ci, ppx, ppy, B.margin, links)
         tk = np.take(t_flat, ci)
         # the certified intervals (tk - clear, tk + clear) of a point chain up from t = 0 (its
         # next test is at or before tk + clear, unless it is pushed to the next sample)
-        f = np.where(tk - clear < f, np.maximum(f, tk + clear), f)
+        free[pos] = np.where(tk - clear < f, np.maximum(f, tk + clear), f)
         if hit.any():
             best[rw[hit]] = k  # the first touch of these slices (the samples go in order)
             lim = np.minimum(n_t, best)
@@ -1777,21 +1776,18 @@ def _coarse_sweep(B, sl, qb, A, upper, t, n_t, step, pts, rows, links):
             nxt = np.floor((tk + clear) * inv_step[rw])
         nxt = np.where(np.isfinite(nxt), np.minimum(nxt, C1), C1).astype(np.int64)
         nxt = np.maximum(nxt, k + 1)
-        go = ~hit & (nxt < lim[rw])
-        if not go.all():
-            free[pos[~go]] = f[~go]
-        keep = np.flatnonzero(go)
+        keep = np.flatnonzero(~hit & (nxt < lim[rw]))
         if len(keep) == 0:
             continue
         nk = nxt[keep]
-        # (a radix sort for 16-bit keys)
+        # stable (a radix sort for 16-bit keys): positions stay increasing within each part
         order = keep[np.argsort(nk.astype(np.int16) if C1 < 2**15 else nk, kind="stable")]
-        pos, rw, px, py, f, nxt = (x[order] for x in (pos, rw, px, py, f, nxt))
+        pos, nxt = pos[order], nxt[order]
         cut = np.flatnonzero(np.diff(nxt)) + 1
         starts = np.concatenate([[0], cut])
         ends = np.concatenate([cut, [len(nxt)]])
         for a, b in zip(starts, ends, strict=True):  # loop over distinct next samples (< C1)
-            buckets[int(nxt[a])].append((pos[a:b], rw[a:b], px[a:b], py[a:b], f[a:b]))
+            buckets[int(nxt[a])].append(pos[a:b])
     k = np.where(best < n_t, best, -1)
     return k, free
 
