@@ -891,7 +891,10 @@ class Hand:
         src_all = np.arange(len(P_all)) - np.repeat(np.cumsum(sizes) - sizes, sizes)
         reach = geom[:, 1] + np.hypot(geom[:, 2], geom[:, 3]) + 2.0 * abs(margin)
         keep = np.einsum("ij,ij->i", P_all, P_all) <= (reach * reach)[seg_all]
-        seg = seg_all[keep]
+        if not keep.all():  # (integer indices: much faster than a boolean mask on (N, 2))
+            kept = np.flatnonzero(keep)
+            P_all, seg_all, src_all = P_all[kept], seg_all[kept], src_all[kept]
+        seg = seg_all
         B = _SliceBatch(
             fingers=tuple(fingers),
             Lk=geom[:, 0],
@@ -899,10 +902,12 @@ class Hand:
             Ld=geom[:, 2],
             h=geom[:, 3],
             upper=upper,
-            P=P_all[keep],
+            P=P_all,
+            x=np.ascontiguousarray(P_all[:, 0]),
+            y=np.ascontiguousarray(P_all[:, 1]),
             seg=seg,
             start=np.concatenate([[0], np.cumsum(np.bincount(seg, minlength=S))]),
-            source=src_all[keep],
+            source=src_all,
             margin=float(margin),
             palm=bool(palm),
         )
@@ -924,10 +929,10 @@ class Hand:
             t_end2 = np.maximum(upper[two, 1] - q_free[two, 1], 0.0)
             # the distal joint stays where it is: only the points within the distal link's
             # circumradius (grown by the margin) of it can be touched
-            o2 = B.Lm[:, None] * np.stack([np.cos(q_free[:, 0]), np.sin(q_free[:, 0])], axis=1)
+            o2x, o2y = B.Lm * np.cos(q_free[:, 0]), B.Lm * np.sin(q_free[:, 0])  # (S,)
             r2 = np.hypot(B.Ld + abs(margin), B.h + abs(margin)) + 1e-9  # (S,)
-            d = B.P - o2[B.seg]
-            near2 = np.einsum("ij,ij->i", d, d) <= (r2 * r2)[B.seg]
+            dx, dy = B.x - o2x[B.seg], B.y - o2y[B.seg]
+            near2 = dx * dx + dy * dy <= (r2 * r2)[B.seg]
             ev2 = _batch_first_events(
                 B, two, q_free[two], A2, t_end2, n_steps, (False, True), may_touch=near2
             )
@@ -1503,6 +1508,10 @@ class _SliceBatch:
     """(S, 2) upper flexion limits."""
     P: np.ndarray
     """(N, 2) the points within reach of all slices (``Pr`` of ``close_finger``), slice by slice."""
+    x: np.ndarray
+    """(N,) ``P[:, 0]``, contiguous."""
+    y: np.ndarray
+    """(N,) ``P[:, 1]``, contiguous."""
     seg: np.ndarray
     """(N,) int64 slice of each point (non-decreasing)."""
     start: np.ndarray
@@ -1565,8 +1574,8 @@ def _pair_hits(
     with each 2-term dot product written out (the single-slice version uses a matrix product,
     which may round the last bit differently)."""
     m = B.margin
-    px = B.P[pts, 0][:, None]
-    py = B.P[pts, 1][:, None]
+    px = B.x[pts][:, None]
+    py = B.y[pts][:, None]
     sl = B.seg[pts]
     C = cfg.d1x.shape[1]
     mid = dis = None
@@ -1653,7 +1662,7 @@ def _batch_distance(B: _SliceBatch, q: np.ndarray, pts: np.ndarray, link: int) -
     sl = B.seg[pts]
     a = q[:, 0] if link == 0 else q[:, 0] + q[:, 1]
     dx, dy = np.cos(a), np.sin(a)
-    px, py = B.P[pts, 0], B.P[pts, 1]
+    px, py = B.x[pts], B.y[pts]
     if link == 1:
         px = px - B.Lm[sl] * np.cos(q[:, 0])
         py = py - B.Lm[sl] * np.sin(q[:, 0])
@@ -1743,7 +1752,7 @@ def _coarse_sweep(B, sl, qb, A, upper, t, n_t, step, pts, rows, links):
     t_flat = t.reshape(-1)
     inv_step = np.divide(1.0, step, out=np.full(R, np.inf), where=step > 0)
     free = np.zeros(len(pts))  # each point is off the links for all t in [0, free)
-    px, py = B.P[pts, 0], B.P[pts, 1]
+    px, py = B.x[pts], B.y[pts]
     lim = np.minimum(n_t, best)  # (R,) samples beyond this need no test
     # buckets[k]: the points (positions in pts, increasing in each part) to test at coarse
     # sample k; every point starts at sample 0 and, untouched, moves on to the first sample its
