@@ -842,13 +842,17 @@ class Hand:
         ``close_finger(*slices[i], n_steps, margin, coupling, palm)``.
 
         ``slices``: ``(finger, points_2d (M_i, 2), q_start (2,))`` per slice, any fingers and
-        sizes (``M_i`` may be 0). The same model and the same sampling as :meth:`close_finger`
-        (coarse steps, refinement of the bracket of the first touch level by level, the event
-        at its end), each stage evaluated for the (sample, point) pairs of all slices together,
-        every point with its own slice's path; the work is chunked to at most ``_BATCH_PAIRS``
-        pairs at once. The hit tests write each 2-term dot product out where
-        :meth:`close_finger` uses a matrix product (equal up to the last bit, which can only
-        matter for a point exactly on a link's boundary)."""
+        sizes (``M_i`` may be 0); the results come in the same order, and contact indices refer
+        to each slice's own ``points_2d``. The same model and the same sampling as
+        :meth:`close_finger` (coarse steps, refinement of the bracket of the first touch with
+        the same samples per level, the event at its end), each stage run for all slices
+        together, every point with its own slice's path. The coarse sweep goes through the steps
+        in order and tests a point only at the steps where it may touch (conservative
+        advancement from its distance to the links), so most (step, point) pairs are never
+        evaluated; see ``docs/hand.md``. Memory: O(points) per step of the sweep and at most
+        ``_BATCH_PAIRS`` (point, sample) pairs per refinement chunk. The hit tests write each
+        2-term dot product out where :meth:`close_finger` uses a matrix product (equal up to the
+        last bit, which can only matter for a point within ~1e-18 m of a link's boundary)."""
         if n_steps < 1:
             raise ValueError(f"n_steps must be >= 1, got {n_steps}")
         if coupling <= 0:
@@ -1620,7 +1624,7 @@ def _any_hit_ragged(
     flat = _Configs(*(getattr(cfg, k).reshape(-1, 1) for k in _Configs.__dataclass_fields__))
     reps = n_row[rows]  # (Np,) samples per point
     ends = np.cumsum(reps)
-    step = max(1, _BATCH_PAIRS)
+    step = _BATCH_PAIRS
     b0 = 0
     while b0 < len(pts):  # chunks of points (memory)
         b1 = int(np.searchsorted(ends, ends[b0 - 1] + step if b0 else step, side="right"))
@@ -1632,8 +1636,7 @@ def _any_hit_ragged(
         cfg_i = np.repeat(rw, rp) * C + j  # (T,) configuration of each pair
         mid, dis = _pair_hits(B, flat, cfg_i, pair_pt, links)
         mid |= dis
-        hit_cfg = cfg_i[mid[:, 0]]
-        out.reshape(-1)[hit_cfg] = True
+        np.put(out, cfg_i[mid[:, 0]], True)  # flat indices into the (R, C) result
         b0 = b1
     return out
 
@@ -1907,7 +1910,8 @@ def _batch_first_events(
             f_lo[live] = np.where(found, prev, ts[rows, n_ref[live] - 1])
             f_hi[live] = np.where(found, ts[rows, j], f_hi[live])
         lo[ref], hi[ref] = f_lo, f_hi
-    # the event at hi: every point of the slice, the touching point of least distance per link
+    # the event at hi (tested on the points that may touch there, a superset of those that do):
+    # the touching point of least distance per link
     ev = np.flatnonzero(has)
     mid_idx = np.full(R, -1, dtype=np.int64)
     dis_idx = np.full(R, -1, dtype=np.int64)
