@@ -1707,8 +1707,8 @@ def _pair_eval(
         top = np.take(flat["top0" if link == 0 else "top1"], ci)
         np.abs(r, out=r)
         # distance to the grown rectangle: (max(-m - s, s - top, 0), max(|r| - hm, 0)); a
-        # rounded difference has the sign of the exact one, so it is 0 exactly when
-        # s >= -m, s <= top and |r| <= hm: the tests of _FingerGeometry.hits
+        # rounded difference has the sign of the exact one (gradual underflow), so both are 0
+        # exactly when s >= -m, s <= top and |r| <= hm: the tests of _FingerGeometry.hits
         np.subtract(s, top, out=top)
         np.negative(s, out=s)
         s -= m
@@ -1716,10 +1716,10 @@ def _pair_eval(
         np.maximum(s, 0.0, out=s)
         r -= hm
         np.maximum(r, 0.0, out=r)
+        hit |= np.maximum(s, r, out=top) == 0.0  # (before squaring, which may underflow)
         s *= s
         r *= r
         s += r
-        hit |= s == 0.0
         np.sqrt(s, out=s)
         s -= 1e-9  # metres; the slack covers the rounding of both ways of computing
         np.maximum(s, 0.0, out=s)

@@ -8,6 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 from pregrasp_core.hand import FingerClosing, Hand, load_hand
 
@@ -145,6 +148,27 @@ def test_batches_without_any_point_in_reach(hand):
             for s, g in zip(slices, got, strict=True):
                 assert_same(g, hand.close_finger(*s, palm=palm))
                 assert g.contacts == () and (g.palm_stop if palm else g.at_limits)
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(
+    pts=st.lists(
+        hnp.arrays(
+            np.float64, st.tuples(st.integers(0, 30), st.just(2)), elements=st.floats(-0.06, 0.12)
+        ),
+        min_size=1,
+        max_size=4,
+    ),
+    q0=hnp.arrays(np.float64, (2,), elements=st.floats(-1.0, 2.0)),
+    coupling=st.floats(0.3, 3.0),
+    margin=st.sampled_from([0.0, 0.001, 0.004]),
+)
+def test_batch_equals_close_finger_hypothesis(hand, pts, q0, coupling, margin):
+    slices = [(FINGERS[i % 3], P, q0 + 0.1 * i) for i, P in enumerate(pts)]
+    got = hand.close_fingers(slices, n_steps=12, margin=margin, coupling=coupling)
+    for i, (s, g) in enumerate(zip(slices, got, strict=True)):
+        ref = hand.close_finger(*s, n_steps=12, margin=margin, coupling=coupling)
+        assert_same(g, ref, f"slice {i}")
 
 
 def test_empty_list_and_bad_input(hand):
