@@ -992,7 +992,7 @@ class Hand:
                 )
                 path = np.concatenate([Q1[s, : j1[s]], q_free[s : s + 1], *tail])
             contacts = tuple(
-                FingerContact(f.links[1 if c == 0 else 2], P_c[c, s], int(src[c, s]))
+                FingerContact(f.links[1 if c == 0 else 2], P_c[c, s].copy(), int(src[c, s]))
                 for c, i in enumerate((mid1[s], dis1[s], dis2[s]))
                 if i >= 0
             )
@@ -1000,7 +1000,7 @@ class Hand:
             out.append(
                 FingerClosing(
                     finger=f.name,
-                    q=q_out[s],
+                    q=q_out[s].copy(),  # (own arrays, as close_finger's)
                     contact_link=None if last is None else last.link,
                     contact_point=None if last is None else last.point,
                     contact_index=None if last is None else last.index,
