@@ -104,6 +104,17 @@ def test_batch_equals_close_finger_per_slice(hand, margin, palm, coupling):
     assert ("palm_stop" if palm else "at_limits") in seen
 
 
+@pytest.mark.parametrize(("n_steps", "margin", "coupling"), [(1, 0.003, 20.0), (7, -0.001, 0.05)])
+def test_batch_equals_close_finger_odd_parameters(hand, n_steps, margin, coupling):
+    """One step per phase, a negative margin, extreme couplings."""
+    rng = np.random.default_rng(n_steps)
+    slices = [_random_slice(rng, hand, kind) for kind in KINDS for _ in range(3)]
+    got = hand.close_fingers(slices, n_steps=n_steps, margin=margin, coupling=coupling)
+    for i, (s, g) in enumerate(zip(slices, got, strict=True)):
+        ref = hand.close_finger(*s, n_steps=n_steps, margin=margin, coupling=coupling)
+        assert_same(g, ref, f"slice {i}")
+
+
 def test_mixed_batch_of_about_100_slices(hand):
     """~100 slices of all fingers, sizes 0..1500, one call vs one call each, default steps."""
     rng = np.random.default_rng(7)
