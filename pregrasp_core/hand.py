@@ -1160,13 +1160,23 @@ class Hand:
                 pairs.append((self.link_names[a], self.link_names[b]))
         return tuple(pairs)
 
-    def self_collisions(self, q: np.ndarray) -> list[tuple[str, str]]:
+    def self_collisions(
+        self, q: np.ndarray, box_poses: np.ndarray | None = None
+    ) -> list[tuple[str, str]]:
         """The link pairs (of :attr:`self_collision_pairs_checked`) whose boxes intersect at
-        configuration ``q`` (J,), by python-fcl."""
+        configuration ``q`` (J,), by python-fcl. ``box_poses``: :meth:`box_poses` of ``q``
+        (L, 4, 4) when the caller already has them (saves the forward kinematics)."""
         Q, single = self._as_q(q)
         if not single:
             raise ValueError(f"q must have shape ({self.n_joints},), got {Q.shape}")
-        Tb = self.box_poses(Q[0])  # (L, 4, 4)
+        if box_poses is None:
+            Tb = self.box_poses(Q[0])  # (L, 4, 4)
+        else:
+            Tb = np.asarray(box_poses, dtype=np.float64)
+            if Tb.shape != (len(self.link_names), 4, 4):
+                raise ValueError(
+                    f"box_poses must have shape ({len(self.link_names)}, 4, 4), got {Tb.shape}"
+                )
         ia, ib, reach = self._self_pair_spheres
         # exact pre-test: boxes whose circumscribed balls are apart cannot intersect; only the
         # other pairs go to python-fcl (same answer, far fewer fcl calls)

@@ -656,7 +656,7 @@ def _open_self_collisions(
     hand = ctx.hand
     q = q.copy()
     for _ in range(len(closings)):  # loop over <= 3 fingers
-        pairs = hand.self_collisions(q)
+        pairs = hand.self_collisions(q, ctx.boxes(q)[0])
         if not pairs:
             return q, True
         a, b = pairs[0]
@@ -687,7 +687,7 @@ def _open_self_collisions(
         _, f, q_flex = best
         q[list(f.flex_index)] = q_flex
         corrected[f.name] = True
-    return q, not hand.self_collisions(q)
+    return q, not hand.self_collisions(q, ctx.boxes(q)[0])
 
 
 @dataclass
@@ -833,7 +833,9 @@ def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Gra
             f"{ctx.link_names[j]} holds a point {depth[j] * 1e3:.1f} mm deep",
             T, s, stop, q, fingers,
         )  # fmt: skip
-    pairs = [] if clean and np.array_equal(q, q_checked) else hand.self_collisions(q)
+    pairs = (
+        [] if clean and np.array_equal(q, q_checked) else hand.self_collisions(q, ctx.boxes(q)[0])
+    )
     if pairs:
         detail = f"{pairs[0][0]} and {pairs[0][1]}"
         return rejected("self_collision", detail, T, s, stop, q, fingers)

@@ -378,6 +378,27 @@ def test_self_collision_detects_overlap(hand):
     assert not hand.self_collision(hand.preshape("spherical"))
 
 
+def test_self_collisions_with_given_box_poses_match_python_fcl_pairs(hand):
+    """Passing the box poses (as the planner does) gives the same pairs; each pair agrees with
+    python-fcl on the link objects of ``collision_objects``; a wrong shape is refused."""
+    import fcl
+
+    rng = np.random.default_rng(11)
+    Q = hand.clamp(rng.uniform(hand.lower, hand.upper, size=(40, hand.n_joints)))
+    n_hit = 0
+    for q in Q:  # loop over 40 configurations
+        pairs = hand.self_collisions(q, hand.box_poses(q))
+        assert pairs == hand.self_collisions(q)
+        objs = hand.collision_objects(q)
+        for a, b in hand.self_collision_pairs_checked:
+            hit = fcl.collide(objs[a], objs[b], fcl.CollisionRequest(), fcl.CollisionResult())
+            assert ((a, b) in pairs) == (hit > 0)
+        n_hit += bool(pairs)
+    assert 0 < n_hit < len(Q)  # both outcomes occur
+    with pytest.raises(ValueError, match=r"box_poses must have shape"):
+        hand.self_collisions(Q[0], np.eye(4))
+
+
 def test_no_self_collision_when_closing_at_spread_pi_over_2(hand):
     """Every configuration the closing model produces for f1 and f2 at spread pi/2 (thumb open)
     is free of self-collision, with and without objects between the fingers."""
