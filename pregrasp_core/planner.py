@@ -38,8 +38,10 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import logging
+import os
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -112,8 +114,14 @@ class PlannerParams:
     """Friction coefficient, cone edges and torque scale of the quality measure."""
     normals: NormalParams = field(default_factory=NormalParams)
     """Normal estimation (computed once per cloud)."""
+    threads: int = 0
+    """Threads for the quality measure's 6D hulls (qhull runs without Python's global lock, so
+    they scale with the cores); 0 = one per CPU this process may use, 1 = none. Only the speed
+    depends on it, never a result."""
 
     def __post_init__(self) -> None:
+        if int(self.threads) != self.threads or self.threads < 0:
+            raise ValueError(f"threads must be an integer >= 0, got {self.threads}")
         for name in ("approach_clearance", "closing_margin", "penetration_tol"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0.0):
@@ -233,7 +241,9 @@ class GraspSet:
     """Number of rejected pre-grasps per reason (every key of :data:`REJECTION_REASONS`)."""
     phase_seconds: dict[str, float] = field(default_factory=dict)
     """Wall time per planner phase over the whole pool: ``approach_slicing``, ``closing``,
-    ``verification`` (retreat from the support, 3D checks, contacts) and ``quality``."""
+    ``verification`` (retreat from the support, 3D checks, contacts) and ``quality`` (with
+    ``PlannerParams.threads`` != 1 the hulls run on a thread pool beside the other phases, and
+    ``quality`` is only the time spent waiting for them)."""
 
     def __len__(self) -> int:
         return len(self.grasps)
@@ -874,14 +884,96 @@ def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Gra
         )
         for k, (j, p) in enumerate(zip(links, pid, strict=True))
     )  # fmt: skip
-    # 5. quality
-    t_q = time.perf_counter()
-    qual: GraspQuality = grasp_quality(ctx.points[pid], normals_in, prm.quality, tangents=tangents)
-    dt = time.perf_counter() - t_q
-    ctx.clock["quality"] += dt
-    return Grasp(
-        i, gt, T, s, stop, q, fingers, contacts, qual.epsilon, qual.volume, None, None, qual.reason
-    )
+    # 5. quality: by the caller, for the chunk's kept grasps together (see _score)
+    return Grasp(i, gt, T, s, stop, q, fingers, contacts, 0.0, 0.0, None, None, "")
+
+
+def _score(prm: PlannerParams, g: Grasp) -> Grasp:
+    """``g`` with the epsilon, volume and quality detail of its contacts."""
+    pts = np.array([c.point for c in g.contacts])
+    nrm = np.array([c.normal for c in g.contacts])
+    tng = np.array([c.tangent for c in g.contacts])
+    qual: GraspQuality = grasp_quality(pts, nrm, prm.quality, tangents=tng)
+    return dataclasses.replace(g, epsilon=qual.epsilon, volume=qual.volume, detail=qual.reason)
+
+
+def _n_threads(threads: int) -> int:
+    """Threads for the quality measure (``PlannerParams.threads``; 0 = the usable CPUs)."""
+    if threads:
+        return int(threads)
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not on Linux
+        return os.cpu_count() or 1
+
+
+def _plan_chunks(
+    ctx: _Context,
+    pool: Any,
+    P: int,
+    pool_q: ThreadPoolExecutor | None,
+    grasps: list[Grasp],
+    progress: Callable[[int, int], None] | None,
+) -> None:
+    """Plan the pre-grasps of ``pool`` chunk by chunk into ``grasps`` (see :func:`plan_grasps`)."""
+    prm, clock, done = ctx.params, ctx.clock, 0
+    pending = None  # the chunk whose hulls the thread pool is computing, with their futures
+    for c0 in range(0, P, _CHUNK):  # loop over chunks of pre-grasps
+        t0 = time.perf_counter()
+        preps = [_prepare(ctx, pool, i) for i in range(c0, min(P, c0 + _CHUNK))]
+        todo = [p for p in preps if isinstance(p, _Prepared)]
+        t1 = time.perf_counter()
+        cls = _close_slices(ctx, [sl for p in todo for sl in p.slices])
+        t2 = time.perf_counter()
+        clock["approach_slicing"] += t1 - t0
+        clock["closing"] += t2 - t1
+        records, k = {}, 0
+        for p in todo:  # loop over the chunk's pre-grasps
+            records[p.i] = _closing_records(p.q0, p.slices, cls[k : k + len(p.slices)])
+            k += len(p.slices)
+        if records:  # the link boxes of every closed hand of the chunk: one batched FK
+            ctx.prefetch_boxes(np.array([q for q, _ in records.values()]))
+        chunk = [_finish(ctx, p, *records[p.i]) if isinstance(p, _Prepared) else p for p in preps]
+        t3 = time.perf_counter()
+        clock["verification"] += t3 - t2
+        # 5. quality of the kept grasps, one 6D hull each: inline, or on the thread pool while
+        # this thread goes on with the next chunk (qhull runs without the GIL)
+        kept = [k for k, g in enumerate(chunk) if g.kept]
+        if pool_q is None:
+            for k in kept:
+                chunk[k] = _score(prm, chunk[k])
+            clock["quality"] += time.perf_counter() - t3
+            done = _collect(chunk, [], grasps, done, P, progress)
+        else:
+            if pending is not None:  # the chunk before: wait for its hulls
+                done = _collect(*pending, grasps, done, P, progress, clock)
+            futures = [(k, pool_q.submit(_score, prm, chunk[k])) for k in kept]
+            pending = (chunk, futures)
+    if pending is not None:
+        _collect(*pending, grasps, done, P, progress, clock)
+
+
+def _collect(
+    chunk: list[Grasp],
+    futures: list,
+    grasps: list[Grasp],
+    done: int,
+    P: int,
+    progress: Callable[[int, int], None] | None,
+    clock: dict[str, float] | None = None,
+) -> int:
+    """Put the scored grasps of ``futures`` ((position, future) pairs) into ``chunk``, append it
+    to ``grasps`` and report progress; returns the number of pre-grasps done."""
+    t = time.perf_counter()
+    for k, fut in futures:
+        chunk[k] = fut.result()
+    if clock is not None:
+        clock["quality"] += time.perf_counter() - t  # the wait for the pool
+    grasps.extend(chunk)
+    done += len(chunk)
+    if progress is not None:
+        progress(done, P)
+    return done
 
 
 def rank_grasps(grasps: list[Grasp] | tuple[Grasp, ...]) -> np.ndarray:
@@ -928,36 +1020,16 @@ def plan_grasps(
         )
     ctx = _Context(pts, nrm, hand, prm, support)
     grasps: list[Grasp] = []
-    step = max(1, P // 100)
     # chunks of pre-grasps: approach and slicing per pre-grasp, the closing of every finger of
-    # the chunk in one call of the batched closing model, then verification and quality per
-    # pre-grasp (every step inside is vectorised over points, links and closing steps)
-    done = 0
-    clock = ctx.clock
-    for c0 in range(0, P, _CHUNK):  # loop over chunks of pre-grasps
-        t0 = time.perf_counter()
-        preps = [_prepare(ctx, pool, i) for i in range(c0, min(P, c0 + _CHUNK))]
-        todo = [p for p in preps if isinstance(p, _Prepared)]
-        t1 = time.perf_counter()
-        cls = _close_slices(ctx, [sl for p in todo for sl in p.slices])
-        t2, q_before = time.perf_counter(), clock["quality"]
-        clock["approach_slicing"] += t1 - t0
-        clock["closing"] += t2 - t1
-        records, k = {}, 0
-        for p in todo:  # loop over the chunk's pre-grasps
-            records[p.i] = _closing_records(p.q0, p.slices, cls[k : k + len(p.slices)])
-            k += len(p.slices)
-        if records:  # the link boxes of every closed hand of the chunk: one batched FK
-            ctx.prefetch_boxes(np.array([q for q, _ in records.values()]))
-        for p in preps:  # loop over the chunk's pre-grasps
-            if isinstance(p, _Prepared):
-                grasps.append(_finish(ctx, p, *records[p.i]))
-            else:
-                grasps.append(p)
-            done += 1
-            if progress is not None and (done % step == 0 or done == P):
-                progress(done, P)
-        clock["verification"] += time.perf_counter() - t2 - (clock["quality"] - q_before)
+    # the chunk in one call of the batched closing model, verification per pre-grasp, then the
+    # quality of the chunk's kept grasps (on a thread pool: qhull runs without the GIL)
+    n_threads = min(_n_threads(prm.threads), _CHUNK)
+    pool_q = ThreadPoolExecutor(n_threads) if n_threads > 1 and P > 1 else None
+    try:
+        _plan_chunks(ctx, pool, P, pool_q, grasps, progress)
+    finally:
+        if pool_q is not None:
+            pool_q.shutdown()
     order = rank_grasps(grasps)
     ranked = list(grasps)
     for r, k in enumerate(order):
@@ -974,7 +1046,7 @@ def plan_grasps(
         sum(g.epsilon > 0 for g in ranked),
         rejected,
     )
-    return GraspSet(tuple(ranked), order, joint_names, rejected, dict(clock))
+    return GraspSet(tuple(ranked), order, joint_names, rejected, dict(ctx.clock))
 
 
 def cloud_normals(cloud: Any, params: NormalParams | None = None) -> np.ndarray:

@@ -24,6 +24,7 @@ from pregrasp_core.planner import (
     rank_grasps,
     sweep_hit,
 )
+from pregrasp_core.quality import grasp_quality
 from pregrasp_core.sampling import PreGraspPool
 
 
@@ -368,6 +369,48 @@ def test_empty_pool_and_determinism(hand, box_plan):
     for a, b in zip(gs.grasps, again.grasps, strict=True):
         assert a.epsilon == b.epsilon and a.rank == b.rank
         assert np.array_equal(a.q, b.q) and np.array_equal(a.T_world_hand, b.T_world_hand)
+
+
+def test_quality_threads_change_no_result(hand):
+    """More pre-grasps than one chunk (64): the hulls on a thread pool, overlapping the next
+    chunk, give exactly the grasps of the single-thread run; progress ends at the pool size;
+    every kept grasp's scores are those of grasp_quality on its own contacts."""
+    mesh = trimesh.creation.cylinder(radius=0.03, height=0.15)
+    angles = np.linspace(0.0, 2 * np.pi, 70, endpoint=False)
+    Ts = [
+        _pose(hand, "cylindrical", [np.cos(a), np.sin(a), 0.0], [-np.sin(a), np.cos(a), 0.0],
+              np.array([0.0, 0.0, 0.01 * (k % 7) - 0.03]), 0.09)
+        for k, a in enumerate(angles)
+    ]  # fmt: skip
+    pool = _pool(hand, Ts, "cylindrical")
+    pts, nrm = _cloud(mesh, n=6000)
+    seen = []
+    one = plan_grasps(pts, nrm, pool, hand, PlannerParams(threads=1))
+    three = plan_grasps(
+        pts, nrm, pool, hand, PlannerParams(threads=3), progress=lambda d, n: seen.append((d, n))
+    )
+    assert seen == sorted(seen) and seen[-1] == (70, 70)
+    assert np.array_equal(one.ranking, three.ranking) and one.n_force_closure > 0
+    assert len(one.ranking) > 64  # kept grasps in both chunks
+    prm = PlannerParams()
+    for a, b in zip(one.grasps, three.grasps, strict=True):
+        assert (a.epsilon, a.volume, a.rank, a.rejection, a.detail) == (
+            b.epsilon, b.volume, b.rank, b.rejection, b.detail,
+        )  # fmt: skip
+        assert np.array_equal(a.q, b.q) and [c.point_index for c in a.contacts] == [
+            c.point_index for c in b.contacts
+        ]
+        if a.kept:
+            ref = grasp_quality(
+                np.array([c.point for c in a.contacts]),
+                np.array([c.normal for c in a.contacts]),
+                prm.quality,
+                tangents=np.array([c.tangent for c in a.contacts]),
+            )
+            assert (a.epsilon, a.volume) == (ref.epsilon, ref.volume)
+    assert set(three.phase_seconds) == {"approach_slicing", "closing", "verification", "quality"}
+    with pytest.raises(ValueError, match="threads must be an integer >= 0"):
+        PlannerParams(threads=-1)
 
 
 def test_pipeline_grasps_stage_reuses_normals_and_pool(hand):
