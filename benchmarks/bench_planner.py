@@ -12,8 +12,8 @@ Prints, for every object of ``assets/objects`` at ``--points`` points (default 2
 4. the cost of the quality measure alone (6D qhull) against the number of contacts.
 
 Runs on one core (BLAS pinned to 1 thread, the process pinned to one CPU when the OS allows
-it, no quality thread pool); ``--threads T`` instead runs unpinned with the quality's hulls on
-T threads beside the rest (``PlannerParams.threads``). Usage::
+it, no thread pool); ``--threads T`` instead runs unpinned with the planner's per-pre-grasp
+phases on T threads (``PlannerParams.threads``). Usage::
 
     .venv/bin/python benchmarks/bench_planner.py [--points 20000] [--repeats 1] [--objects a b]
         [--threads 1]
@@ -122,10 +122,10 @@ def main() -> None:
         type=int,
         default=1,
         help="1 (default): one CPU, no thread pool (the one-core figure); T > 1: not pinned, "
-        "the quality's hulls on T threads beside the rest (PlannerParams.threads)",
+        "the per-pre-grasp phases on T threads (PlannerParams.threads)",
     )
     args = ap.parse_args()
-    pinned = pin_one_core() if args.threads == 1 else f"not pinned, {args.threads} quality threads"
+    pinned = pin_one_core() if args.threads == 1 else f"not pinned, {args.threads} threads"
     paths = demo_objects()
     if args.objects:
         paths = [p for p in paths if p.stem in args.objects]
@@ -175,11 +175,6 @@ def main() -> None:
             f"\nwithout the quality measure: {n_pre / max(t_noq, 1e-9):.0f} pre-grasps/s; the 6D "
             f"hull alone ({n_kept} kept grasps, {t_q / max(n_kept, 1) * 1e3:.2f} ms each on "
             f"average) caps the planner at {n_pre / max(t_q, 1e-9):.0f} pre-grasps/s on one core"
-        )
-    else:
-        print(
-            f"\nquality: only the time spent waiting for the {args.threads} hull threads, which "
-            "run beside the other phases"
         )
 
     print("\n## Best grasp per object\n")

@@ -36,9 +36,11 @@ reason from :data:`REJECTION_REASONS`), so the whole trace is in the result file
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import logging
 import os
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -115,9 +117,10 @@ class PlannerParams:
     normals: NormalParams = field(default_factory=NormalParams)
     """Normal estimation (computed once per cloud)."""
     threads: int = 0
-    """Threads for the quality measure's 6D hulls (qhull runs without Python's global lock, so
-    they scale with the cores); 0 = one per CPU this process may use, 1 = none. Only the speed
-    depends on it, never a result."""
+    """Threads for the per-pre-grasp phases (approach and slicing, verification, quality: numpy,
+    the k-d tree and qhull release Python's global lock for most of their work); 0 = one per
+    CPU this process may use (at most 64), 1 = none. Only the speed depends on it, never a
+    result."""
 
     def __post_init__(self) -> None:
         if int(self.threads) != self.threads or self.threads < 0:
@@ -241,9 +244,7 @@ class GraspSet:
     """Number of rejected pre-grasps per reason (every key of :data:`REJECTION_REASONS`)."""
     phase_seconds: dict[str, float] = field(default_factory=dict)
     """Wall time per planner phase over the whole pool: ``approach_slicing``, ``closing``,
-    ``verification`` (retreat from the support, 3D checks, contacts) and ``quality`` (with
-    ``PlannerParams.threads`` != 1 the hulls run on a thread pool beside the other phases, and
-    ``quality`` is only the time spent waiting for them)."""
+    ``verification`` (retreat from the support, 3D checks, contacts) and ``quality``."""
 
     def __len__(self) -> int:
         return len(self.grasps)
@@ -360,6 +361,7 @@ class _Context:
         self.clock = dict.fromkeys(("approach_slicing", "closing", "verification", "quality"), 0.0)
         self._planes: dict[tuple[str, float], Any] = {}
         self._boxes: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._lock = threading.Lock()
         # reach: half side of a cube about the palm origin that holds every link box at any
         # configuration (palm half diagonal, or first joint + middle + distal at any flexion)
         reach = np.linalg.norm(self.half[self.link_index["palm"]])
@@ -371,9 +373,10 @@ class _Context:
 
     def plane(self, finger, spread: float):
         key = (finger.name, round(float(spread), 12))
-        if key not in self._planes:
-            self._planes[key] = self.hand.flexion_plane(finger, spread)
-        return self._planes[key]
+        hit = self._planes.get(key)
+        if hit is None:  # (threads: a plane computed twice is the same plane)
+            hit = self._planes.setdefault(key, self.hand.flexion_plane(finger, spread))
+        return hit
 
     def prefetch_boxes(self, Q: np.ndarray) -> None:
         """Compute and cache the box poses of many configurations ``Q`` (B, J) at once."""
@@ -389,18 +392,21 @@ class _Context:
             self._store(Q[b].tobytes(), (Tb_all[k], lo[k], hi[k]))
 
     def _store(self, key: bytes, value: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
-        self._boxes[key] = value
-        if len(self._boxes) > 4096:  # a bound for pools of arbitrary preshapes
-            self._boxes.pop(next(iter(self._boxes)))
+        with self._lock:  # the planner's threads share the cache; every change goes here
+            self._boxes[key] = value
+            while len(self._boxes) > 4096:  # a bound for pools of arbitrary preshapes
+                self._boxes.pop(next(iter(self._boxes)))
 
     def boxes(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Box poses (L, 4, 4) and their hand-frame AABBs lo, hi (L, 3) at ``q`` (cached)."""
         key = q.tobytes()
-        if key not in self._boxes:
+        hit = self._boxes.get(key)
+        if hit is None:
             Tb = self.hand.box_poses(q)
             corners = _box_corners(Tb, self.half).reshape(-1, 8, 3)
-            self._store(key, (Tb, corners.min(axis=1), corners.max(axis=1)))
-        return self._boxes[key]
+            hit = (Tb, corners.min(axis=1), corners.max(axis=1))
+            self._store(key, hit)
+        return hit
 
 
 def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray, p_all: np.ndarray) -> tuple[float, str]:
@@ -884,7 +890,7 @@ def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Gra
         )
         for k, (j, p) in enumerate(zip(links, pid, strict=True))
     )  # fmt: skip
-    # 5. quality: by the caller, for the chunk's kept grasps together (see _score)
+    # 5. quality: by the caller (see _score)
     return Grasp(i, gt, T, s, stop, q, fingers, contacts, 0.0, 0.0, None, None, "")
 
 
@@ -898,7 +904,7 @@ def _score(prm: PlannerParams, g: Grasp) -> Grasp:
 
 
 def _n_threads(threads: int) -> int:
-    """Threads for the quality measure (``PlannerParams.threads``; 0 = the usable CPUs)."""
+    """Threads of the planner (``PlannerParams.threads``; 0 = the usable CPUs)."""
     if threads:
         return int(threads)
     try:
@@ -907,73 +913,60 @@ def _n_threads(threads: int) -> int:
         return os.cpu_count() or 1
 
 
+def _finish_or_keep(ctx: _Context, records: dict, p: _Prepared | Grasp) -> Grasp:
+    """:func:`_finish` for a prepared pre-grasp (its closing in ``records``); a rejection as
+    it is."""
+    return _finish(ctx, p, *records[p.i]) if isinstance(p, _Prepared) else p
+
+
 def _plan_chunks(
     ctx: _Context,
     pool: Any,
     P: int,
-    pool_q: ThreadPoolExecutor | None,
+    ex: ThreadPoolExecutor | None,
     grasps: list[Grasp],
     progress: Callable[[int, int], None] | None,
 ) -> None:
-    """Plan the pre-grasps of ``pool`` chunk by chunk into ``grasps`` (see :func:`plan_grasps`)."""
+    """Plan the pre-grasps of ``pool`` chunk by chunk into ``grasps`` (see :func:`plan_grasps`).
+    The per-pre-grasp phases run on the thread pool ``ex`` when there is one (numpy, the k-d
+    tree and qhull release Python's global lock for most of their work); every pre-grasp is
+    planned independently, so the results never depend on the threads."""
+
+    def each(fn: Callable[[Any], Any], items: list) -> list:
+        return (
+            list(ex.map(fn, items)) if ex is not None and len(items) > 1 else list(map(fn, items))
+        )
+
     prm, clock, done = ctx.params, ctx.clock, 0
-    pending = None  # the chunk whose hulls the thread pool is computing, with their futures
     for c0 in range(0, P, _CHUNK):  # loop over chunks of pre-grasps
         t0 = time.perf_counter()
-        preps = [_prepare(ctx, pool, i) for i in range(c0, min(P, c0 + _CHUNK))]
+        preps = each(functools.partial(_prepare, ctx, pool), list(range(c0, min(P, c0 + _CHUNK))))
         todo = [p for p in preps if isinstance(p, _Prepared)]
         t1 = time.perf_counter()
         cls = _close_slices(ctx, [sl for p in todo for sl in p.slices])
         t2 = time.perf_counter()
-        clock["approach_slicing"] += t1 - t0
-        clock["closing"] += t2 - t1
         records, k = {}, 0
         for p in todo:  # loop over the chunk's pre-grasps
             records[p.i] = _closing_records(p.q0, p.slices, cls[k : k + len(p.slices)])
             k += len(p.slices)
         if records:  # the link boxes of every closed hand of the chunk: one batched FK
             ctx.prefetch_boxes(np.array([q for q, _ in records.values()]))
-        chunk = [_finish(ctx, p, *records[p.i]) if isinstance(p, _Prepared) else p for p in preps]
+        chunk = each(functools.partial(_finish_or_keep, ctx, records), preps)
         t3 = time.perf_counter()
-        clock["verification"] += t3 - t2
-        # 5. quality of the kept grasps, one 6D hull each: inline, or on the thread pool while
-        # this thread goes on with the next chunk (qhull runs without the GIL)
+        # 5. quality of the kept grasps: one 6D hull each
         kept = [k for k, g in enumerate(chunk) if g.kept]
-        if pool_q is None:
-            for k in kept:
-                chunk[k] = _score(prm, chunk[k])
-            clock["quality"] += time.perf_counter() - t3
-            done = _collect(chunk, [], grasps, done, P, progress)
-        else:
-            if pending is not None:  # the chunk before: wait for its hulls
-                done = _collect(*pending, grasps, done, P, progress, clock)
-            futures = [(k, pool_q.submit(_score, prm, chunk[k])) for k in kept]
-            pending = (chunk, futures)
-    if pending is not None:
-        _collect(*pending, grasps, done, P, progress, clock)
-
-
-def _collect(
-    chunk: list[Grasp],
-    futures: list,
-    grasps: list[Grasp],
-    done: int,
-    P: int,
-    progress: Callable[[int, int], None] | None,
-    clock: dict[str, float] | None = None,
-) -> int:
-    """Put the scored grasps of ``futures`` ((position, future) pairs) into ``chunk``, append it
-    to ``grasps`` and report progress; returns the number of pre-grasps done."""
-    t = time.perf_counter()
-    for k, fut in futures:
-        chunk[k] = fut.result()
-    if clock is not None:
-        clock["quality"] += time.perf_counter() - t  # the wait for the pool
-    grasps.extend(chunk)
-    done += len(chunk)
-    if progress is not None:
-        progress(done, P)
-    return done
+        scored = each(functools.partial(_score, prm), [chunk[k] for k in kept])
+        for k, g in zip(kept, scored, strict=True):
+            chunk[k] = g
+        t4 = time.perf_counter()
+        clock["approach_slicing"] += t1 - t0
+        clock["closing"] += t2 - t1
+        clock["verification"] += t3 - t2
+        clock["quality"] += t4 - t3
+        grasps.extend(chunk)
+        done += len(chunk)
+        if progress is not None:
+            progress(done, P)
 
 
 def rank_grasps(grasps: list[Grasp] | tuple[Grasp, ...]) -> np.ndarray:
@@ -1021,15 +1014,15 @@ def plan_grasps(
     ctx = _Context(pts, nrm, hand, prm, support)
     grasps: list[Grasp] = []
     # chunks of pre-grasps: approach and slicing per pre-grasp, the closing of every finger of
-    # the chunk in one call of the batched closing model, verification per pre-grasp, then the
-    # quality of the chunk's kept grasps (on a thread pool: qhull runs without the GIL)
+    # the chunk in one call of the batched closing model, verification and quality per
+    # pre-grasp; the per-pre-grasp phases on a thread pool when prm.threads allows one
     n_threads = min(_n_threads(prm.threads), _CHUNK)
-    pool_q = ThreadPoolExecutor(n_threads) if n_threads > 1 and P > 1 else None
+    ex = ThreadPoolExecutor(n_threads) if n_threads > 1 and P > 1 else None
     try:
-        _plan_chunks(ctx, pool, P, pool_q, grasps, progress)
+        _plan_chunks(ctx, pool, P, ex, grasps, progress)
     finally:
-        if pool_q is not None:
-            pool_q.shutdown()
+        if ex is not None:
+            ex.shutdown()
     order = rank_grasps(grasps)
     ranked = list(grasps)
     for r, k in enumerate(order):

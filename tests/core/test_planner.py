@@ -371,10 +371,10 @@ def test_empty_pool_and_determinism(hand, box_plan):
         assert np.array_equal(a.q, b.q) and np.array_equal(a.T_world_hand, b.T_world_hand)
 
 
-def test_quality_threads_change_no_result(hand):
-    """More pre-grasps than one chunk (64): the hulls on a thread pool, overlapping the next
-    chunk, give exactly the grasps of the single-thread run; progress ends at the pool size;
-    every kept grasp's scores are those of grasp_quality on its own contacts."""
+def test_threads_change_no_result(hand):
+    """More pre-grasps than one chunk (64): the per-pre-grasp phases on 3 threads give exactly
+    the grasps of the single-thread run; progress ends at the pool size; every kept grasp's
+    scores are those of grasp_quality on its own contacts."""
     mesh = trimesh.creation.cylinder(radius=0.03, height=0.15)
     angles = np.linspace(0.0, 2 * np.pi, 70, endpoint=False)
     Ts = [
