@@ -125,6 +125,14 @@ def add_planner_args(p: argparse.ArgumentParser) -> None:
         metavar="D",
         help="largest depth of a cloud point inside the final hand, metres (default %(default)s)",
     )
+    g.add_argument(
+        "--threads",
+        type=int,
+        default=_PP.threads,
+        metavar="T",
+        help="planner threads; 0 = one per CPU, 1 = none (default %(default)s; results never "
+        "depend on it)",
+    )
 
 
 def planner_params(args: argparse.Namespace) -> PlannerParams:
@@ -135,6 +143,7 @@ def planner_params(args: argparse.Namespace) -> PlannerParams:
             contact_distance=args.contact_distance,
             penetration_tol=args.penetration_tol,
             quality=QualityParams(mu=args.mu, n_edges=args.cone_edges),
+            threads=args.threads,
         )
     except ValueError as exc:
         raise PregraspError(f"invalid planner option: {exc}") from exc

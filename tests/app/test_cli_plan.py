@@ -72,6 +72,13 @@ def test_json_to_stdout_and_planner_options(capsys):
     assert doc["parameters"]["planner"]["quality"] == {"mu": 0.8, "n_edges": 6,
                                                        "torque_scale": None}  # fmt: skip
     assert doc["grasps"]["quality"]["n_edges"] == 6
+    # the thread count is recorded and changes no grasp
+    assert main(["plan", str(LEMON), *FAST, "--mu", "0.8", "--cone-edges", "6", "--threads", "1",
+                 "-o", "-"]) == 0  # fmt: skip
+    one = json.loads(capsys.readouterr().out)
+    assert doc["parameters"]["planner"]["threads"] == 0
+    assert one["parameters"]["planner"]["threads"] == 1
+    assert one["grasps"]["items"] == doc["grasps"]["items"] and one["best"] == doc["best"]
 
 
 def _box_obj(path):
@@ -136,6 +143,7 @@ def test_progress_bar_redraws_in_place_on_a_terminal():
     [
         (["--mu", "-1"], "invalid planner option: mu must be"),
         (["--contact-distance", "0.0001"], "invalid planner option: contact_distance"),
+        (["--threads", "-3"], "invalid planner option: threads must be"),
         (["--top", "-2"], "--top must be >= 0"),
         (["--report", "r.csv"], "--report is for a folder INPUT"),
     ],
