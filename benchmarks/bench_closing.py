@@ -29,6 +29,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from _timing import median_time  # noqa: E402
 
 from pregrasp_core.hand import FingerClosing, load_hand  # noqa: E402
 from pregrasp_core.io import load_point_cloud  # noqa: E402
@@ -36,16 +37,6 @@ from pregrasp_core.pipeline import run_pipeline  # noqa: E402
 from pregrasp_core.planner import PlannerParams, _thin_2d  # noqa: E402
 
 OBJECTS = Path(__file__).resolve().parents[1] / "assets" / "objects"
-
-
-def median_time(fn, repeats: int) -> float:
-    """Median process CPU time of ``repeats`` calls (one BLAS thread: single-core time)."""
-    times = []
-    for _ in range(repeats):
-        t0 = time.process_time()
-        fn()
-        times.append(time.process_time() - t0)
-    return float(np.median(times))
 
 
 def pool_slices(hand, name: str) -> tuple[list, list[int]]:

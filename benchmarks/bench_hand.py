@@ -23,21 +23,10 @@ import time
 
 import numpy as np
 import yourdfpy
+from _timing import median_time
 
 from pregrasp_core.hand import Hand
 from pregrasp_core.paths import DEFAULT_OBJECT, HAND_URDF
-
-
-def median_time(fn, repeats: int) -> float:
-    """Median CPU time of this process over ``repeats`` calls (``time.process_time``): with one
-    BLAS thread it is the single-core time, and other jobs on a shared machine do not inflate
-    it the way they inflate wall-clock time."""
-    times = []
-    for _ in range(repeats):
-        t0 = time.process_time()
-        fn()
-        times.append(time.process_time() - t0)
-    return float(np.median(times))
 
 
 def fmt(seconds: float) -> str:

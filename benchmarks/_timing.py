@@ -1,0 +1,21 @@
+"""Timing helpers shared by the benchmark scripts (imported as ``_timing`` when a script runs
+as ``python benchmarks/bench_x.py``, whose folder is then first on ``sys.path``)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+
+def median_time(fn: Callable[[], object], repeats: int) -> float:
+    """Median CPU time of this process over ``repeats`` calls (``time.process_time``): with one
+    BLAS thread it is the single-core time, and other jobs on a shared machine do not inflate
+    it the way they inflate wall-clock time."""
+    times = []
+    for _ in range(repeats):
+        t0 = time.process_time()
+        fn()
+        times.append(time.process_time() - t0)
+    return float(np.median(times))
