@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import itertools
 import logging
 import os
 import threading
@@ -49,7 +48,6 @@ from typing import Any
 
 import fcl
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .normals import NormalParams, estimate_normals
 from .quality import GraspQuality, QualityParams, grasp_quality
@@ -83,10 +81,6 @@ _CHUNK: int = 64
 CONTACT_TIE: float = 1e-12
 """Metres: cloud points this close to a link's least distance tie for its contact."""
 
-_BALL_SLACK: float = 1e-7
-"""Metres added to every k-d tree gathering ball (a superset: exact tests follow), far above
-the rounding of moving points between the world and a hand frame."""
-
 
 @dataclass(frozen=True)
 class PlannerParams:
@@ -118,7 +112,7 @@ class PlannerParams:
     """Normal estimation (computed once per cloud)."""
     threads: int = 0
     """Threads for the per-pre-grasp phases (approach and slicing, verification, quality: numpy,
-    the k-d tree and qhull release Python's global lock for most of their work); 0 = one per
+    and qhull release Python's global lock for most of their work); 0 = one per
     CPU this process may use (at most 64), 1 = none. Only the speed depends on it, never a
     result."""
 
@@ -351,7 +345,6 @@ class _Context:
     def __init__(self, points, normals, hand, params: PlannerParams, support) -> None:
         self.points = points
         self.normals = normals
-        self.tree = cKDTree(points)
         self.hand = hand
         self.params = params
         self.support = support
@@ -522,14 +515,6 @@ def _link_distances(
     il, d, cloud = il[near], d[near], idx[sub[ip[near]]]
     cuts = np.searchsorted(il, np.arange(1, len(Tb)))
     return np.split(cloud, cuts), np.split(d, cuts)
-
-
-def _pairs(lists: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Flatten the lists of a k-d tree ball query with K balls into (point, ball) index pairs."""
-    n_per = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(lists))
-    total = int(n_per.sum())
-    ip = np.fromiter(itertools.chain.from_iterable(lists), dtype=np.int64, count=total)
-    return ip, np.repeat(np.arange(len(lists)), n_per)
 
 
 def _support_line_2d(
@@ -863,7 +848,7 @@ def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Gra
     # 4. contacts: one per link, the nearest cloud point within contact_distance. Points as
     # near as it (within CONTACT_TIE: a face of the object parallel to the link's face) form a
     # patch; the contact is its point nearest the link box's centre (then the lowest cloud
-    # index), so the choice never depends on rounding or on the k-d tree's order
+    # index), so the choice never depends on rounding or on the candidates' order
     centres = (T @ ctx.boxes(q)[0])[:, :3, 3]  # (L, 3) link box centres, world
     links, local, dist = [], [], []
     for j, (sel, d) in enumerate(zip(ids, dists, strict=True)):  # loop over the ~10 links
