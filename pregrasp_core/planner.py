@@ -272,6 +272,14 @@ class GraspSet:
 # ------------------------------------------------------------------------------ geometry
 
 
+def _to_frame(p: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(M, 3) points ``p`` in the frame of the pose ``T`` (4, 4): ``(p - t) R``, element by element
+    (not a BLAS product), so that a row's result never depends on the other rows."""
+    d = p - T[:3, 3]
+    R = T[:3, :3]
+    return d[:, 0:1] * R[0] + d[:, 1:2] * R[1] + d[:, 2:3] * R[2]
+
+
 def box_signed_distance(p: np.ndarray, T_boxes: np.ndarray, half: np.ndarray) -> np.ndarray:
     """(M, L) exact signed distance from points ``p`` (M, 3) to boxes with poses ``T_boxes``
     (L, 4, 4) (same frame as ``p``) and half extents ``half`` (L, 3); negative inside (minus the
@@ -586,10 +594,12 @@ def _slices(
     nrm = np.array([pl.normal for pl in planes]).T  # (3, F)
     shift = np.array([pl.origin @ pl.normal for pl in planes])  # (F,)
     half_w = np.array([0.5 * f.width for f in fingers])
-    near_band = np.abs(p_h @ nrm - shift) <= half_w + 1e-9  # (M, F)
+    along = p_h[:, 0:1] * nrm[0] + p_h[:, 1:2] * nrm[1] + p_h[:, 2:3] * nrm[2]  # (M, F)
+    near_band = np.abs(along - shift) <= half_w + 1e-9
     for j, (f, plane) in enumerate(zip(fingers, planes, strict=True)):  # <= 3 fingers
         # the 2D coordinates and offsets (FlexionPlane.to_plane) of the points near the band
-        p2, off = plane.to_plane(p_h[near_band[:, j]])
+        uvn = _to_frame(p_h[near_band[:, j]], plane.T_hand_plane)  # FlexionPlane.to_plane
+        p2, off = uvn[:, :2], uvn[:, 2]
         # the moving links never get farther than Lm + hypot(Ld, h) from the first joint
         r_f = f.middle_length + np.hypot(f.distal_length, 0.5 * f.thickness) + prm.closing_margin
         in_slice = (np.abs(off) <= 0.5 * f.width) & (
@@ -724,7 +734,7 @@ def _prepare(ctx: _Context, pool: Any, i: int) -> _Prepared | Grasp:
     spread = float(pool.spread[i])
 
     # 1. approach, with the cloud in the frame of the hand at the pre-grasp pose
-    p_all = (ctx.points - T0[:3, 3]) @ T0[:3, :3]  # (N, 3)
+    p_all = _to_frame(ctx.points, T0)  # (N, 3)
     s, stop = _approach(ctx, T0, q0, p_all)
     if not np.isfinite(s):
         detail = f"no cloud point within {prm.max_approach:.3f} m ahead"
