@@ -37,7 +37,12 @@ import yourdfpy
 from .box import OrientedBox
 from .errors import HandModelError
 from .paths import HAND_URDF
-from .tolerances import GEOM_EPS, HAND_CLOSING_ANGLE_TOL
+from .tolerances import (
+    GEOM_EPS,
+    HAND_CLOSING_ANGLE_TOL,
+    SAT_ABS_ROTATION_EPS,
+    SELF_COLLISION_SAT_MARGIN,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -1165,7 +1170,11 @@ class Hand:
     ) -> list[tuple[str, str]]:
         """The link pairs (of :attr:`self_collision_pairs_checked`) whose boxes intersect at
         configuration ``q`` (J,), by python-fcl. ``box_poses``: :meth:`box_poses` of ``q``
-        (L, 4, 4) when the caller already has them (saves the forward kinematics)."""
+        (L, 4, 4) when the caller already has them (saves the forward kinematics).
+
+        The ball test (and, when at least ``_SAT_MIN_PAIRS`` pairs pass it, the separating-axis
+        test) of :meth:`self_collisions_many` skips pairs proven apart; python-fcl decides the
+        rest, so the answer is python-fcl's on every checked pair."""
         Q, single = self._as_q(q)
         if not single:
             raise ValueError(f"q must have shape ({self.n_joints},), got {Q.shape}")
@@ -1177,27 +1186,80 @@ class Hand:
                 raise ValueError(
                     f"box_poses must have shape ({len(self.link_names)}, 4, 4), got {Tb.shape}"
                 )
-        ia, ib, reach = self._self_pair_spheres
-        # exact pre-test: boxes whose circumscribed balls are apart cannot intersect; only the
-        # other pairs go to python-fcl (same answer, far fewer fcl calls)
-        gap = np.linalg.norm(Tb[ia, :3, 3] - Tb[ib, :3, 3], axis=1) - reach
-        near = np.flatnonzero(gap <= 1e-6)  # indices into the checked pairs, in order
-        if len(near) == 0:
-            return []
+        return self._self_collisions_of(Tb[None])[0]
+
+    def self_collisions_many(
+        self, Q: np.ndarray, box_poses: np.ndarray | None = None
+    ) -> list[list[tuple[str, str]]]:
+        """:meth:`self_collisions` for B configurations ``Q`` (B, J) at once: result ``b`` equals
+        ``self_collisions(Q[b])`` exactly (same pairs, same order). ``box_poses``: :meth:`box_poses`
+        of ``Q`` (B, L, 4, 4) when the caller already has them. B = 0 gives ``[]``.
+
+        Per (configuration, checked pair), all at once: the circumscribed-ball test, then an
+        exact oriented-box separating-axis test (3 + 3 face normals, 9 edge cross products) that
+        calls a pair apart only when an axis parts the boxes by more than
+        ``SELF_COLLISION_SAT_MARGIN``; python-fcl decides the rest (touching or intersecting
+        boxes, a few per closed hand), so every verdict is python-fcl's."""
+        Qa = np.asarray(Q, dtype=np.float64)
+        J, L = self.n_joints, len(self.link_names)
+        if Qa.ndim != 2 or Qa.shape[1] != J:
+            raise ValueError(f"Q must have shape (B, {J}), got {Qa.shape}")
+        B = Qa.shape[0]
+        if box_poses is None:
+            if B == 0:
+                return []
+            Tb = self.box_poses(Qa)  # (B, L, 4, 4)
+        else:
+            Tb = np.asarray(box_poses, dtype=np.float64)
+            if Tb.shape != (B, L, 4, 4):
+                raise ValueError(f"box_poses must have shape ({B}, {L}, 4, 4), got {Tb.shape}")
+            if B == 0:
+                return []
+        return self._self_collisions_of(Tb)
+
+    def _self_collisions_of(self, Tb: np.ndarray) -> list[list[tuple[str, str]]]:
+        """The intersecting checked pairs of each of B hands given their box poses Tb
+        (B, L, 4, 4): ball test, separating-axis test, python-fcl on what is left."""
+        ia, ib, reach = self._self_pair_spheres  # (P,), (P,), (P,)
+        B = Tb.shape[0]
+        out: list[list[tuple[str, str]]] = [[] for _ in range(B)]
+        c = Tb[:, :, :3, 3]  # (B, L, 3) box centres
+        # exact pre-test: boxes whose circumscribed balls are apart cannot intersect
+        gap = np.linalg.norm(c[:, ia] - c[:, ib], axis=2) - reach  # (B, P)
+        bb, kk = np.nonzero(gap <= 1e-6)  # (N,) candidates, by configuration then pair order
+        if len(bb) == 0:
+            return out
+        la, lb = ia[kk], ib[kk]  # (N,) link indices of each candidate
+        if len(bb) >= _SAT_MIN_PAIRS:
+            Tt = Tb.transpose(2, 3, 0, 1)  # (4, 4, B, L) view: gathers come out pair-last
+            half = np.asarray(self.link_box_half, dtype=np.float64).T  # (3, L)
+            apart = _obb_apart(
+                Tt[:3, :3, bb, la], Tt[:3, 3, bb, la], half[:, la],
+                Tt[:3, :3, bb, lb], Tt[:3, 3, bb, lb], half[:, lb],
+            )  # fmt: skip
+            todo = np.flatnonzero(~apart)  # candidates python-fcl decides (few)
+        else:  # a few candidates: python-fcl on each costs less than the array set-up
+            todo = np.arange(len(bb))
+        if len(todo) == 0:
+            return out
         geoms = self._link_fcl_boxes
-        objs: dict[int, fcl.CollisionObject] = {}
-        for li in np.unique(np.concatenate([ia[near], ib[near]])):  # loop over <= L links
-            objs[int(li)] = fcl.CollisionObject(
-                geoms[li], fcl.Transform(Tb[li, :3, :3], Tb[li, :3, 3])
-            )
-        hits = []
+        objs: dict[tuple[int, int], fcl.CollisionObject] = {}
+
+        def obj(b: int, li: int) -> fcl.CollisionObject:
+            if (b, li) not in objs:
+                objs[(b, li)] = fcl.CollisionObject(
+                    geoms[li], fcl.Transform(Tb[b, li, :3, :3], Tb[b, li, :3, 3])
+                )
+            return objs[(b, li)]
+
         req = fcl.CollisionRequest()
         pairs = self.self_collision_pairs_checked
-        for k in near:  # loop over the nearby link pairs (a few)
+        for n in todo.tolist():  # loop over the pairs no separating axis parts (a few per hand)
+            b, k = int(bb[n]), int(kk[n])
             res = fcl.CollisionResult()
-            if fcl.collide(objs[int(ia[k])], objs[int(ib[k])], req, res) > 0:
-                hits.append(pairs[k])
-        return hits
+            if fcl.collide(obj(b, int(la[n])), obj(b, int(lb[n])), req, res) > 0:
+                out[b].append(pairs[k])
+        return out
 
     @functools.cached_property
     def _self_pair_spheres(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1241,6 +1303,71 @@ class Hand:
             for i in range(len(self.link_names))
         ]
         return trimesh.util.concatenate(parts)
+
+
+# --------------------------------------------------------------------------------------------
+# Box-box separating axes (the self-collision pre-filter)
+# --------------------------------------------------------------------------------------------
+
+_SAT_MIN_PAIRS: int = 12
+"""Self-collision: the separating-axis pre-filter runs only when at least this many (hand, link
+pair) candidates pass the ball test; with fewer, python-fcl on each (about 1 us a test plus
+3-4 us per placed link box) is cheaper than the filter's fixed numpy cost (about 70 us; measured
+by ``benchmarks/bench_hand.py``). Either way the answer is python-fcl's."""
+
+_I1 = np.array([1, 2, 0])
+"""The first of the two other axes of axis i (i + 1 mod 3)."""
+_I2 = np.array([2, 0, 1])
+"""The second of the two other axes of axis i (i + 2 mod 3)."""
+
+
+def _obb_apart(
+    Ra: np.ndarray,
+    ca: np.ndarray,
+    ha: np.ndarray,
+    Rb: np.ndarray,
+    cb: np.ndarray,
+    hb: np.ndarray,
+    margin: float = SELF_COLLISION_SAT_MARGIN,
+) -> np.ndarray:
+    """(N,) bool: oriented boxes a and b of each of N pairs are proven apart, i.e. one of the 15
+    separating axes (the 3 + 3 face normals, the 9 cross products of an edge direction of a with
+    one of b) parts them by more than ``margin`` (metres). False means "not proven": on every
+    axis the boxes overlap, touch or are closer than the margin.
+
+    Pair index last (every operation runs over contiguous length-N rows): ``Ra``, ``Rb``
+    (3, 3, N) rotations, ``Ra[:, i, n]`` = axis i of box a of pair n; ``ca``, ``cb`` (3, N)
+    centres; ``ha``, ``hb`` (3, N) half sides; all in one frame. Everything is expressed in a's
+    frame: ``C = Ra^T Rb`` (b's axes as columns), ``t = Ra^T (cb - ca)``. ``|C|`` is padded by
+    ``SAT_ABS_ROTATION_EPS`` (near-parallel edges), which only grows the projected radii. An
+    axis u_i x v_j is not a unit vector: its length ``|(C[i1, j], C[i2, j])|`` scales the
+    margin, so that the margin is metres along the unit axis. The 9 cross-product axes are
+    tested only on the pairs the 6 face normals leave."""
+    d = cb - ca  # (3, N)
+    # (3, 3, N): C[i, j] = u_i . v_j
+    C = Ra[0, :, None] * Rb[0, None] + Ra[1, :, None] * Rb[1, None] + Ra[2, :, None] * Rb[2, None]
+    t = Ra[0] * d[0] + Ra[1] * d[1] + Ra[2] * d[2]  # (3, N): b's centre in a's frame
+    A = np.abs(C) + SAT_ABS_ROTATION_EPS  # (3, 3, N)
+    # a's face normals u_i: |t_i| - (ha_i + sum_j |C_ij| hb_j)
+    s_a = np.abs(t) - ha - (A[:, 0] * hb[0] + A[:, 1] * hb[1] + A[:, 2] * hb[2])  # (3, N)
+    # b's face normals v_j: |sum_i C_ij t_i| - (sum_i |C_ij| ha_i + hb_j)
+    s_b = np.abs(C[0] * t[0] + C[1] * t[1] + C[2] * t[2])
+    s_b -= A[0] * ha[0] + A[1] * ha[1] + A[2] * ha[2] + hb  # (3, N)
+    apart = (np.maximum(s_a, s_b) > margin).any(axis=0)  # (N,)
+    left = np.flatnonzero(~apart)  # pairs no face normal parts
+    if len(left) == 0:
+        return apart
+    C, A, t = C[:, :, left], A[:, :, left], t[:, left]
+    ha, hb = ha[:, left], hb[:, left]
+    # u_i x v_j, (3, 3, M) indexed [i, j]; i1, i2 (j1, j2) are the two other axes of i (j):
+    # |t_i2 C_i1j - t_i1 C_i2j| - (ha_i1 |C_i2j| + ha_i2 |C_i1j| + hb_j1 |C_ij2| + hb_j2 |C_ij1|)
+    C1, C2 = C[_I1], C[_I2]
+    s_x = np.abs(t[_I2, None] * C1 - t[_I1, None] * C2)
+    s_x -= ha[_I1, None] * A[_I2] + ha[_I2, None] * A[_I1]
+    s_x -= hb[None, _I1] * A[:, _I2] + hb[None, _I2] * A[:, _I1]
+    length = np.sqrt(C1 * C1 + C2 * C2)  # |u_i x v_j|
+    apart[left] = (s_x > margin * length).any(axis=(0, 1))
+    return apart
 
 
 # --------------------------------------------------------------------------------------------

@@ -46,3 +46,13 @@ than this below it (so side faces of a part standing on the table stay free; fac
 HAND_CLOSING_ANGLE_TOL: float = 1e-4
 """Radians: the hand's closing model refines the first touching step (dense resampling) until the
 bracket [last free, first touching] of the path parameter is narrower than this."""
+
+SELF_COLLISION_SAT_MARGIN: float = 1e-9
+"""Metres: the self-collision pre-filter (``Hand.self_collisions_many``) calls two link boxes
+apart without python-fcl only when one of the 15 separating axes parts them by more than this;
+every other pair goes to python-fcl, so the answer stays python-fcl's."""
+
+SAT_ABS_ROTATION_EPS: float = 1e-9
+"""Added to every entry of ``|R_a^T R_b|`` in the box-box separating-axis pre-filter (the usual
+guard for near-parallel edges, whose cross product is round-off): it only enlarges the boxes'
+projected radii (by at most this times their summed half sides), so the test stays conservative."""
