@@ -148,6 +148,90 @@ def bench_closing(hand: Hand, repeats: int, rng: np.random.Generator) -> None:
         print(f"| {M} | {fmt(t)} | contacts: {links} |")
 
 
+def bench_self_collision(hand: Hand, n_points: int, repeats: int, rng: np.random.Generator) -> None:
+    """``self_collisions_many`` on B closed hands against loops of ``self_collisions`` (now)
+    and of the pre-batch version (ball test + python-fcl, commit 4e2d75e, copied below as the
+    reference), per configuration; box poses given, as the planner does. Hands: the final
+    configurations of the planner's pre-grasps on the default object (tiled to 1,000), and
+    random closing hands (spread of a grasp type, every flexion 0 to 1.2 rad)."""
+    import fcl
+
+    import pregrasp_core.hand as hand_module
+    from pregrasp_core.hand import GRASP_TYPES
+    from pregrasp_core.io import load_point_cloud
+    from pregrasp_core.pipeline import PipelineParams, run_pipeline
+    from pregrasp_core.planner import PlannerParams
+
+    ia, ib, reach = hand._self_pair_spheres
+    pairs = hand.self_collision_pairs_checked
+
+    def before(Tb: np.ndarray) -> list[tuple[str, str]]:  # one hand's box poses (L, 4, 4)
+        near = np.flatnonzero(np.linalg.norm(Tb[ia, :3, 3] - Tb[ib, :3, 3], axis=1) - reach <= 1e-6)
+        if len(near) == 0:
+            return []
+        objs = {
+            int(li): fcl.CollisionObject(
+                hand._link_fcl_boxes[li], fcl.Transform(Tb[li, :3, :3], Tb[li, :3, 3])
+            )
+            for li in np.unique(np.concatenate([ia[near], ib[near]]))
+        }
+        req = fcl.CollisionRequest()
+        return [
+            pairs[k]
+            for k in near
+            if fcl.collide(objs[int(ia[k])], objs[int(ib[k])], req, fcl.CollisionResult()) > 0
+        ]
+
+    cloud = load_point_cloud(DEFAULT_OBJECT, n_points=n_points, seed=0)
+    params = PipelineParams(planner=PlannerParams(threads=1))
+    result = run_pipeline(cloud, params=params, hand=hand, until="grasps")
+    real = np.array([g.q for g in result.grasps.grasps])
+    synth = np.zeros((1000, hand.n_joints))
+    synth[:, hand.spread_index] = rng.choice([hand.spread_for(g) for g in GRASP_TYPES], 1000)
+    for f in hand.fingers:  # loop over the 3 fingers
+        synth[:, list(f.flex_index)] = rng.uniform(0.0, 1.2, size=(1000, 2))
+    sets = (
+        (f"planner's, mug ({len(real)} tiled)", np.resize(real, (1000, hand.n_joints))),
+        ("closing, flexion 0-1.2 rad", synth),
+    )
+    print(
+        f"\n### Self-collision, batched ({len(pairs)} checked link pairs; box poses given; "
+        "times per configuration)\n"
+    )
+    print(
+        "| hands | B | colliding | ball candidates | to python-fcl | self_collisions_many "
+        "| loop of self_collisions | loop before (ball + fcl) | speed-up | same pairs |"
+    )
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|")
+    half = np.asarray(hand.link_box_half).T  # (3, L)
+    for name, Qall in sets:
+        for B in (64, 1000):
+            Q, Tb = Qall[:B], hand.box_poses(Qall[:B])
+            t_many = median_time(lambda Q=Q, Tb=Tb: hand.self_collisions_many(Q, Tb), repeats)
+            t_one = median_time(
+                lambda Q=Q, Tb=Tb: [hand.self_collisions(q, T) for q, T in zip(Q, Tb, strict=True)],
+                repeats,
+            )
+            t_ref = median_time(lambda Tb=Tb: [before(T) for T in Tb], repeats)
+            many = hand.self_collisions_many(Q, Tb)
+            same = many == [hand.self_collisions(Q[b], Tb[b]) for b in range(B)]
+            same &= many == [before(T) for T in Tb]
+            # the work: candidates of the ball test, of them those the SAT leaves to python-fcl
+            c = Tb[:, :, :3, 3]
+            bb, kk = np.nonzero(np.linalg.norm(c[:, ia] - c[:, ib], axis=2) - reach <= 1e-6)
+            Tt, la, lb = Tb.transpose(2, 3, 0, 1), ia[kk], ib[kk]
+            apart = hand_module._obb_apart(
+                Tt[:3, :3, bb, la], Tt[:3, 3, bb, la], half[:, la],
+                Tt[:3, :3, bb, lb], Tt[:3, 3, bb, lb], half[:, lb],
+            )  # fmt: skip
+            hit = np.mean([bool(m) for m in many])
+            print(
+                f"| {name} | {B} | {hit:.0%} | {len(bb) / B:.1f} | {(~apart).sum() / B:.1f} | "
+                f"{fmt(t_many / B)} | {fmt(t_one / B)} | {fmt(t_ref / B)} | "
+                f"{t_ref / t_many:.1f}x | {same} |"
+            )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--configs", type=int, default=10000)
@@ -167,6 +251,7 @@ def main() -> None:
     t = median_time(lambda: hand.self_collision(q), args.repeats)
     n_pairs = len(hand.self_collision_pairs_checked)
     print(f"\nself_collision (python-fcl, {n_pairs} pairs): {fmt(t)}")
+    bench_self_collision(hand, args.points, args.repeats, rng)
 
 
 if __name__ == "__main__":

@@ -1172,9 +1172,9 @@ class Hand:
         configuration ``q`` (J,), by python-fcl. ``box_poses``: :meth:`box_poses` of ``q``
         (L, 4, 4) when the caller already has them (saves the forward kinematics).
 
-        The ball test (and, when at least ``_SAT_MIN_PAIRS`` pairs pass it, the separating-axis
-        test) of :meth:`self_collisions_many` skips pairs proven apart; python-fcl decides the
-        rest, so the answer is python-fcl's on every checked pair."""
+        The ball test of :meth:`self_collisions_many` skips pairs proven apart and python-fcl
+        decides the rest, so the answer is python-fcl's on every checked pair (the batch's
+        separating-axis filter does not pay for one hand; see ``_SAT_MIN_PAIRS``)."""
         Q, single = self._as_q(q)
         if not single:
             raise ValueError(f"q must have shape ({self.n_joints},), got {Q.shape}")
@@ -1309,11 +1309,13 @@ class Hand:
 # Box-box separating axes (the self-collision pre-filter)
 # --------------------------------------------------------------------------------------------
 
-_SAT_MIN_PAIRS: int = 12
+_SAT_MIN_PAIRS: int = 40
 """Self-collision: the separating-axis pre-filter runs only when at least this many (hand, link
-pair) candidates pass the ball test; with fewer, python-fcl on each (about 1 us a test plus
-3-4 us per placed link box) is cheaper than the filter's fixed numpy cost (about 70 us; measured
-by ``benchmarks/bench_hand.py``). Either way the answer is python-fcl's."""
+pair) candidates pass the ball test, so never for one hand (36 checked pairs). Its fixed numpy
+cost (about 80 us) exceeds python-fcl on each candidate (about 1 us a test plus 3-4 us per placed
+link box) for one hand at every candidate count (measured: 99 vs 61 us at 0-5 candidates, 271 vs
+160 us at 24-36), and pays off for a batch (``benchmarks/bench_hand.py``). Either way the answer
+is python-fcl's."""
 
 _I1 = np.array([1, 2, 0])
 """The first of the two other axes of axis i (i + 1 mod 3)."""
