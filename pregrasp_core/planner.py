@@ -78,6 +78,14 @@ LIFT_STEP: float = 0.005
 _CHUNK: int = 64
 """Pre-grasps whose fingers are closed together in one call of the batched closing model."""
 
+CELL_SIZE: float = 0.01
+"""Side (metres) of the cubic cells that group the cloud for the planner's candidate searches
+(see :class:`_Cells`). Only the speed depends on it, never a result."""
+
+CELL_MARGIN: float = 1e-9
+"""Added to every cell's bounding-ball radius (metres): far above the rounding of a frame
+change, so that a cell test never drops a point the exact test would keep."""
+
 CONTACT_TIE: float = 1e-12
 """Metres: cloud points this close to a link's least distance tie for its contact."""
 
@@ -280,6 +288,17 @@ def _to_frame(p: np.ndarray, T: np.ndarray) -> np.ndarray:
     return d[:, 0:1] * R[0] + d[:, 1:2] * R[1] + d[:, 2:3] * R[2]
 
 
+def _to_frame_t(xyz: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """:func:`_to_frame` for points stored by coordinate: ``xyz`` (3, M) -> (3, M), with the
+    same operations in the same order (so the same numbers), on contiguous rows."""
+    R = T[:3, :3]
+    d0, d1, d2 = xyz[0] - T[0, 3], xyz[1] - T[1, 3], xyz[2] - T[2, 3]
+    out = np.empty_like(d0, shape=(3, len(d0)))
+    for j in range(3):  # the three output coordinates
+        out[j] = d0 * R[0, j] + d1 * R[1, j] + d2 * R[2, j]
+    return out
+
+
 def box_signed_distance(p: np.ndarray, T_boxes: np.ndarray, half: np.ndarray) -> np.ndarray:
     """(M, L) exact signed distance from points ``p`` (M, 3) to boxes with poses ``T_boxes``
     (L, 4, 4) (same frame as ``p``) and half extents ``half`` (L, 3); negative inside (minus the
@@ -347,6 +366,102 @@ def _sweep_pairs(p: np.ndarray, T: np.ndarray, half: np.ndarray) -> tuple[float,
 # ------------------------------------------------------------------------------ planner
 
 
+class _Cells:
+    """The cloud grouped into cubic cells for candidate searches. A search tests every cell's
+    bounding ball (a few thousand cells instead of tens of thousands of points) and expands the
+    cells that pass into their points: a superset of what it looks for, on which the exact test
+    then runs. So the cells change only the speed, never which points pass."""
+
+    def __init__(self, points: np.ndarray, size: float) -> None:
+        n = len(points)
+        key = np.floor(points / size).astype(np.int64)
+        cell = np.unique(key, axis=0, return_inverse=True)[1].ravel() if n else np.zeros(0, int)
+        self.order = np.argsort(cell, kind="stable")
+        """(N,) cloud indices grouped by cell, ascending within a cell."""
+        sc = cell[self.order]
+        self.start = np.flatnonzero(np.r_[True, sc[1:] != sc[:-1]]) if n else np.zeros(0, int)
+        """(C,) where each cell's points begin in ``order``."""
+        self.count = np.diff(np.r_[self.start, n])
+        """(C,) points per cell."""
+        if n:
+            ps = points[self.order]
+            lo = np.minimum.reduceat(ps, self.start, axis=0)
+            hi = np.maximum.reduceat(ps, self.start, axis=0)
+            self.centre = 0.5 * (lo + hi)
+            """(C, 3) cell ball centres, world."""
+            d = np.linalg.norm(ps - np.repeat(self.centre, self.count, axis=0), axis=1)
+            self.radius = np.maximum.reduceat(d, self.start) + CELL_MARGIN
+            """(C,) radii of balls about ``centre`` that hold every point of the cell."""
+        else:
+            self.centre, self.radius = np.zeros((0, 3)), np.zeros(0)
+
+    def points_of(self, cells: np.ndarray) -> np.ndarray:
+        """The cloud indices of the points of ``cells`` (distinct cells), ascending."""
+        seen = np.zeros(len(self.order), dtype=bool)
+        seen[self.expand(cells)[0]] = True
+        return np.flatnonzero(seen)
+
+    def expand(self, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The cloud indices (K,) of the points of ``cells`` (a list that may repeat cells) and,
+        for each point, its row in ``cells``."""
+        n = self.count[cells]
+        k = np.repeat(np.arange(len(cells)), n)
+        first = np.cumsum(n) - n
+        return self.order[np.arange(len(k)) - first[k] + self.start[cells][k]], k
+
+
+@dataclass(frozen=True)
+class _View:
+    """The cloud as the hand sees it: in the frame of the pre-grasp pose ``T0``, then moved
+    along the approach by the shifts ``dz`` (hand z), added one after the other as the planner
+    moved the hand (so that every coordinate is rounded exactly as when the planner worked on
+    one array of all the points). Only the points in the keep box (``T0`` frame: ``|x|, |y| <=
+    r``, ``z_lo <= z <= z_hi``) are ever seen: every point a link can touch or hold."""
+
+    T0: np.ndarray  # (4, 4) the pre-grasp pose
+    centres: np.ndarray  # (C, 3) the cell centres in the frame of T0
+    r: float
+    z_lo: float
+    z_hi: float
+    dz: tuple[float, ...] = ()
+
+    def moved(self, dz: float) -> _View:
+        """The view after the hand moved by ``dz`` along hand z (a retreat: positive)."""
+        return dataclasses.replace(self, dz=(*self.dz, dz))
+
+    def cells(self, ctx: _Context) -> tuple[np.ndarray, np.ndarray]:
+        """``(centres (C, 3), ok (C,))``: the cell centres in the hand frame (the shifts summed:
+        the cell tests need no exact rounding, their radii cover it) and which cells' balls
+        meet the keep box."""
+        rad = ctx.cells.radius
+        c = self.centres
+        ok = (np.abs(c[:, 0]) <= self.r + rad) & (np.abs(c[:, 1]) <= self.r + rad)
+        ok &= (c[:, 2] >= self.z_lo - rad) & (c[:, 2] <= self.z_hi + rad)
+        c = c.copy()
+        c[:, 2] += sum(self.dz)
+        return c, ok
+
+    def points(self, ctx: _Context, pid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(ok (K,), p (3, K'))``: which of the cloud points ``pid`` are in the keep box, and
+        their coordinates in the hand frame (by coordinate: x, y, z rows)."""
+        p0 = _to_frame_t(ctx.xyz[:, pid], self.T0)
+        x, y, z = p0
+        ok = (np.abs(x) <= self.r) & (np.abs(y) <= self.r) & (z >= self.z_lo) & (z <= self.z_hi)
+        p = p0[:, ok]
+        for d in self.dz:  # loop over <= 2 moves
+            p[2] += d
+        return ok, p
+
+    def near(self, ctx: _Context, centre: np.ndarray, radius: float) -> np.ndarray:
+        """(M, 3) the seen points within ``radius`` of ``centre`` (hand frame), in ascending
+        cloud order."""
+        c, ok = self.cells(ctx)
+        ok &= np.sum((c - centre) ** 2, axis=1) <= (radius + ctx.cells.radius) ** 2
+        _, p = self.points(ctx, ctx.cells.points_of(np.flatnonzero(ok)))
+        d2 = (p[0] - centre[0]) ** 2 + (p[1] - centre[1]) ** 2 + (p[2] - centre[2]) ** 2
+        return np.ascontiguousarray(p[:, d2 <= radius**2].T)
+
+
 class _Context:
     """Per-call data shared by every pre-grasp (cloud, hand geometry caches)."""
 
@@ -356,6 +471,8 @@ class _Context:
         self.hand = hand
         self.params = params
         self.support = support
+        self.cells = _Cells(points, CELL_SIZE)
+        self.xyz = np.ascontiguousarray(points.T)  # (3, N) the cloud by coordinate
         self.link_names = tuple(hand.link_names)
         self.half = np.asarray(hand.link_box_half, dtype=np.float64)
         self.link_index = {n: i for i, n in enumerate(self.link_names)}
@@ -410,13 +527,13 @@ class _Context:
         return hit
 
 
-def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray, p_all: np.ndarray) -> tuple[float, str]:
+def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray, c0: np.ndarray) -> tuple[float, str]:
     """Travel along hand +z until a box is ``approach_clearance`` from the cloud/support.
 
-    ``p_all`` (N, 3): the cloud in the frame of the hand at the pre-grasp pose. The candidate
-    (point, link) pairs are the points in each link's swept window: the hand-frame AABB of its
-    box grown by the clearance and stretched ahead by the travel window. One pass over the cloud
-    keeps the points in the union of the windows; the per-link window test and the exact slab
+    ``c0`` (C, 3): the cloud's cell centres in the frame of the hand at the pre-grasp pose. The
+    candidate (point, link) pairs are the points in each link's swept window: the hand-frame
+    AABB of its box grown by the clearance and stretched ahead by the travel window. The cells
+    whose balls meet a window give the candidates; the exact window test and the exact slab
     sweep run on those only."""
     prm = ctx.params
     c = prm.approach_clearance
@@ -432,26 +549,34 @@ def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray, p_all: np.ndarray) -
     s_obj = np.inf
     S_eff = min(S, s_sup)  # the hand cannot travel past the support plane
     wlo, whi = lo - c, hi + c  # (L, 3) each link's window across the approach
-    glo, ghi = wlo.min(axis=0), whi.max(axis=0)
-    x, y, z = p_all[:, 0], p_all[:, 1], p_all[:, 2]
-    across = (x >= glo[0]) & (x <= ghi[0]) & (y >= glo[1]) & (y <= ghi[1]) & (z >= glo[2])
+    rad = ctx.cells.radius[:, None]
+    cm, cp = c0 - rad, c0 + rad  # (C, 3) the cells' balls' bounds
     # two passes: a short first window (most approaches end within a few centimetres); a hit
     # beyond it may hide an earlier one by a point it did not gather, so then the full window
     for window in (min(APPROACH_WINDOW, S_eff), S_eff):
         top = whi[:, 2] + window
-        sub = np.flatnonzero(across & (z <= top.max()))
-        ps = p_all[sub]
-        px, py, pz = ps[:, 0:1], ps[:, 1:2], ps[:, 2:3]
-        ip, il = np.nonzero(
-            (pz >= wlo[:, 2])
-            & (pz <= top)
-            & (px >= wlo[:, 0])
-            & (px <= whi[:, 0])
-            & (py >= wlo[:, 1])
-            & (py <= whi[:, 1])
-        )  # (K,) candidate pairs: row of ps, link
-        if len(ip):
-            s_obj = _sweep_pairs(ps[ip], Tb[il], ctx.half[il] + c)[0]
+        ci, il = np.nonzero(
+            (cp[:, 2:3] >= wlo[:, 2])
+            & (cm[:, 2:3] <= top)
+            & (cp[:, 0:1] >= wlo[:, 0])
+            & (cm[:, 0:1] <= whi[:, 0])
+            & (cp[:, 1:2] >= wlo[:, 1])
+            & (cm[:, 1:2] <= whi[:, 1])
+        )  # (cell, link) pairs: the cell's ball meets the link's window
+        pid, k = ctx.cells.expand(ci)
+        il = il[k]
+        ps = _to_frame_t(ctx.xyz[:, pid], T0)
+        px, py, pz = ps
+        hit = np.flatnonzero(
+            (pz >= wlo[il, 2])
+            & (pz <= top[il])
+            & (px >= wlo[il, 0])
+            & (px <= whi[il, 0])
+            & (py >= wlo[il, 1])
+            & (py <= whi[il, 1])
+        )  # (K,) the candidate pairs: the point is in the link's window
+        if len(hit):
+            s_obj = _sweep_pairs(ps[:, hit].T, Tb[il[hit]], ctx.half[il[hit]] + c)[0]
         if s_obj <= window or window >= S_eff:
             break
     s = min(s_obj, s_sup)
@@ -490,37 +615,54 @@ def _support_collision(ctx: _Context, T: np.ndarray, q: np.ndarray) -> str | Non
 
 
 def _link_distances(
-    ctx: _Context, p_h: np.ndarray, idx: np.ndarray, q: np.ndarray, reach: float
+    ctx: _Context, view: _View, q: np.ndarray, reach: float
 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Per link of the hand at configuration ``q``: cloud indices of the points within
     ``reach`` of its box and their exact signed distances to it (< 0 inside), in ascending
-    cloud order. ``p_h`` (M, 3): the cloud points near the hand, in its frame; ``idx`` (M,)
-    their cloud indices. Candidates: the points in the AABB of a box grown by ``reach`` (first
-    the AABB of all of them, one pass over ``p_h``); all pairs' distances at once."""
+    cloud order (``view``: the cloud in the hand's frame). Candidates: the points in the AABB
+    of a box grown by ``reach`` (found through the cells); all pairs' distances at once."""
     Tb, lo, hi = ctx.boxes(q)  # hand frame
     blo, bhi = lo - reach, hi + reach  # (L, 3)
-    glo, ghi = blo.min(axis=0), bhi.max(axis=0)
-    x, y, z = p_h[:, 0], p_h[:, 1], p_h[:, 2]
-    sub = np.flatnonzero(
-        (x >= glo[0])
-        & (x <= ghi[0])
-        & (y >= glo[1])
-        & (y <= ghi[1])
-        & (z >= glo[2])
-        & (z <= ghi[2])
+    c, ok = view.cells(ctx)
+    rad = ctx.cells.radius[:, None]
+    cm, cp = c - rad, c + rad
+    ci, il = np.nonzero(
+        ok[:, None]
+        & (cp[:, 0:1] >= blo[:, 0])
+        & (cm[:, 0:1] <= bhi[:, 0])
+        & (cp[:, 1:2] >= blo[:, 1])
+        & (cm[:, 1:2] <= bhi[:, 1])
+        & (cp[:, 2:3] >= blo[:, 2])
+        & (cm[:, 2:3] <= bhi[:, 2])
+    )  # (cell, link) pairs: the cell's ball meets the link's grown AABB
+    pid, k = ctx.cells.expand(ci)
+    seen, p = view.points(ctx, pid)
+    pid, il = pid[seen], il[k[seen]]
+    x, y, z = p
+    inside = np.flatnonzero(
+        (x >= blo[il, 0])
+        & (x <= bhi[il, 0])
+        & (y >= blo[il, 1])
+        & (y <= bhi[il, 1])
+        & (z >= blo[il, 2])
+        & (z <= bhi[il, 2])
     )
-    ps = p_h[sub].T  # (3, M')
-    inside = (ps[0] >= blo[:, 0:1]) & (ps[0] <= bhi[:, 0:1])  # (L, M')
-    inside &= (ps[1] >= blo[:, 1:2]) & (ps[1] <= bhi[:, 1:2])
-    inside &= (ps[2] >= blo[:, 2:3]) & (ps[2] <= bhi[:, 2:3])
-    il, ip = np.nonzero(inside)  # pairs grouped by link, points ascending
-    v = ps[:, ip].T - Tb[il, :3, 3]  # (K, 3)
-    R = Tb[il, :3, :3]  # (K, 3, 3) box axes as columns
-    local = v[:, 0:1] * R[:, 0, :] + v[:, 1:2] * R[:, 1, :] + v[:, 2:3] * R[:, 2, :]
-    qd = np.abs(local) - ctx.half[il]
-    d = np.sqrt(np.sum(np.maximum(qd, 0.0) ** 2, axis=1)) + np.minimum(qd.max(axis=1), 0.0)
-    near = d <= reach
-    il, d, cloud = il[near], d[near], idx[sub[ip[near]]]
+    il, pid = il[inside], pid[inside]
+    # the exact distance to each pair's box, in its frame
+    Tl = Tb[il]  # (K, 4, 4)
+    v0, v1, v2 = x[inside] - Tl[:, 0, 3], y[inside] - Tl[:, 1, 3], z[inside] - Tl[:, 2, 3]
+    half = ctx.half[il]
+    qd = [
+        np.abs(v0 * Tl[:, 0, j] + v1 * Tl[:, 1, j] + v2 * Tl[:, 2, j]) - half[:, j]
+        for j in range(3)  # the box's three axes
+    ]
+    out = [np.maximum(qj, 0.0) for qj in qd]
+    d = np.sqrt(out[0] ** 2 + out[1] ** 2 + out[2] ** 2) + np.minimum(
+        np.maximum(np.maximum(qd[0], qd[1]), qd[2]), 0.0
+    )
+    near = np.flatnonzero(d <= reach)
+    near = near[np.lexsort((pid[near], il[near]))]  # by link, then ascending cloud index
+    il, d, cloud = il[near], d[near], pid[near]
     cuts = np.searchsorted(il, np.arange(1, len(Tb)))
     return np.split(cloud, cuts), np.split(d, cuts)
 
@@ -555,7 +697,8 @@ def _support_line_2d(
 
 
 def _thin_2d(p2: np.ndarray, cell: float) -> np.ndarray:
-    """One point of ``p2`` (M, 2) per occupied square cell of side ``cell`` (0: all points).
+    """One point of ``p2`` (M, 2) per occupied square cell of side ``cell`` (0: all points):
+    the first in the given order.
 
     A slice projects a 3D band of the surface (one finger width thick) onto its plane, where
     many points fall within a fraction of a millimetre of each other."""
@@ -564,8 +707,16 @@ def _thin_2d(p2: np.ndarray, cell: float) -> np.ndarray:
     c = np.floor(p2 / cell).astype(np.int64)
     c -= c.min(axis=0)
     key = c[:, 0] * (int(c[:, 1].max()) + 1) + c[:, 1]
-    _, first = np.unique(key, return_index=True)
-    return p2[np.sort(first)]
+    m = len(p2)
+    n_cells = int(key.max()) + 1
+    if n_cells > 16 * m + 65536:  # a sparse spread of points: sort instead of a dense grid
+        _, first = np.unique(key, return_index=True)
+        return p2[np.sort(first)]
+    # the lowest row of every cell, on a dense grid; a row is kept when it is its cell's lowest
+    rows = np.arange(m)
+    lowest = np.full(n_cells, m, dtype=np.int64)
+    np.minimum.at(lowest, key, rows)
+    return p2[lowest[key] == rows]
 
 
 @dataclass
@@ -581,27 +732,47 @@ class _Slice:
 
 
 def _slices(
-    ctx: _Context, T: np.ndarray, p_h: np.ndarray, q0: np.ndarray, gt: str, spread: float
+    ctx: _Context, T: np.ndarray, view: _View, q0: np.ndarray, gt: str, spread: float
 ) -> list[_Slice]:
-    """The slice of every finger of the grasp type for the hand at pose ``T`` (``p_h``: the
-    nearby cloud points in that hand frame, in ascending cloud order)."""
+    """The slice of every finger of the grasp type for the hand at pose ``T`` (``view``: the
+    cloud in that hand frame)."""
     prm = ctx.params
     out = []
     fingers = ctx.hand.fingers_for(gt)
     planes = [ctx.plane(f, spread) for f in fingers]
-    # a first cut for all fingers with one matrix product: the offsets along each flexion
-    # plane's normal, with a margin far above their rounding (the exact test follows)
     nrm = np.array([pl.normal for pl in planes]).T  # (3, F)
     shift = np.array([pl.origin @ pl.normal for pl in planes])  # (F,)
     half_w = np.array([0.5 * f.width for f in fingers])
-    along = p_h[:, 0:1] * nrm[0] + p_h[:, 1:2] * nrm[1] + p_h[:, 2:3] * nrm[2]  # (M, F)
+    # the moving links never get farther than Lm + hypot(Ld, h) from the first joint
+    reach = [f.middle_length + np.hypot(f.distal_length, 0.5 * f.thickness) for f in fingers]
+    r_all = np.array(reach) + prm.closing_margin  # (F,)
+    # candidates: the cells whose balls meet a finger's band (within half a finger width of
+    # its plane, and within its reach in the plane: in 3D within hypot(reach, half width) of
+    # its first joint)
+    c, ok = view.cells(ctx)
+    rad = ctx.cells.radius[:, None]
+    origins = np.array([pl.origin for pl in planes])  # (F, 3)
+    d2 = (
+        (c[:, 0:1] - origins[:, 0]) ** 2
+        + (c[:, 1:2] - origins[:, 1]) ** 2
+        + (c[:, 2:3] - origins[:, 2]) ** 2
+    )  # (C, F)
+    cand = (
+        ok[:, None]
+        & (np.abs(c @ nrm - shift) <= half_w + 1e-9 + rad)
+        & (d2 <= (np.hypot(r_all, half_w) + 1e-9 + rad) ** 2)
+    )  # (C, F)
+    _, p = view.points(ctx, ctx.cells.points_of(np.flatnonzero(cand.any(axis=1))))
+    # the band test (the offsets along the flexion planes' normals, with a margin far above
+    # their rounding; the exact slice test follows)
+    along = p[0, :, None] * nrm[0] + p[1, :, None] * nrm[1] + p[2, :, None] * nrm[2]  # (M, F)
     near_band = np.abs(along - shift) <= half_w + 1e-9
     for j, (f, plane) in enumerate(zip(fingers, planes, strict=True)):  # <= 3 fingers
-        # the 2D coordinates and offsets (FlexionPlane.to_plane) of the points near the band
-        uvn = _to_frame(p_h[near_band[:, j]], plane.T_hand_plane)  # FlexionPlane.to_plane
-        p2, off = uvn[:, :2], uvn[:, 2]
-        # the moving links never get farther than Lm + hypot(Ld, h) from the first joint
-        r_f = f.middle_length + np.hypot(f.distal_length, 0.5 * f.thickness) + prm.closing_margin
+        band = near_band[:, j]
+        # the 2D coordinates and offsets (FlexionPlane.to_plane) of the points in the band
+        uvn = _to_frame_t(p[:, band], plane.T_hand_plane)
+        p2, off = uvn[:2].T, uvn[2]
+        r_f = r_all[j]
         in_slice = (np.abs(off) <= 0.5 * f.width) & (
             p2[:, 0] ** 2 + p2[:, 1] ** 2 <= (r_f + 1e-9) ** 2
         )
@@ -647,11 +818,11 @@ def _closing_records(q0: np.ndarray, slices: list[_Slice], cls: list) -> tuple[n
 
 
 def _close_fingers(
-    ctx: _Context, T: np.ndarray, p_h: np.ndarray, q0: np.ndarray, gt: str, spread: float
+    ctx: _Context, T: np.ndarray, view: _View, q0: np.ndarray, gt: str, spread: float
 ) -> tuple[np.ndarray, list]:
     """Slice and close every finger of the grasp type for the hand at pose ``T`` (see
     :func:`_slices` and :func:`_closing_records`)."""
-    slices = _slices(ctx, T, p_h, q0, gt, spread)
+    slices = _slices(ctx, T, view, q0, gt, spread)
     return _closing_records(q0, slices, _close_slices(ctx, slices))
 
 
@@ -713,8 +884,7 @@ class _Prepared:
     T: np.ndarray  # hand pose after the approach
     s: float
     stop: str
-    p_h: np.ndarray  # nearby cloud points in the frame of T, ascending cloud order
-    idx: np.ndarray  # their cloud indices
+    view: _View  # the cloud in the frame of T
     slices: list[_Slice]
 
 
@@ -733,27 +903,24 @@ def _prepare(ctx: _Context, pool: Any, i: int) -> _Prepared | Grasp:
     q0 = np.asarray(pool.q[i], dtype=np.float64)
     spread = float(pool.spread[i])
 
-    # 1. approach, with the cloud in the frame of the hand at the pre-grasp pose
-    p_all = _to_frame(ctx.points, T0)  # (N, 3)
-    s, stop = _approach(ctx, T0, q0, p_all)
+    # 1. approach, with the cloud (its cells) in the frame of the hand at the pre-grasp pose
+    c0 = _to_frame(ctx.cells.centre, T0)  # (C, 3)
+    s, stop = _approach(ctx, T0, q0, c0)
     if not np.isfinite(s):
         detail = f"no cloud point within {prm.max_approach:.3f} m ahead"
         return _rejected(i, gt, T0, q0, "nothing_ahead", detail)
     T = T0.copy()
     T[:3, 3] += s * T0[:3, 2]
     # the cloud points the hand can reach after the approach (a box about the hand, r on every
-    # side; below the palm also from up to max_lift higher up), in ascending cloud order, in
-    # the frame of the hand there: every point a link can touch or hold, for the slices and
-    # the 3D checks (r = the hand's reach + the largest contact or penetration distance)
+    # side; below the palm also from up to max_lift higher up), in the frame of the hand
+    # there: every point a link can touch or hold, for the slices and the 3D checks (r = the
+    # hand's reach + the largest contact or penetration distance)
     r = ctx.reach + max(prm.contact_distance, prm.penetration_tol)
     lift = prm.max_lift if ctx.support is not None else 0.0
-    x, y, z = p_all[:, 0], p_all[:, 1], p_all[:, 2]
-    z_lo = max(-r, s - r - lift)
-    keep = np.flatnonzero((np.abs(x) <= r) & (np.abs(y) <= r) & (z >= z_lo) & (z <= r + s))
-    p_h = p_all[keep] - np.array([0.0, 0.0, s])
+    view = _View(T0, c0, r, max(-r, s - r - lift), r + s, (-s,))
     # 2. the slices (closed for many pre-grasps at once by the caller)
-    slices = _slices(ctx, T, p_h, q0, gt, spread)
-    return _Prepared(i, gt, T0, q0, spread, T, s, stop, p_h, keep, slices)
+    slices = _slices(ctx, T, view, q0, gt, spread)
+    return _Prepared(i, gt, T0, q0, spread, T, s, stop, view, slices)
 
 
 def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Grasp:
@@ -761,7 +928,7 @@ def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Gra
     the support, 3D verification, contacts and quality."""
     hand, prm = ctx.hand, ctx.params
     i, gt, T0, q0, spread = pre.i, pre.gt, pre.T0, pre.q0, pre.spread
-    T, s, stop, p_h = pre.T.copy(), pre.s, pre.stop, pre.p_h
+    T, s, stop, view = pre.T.copy(), pre.s, pre.stop, pre.view
 
     def rejected(reason: str, detail: str, T=T0, s=0.0, stop="", q=q0, fingers=()) -> Grasp:
         return _rejected(i, gt, T, q, reason, detail, s, stop, fingers)
@@ -777,8 +944,7 @@ def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Gra
             up = k * LIFT_STEP
             T_up = T.copy()
             T_up[:3, 3] -= up * T0[:3, 2]
-            p_up = p_h + np.array([0.0, 0.0, up])
-            q_up, cl_up = _close_fingers(ctx, T_up, p_up, q0, gt, spread)
+            q_up, cl_up = _close_fingers(ctx, T_up, view.moved(up), q0, gt, spread)
             n_up = sum(bool(c[3]) for c in cl_up)
             if n_up > n_touch:
                 n_touch, q, closings, lift = n_up, q_up, cl_up, up
@@ -786,7 +952,7 @@ def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Gra
                 break  # no finger is held by the table any more: going higher cannot help
         if lift > 0.0:
             T[:3, 3] -= lift * T0[:3, 2]
-            p_h = p_h + np.array([0.0, 0.0, lift])
+            view = view.moved(lift)
             s -= lift
             stop = "support_lifted"
 
@@ -797,7 +963,7 @@ def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Gra
     q_checked = q.copy()
     # depth of the nearby cloud points in every link
     reach = max(prm.contact_distance, prm.penetration_tol)
-    ids, dists = _link_distances(ctx, p_h, pre.idx, q, reach)
+    ids, dists = _link_distances(ctx, view, q, reach)
     bad = {ctx.link_names[j] for j, d in enumerate(dists) if np.any(d < -prm.penetration_tol)}
     if bad:
         for f, cl, *_ in closings:
@@ -807,7 +973,7 @@ def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Gra
             # open the finger back along its closing path (bisection over the path samples)
             # to the last sample where its links hold no point deeper than the tolerance
             origin = ctx.plane(f, spread).origin
-            near = p_h[np.sum((p_h - origin) ** 2, axis=1) <= (ctx.reach + reach) ** 2]
+            near = view.near(ctx, origin, ctx.reach + reach)
 
             def clear(k: int, f=f, cl=cl, cols=cols, near=near) -> bool:
                 qq = q.copy()
@@ -822,7 +988,7 @@ def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Gra
                     lo, hi = (mid, hi) if clear(mid) else (lo, mid)
                 q[list(f.flex_index)] = cl.path[hi if clear(hi) else lo]
                 corrected[f.name] = True
-        ids, dists = _link_distances(ctx, p_h, pre.idx, q, reach)
+        ids, dists = _link_distances(ctx, view, q, reach)
     fingers = tuple(
         FingerTrace(
             f.name,

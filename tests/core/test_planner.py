@@ -539,3 +539,83 @@ def test_invariants_on_the_default_object(hand):
             assert inside[0, hand.link_names.index(c.link)]
         corners = hand.collision_mesh(g.q).vertices @ R.T + t
         assert (corners @ support.normal).min() >= support.height - prm.penetration_tol - 1e-9
+
+
+def _grasp_rows(gs):
+    """Every field of every grasp that the planner computes, as comparable Python values."""
+    rows = []
+    for g in gs.grasps:
+        rows.append((
+            g.T_world_hand.tobytes(), g.approach_distance, g.approach_stop, g.q.tobytes(),
+            g.rejection, g.detail, g.epsilon, g.volume, g.rank,
+            [(c.link, c.point_index, c.distance) for c in g.contacts],
+            [(f.finger, f.n_slice, f.q.tobytes(), f.links_touched, f.corrected) for f in g.fingers],
+        ))  # fmt: skip
+    return rows
+
+
+def test_cell_size_changes_no_result(hand, monkeypatch):
+    """The cloud's cells only find candidates for exact tests: planning the default object (with
+    its table: approach stops on the support, retreats, corrections) with cells of 2 mm, 1 cm
+    and 8 cm gives the same grasps, field for field, bit for bit."""
+    import pregrasp_core.planner as planner
+    from pregrasp_core.io import load_point_cloud
+    from pregrasp_core.paths import DEFAULT_OBJECT
+    from pregrasp_core.pipeline import run_pipeline
+
+    cloud = load_point_cloud(DEFAULT_OBJECT, n_points=4000, seed=3)
+    res = run_pipeline(cloud, hand=hand, until="pool")
+    pool, support, normals = res.pool, res.masks.support, planner.cloud_normals(cloud)
+    rows = []
+    for size in (0.002, 0.01, 0.08):
+        monkeypatch.setattr(planner, "CELL_SIZE", size)
+        gs = plan_grasps(cloud.points, normals, pool, hand, PlannerParams(threads=1), support)
+        rows.append(_grasp_rows(gs))
+    assert rows[0] == rows[1] == rows[2]
+    stops = {g.approach_stop for g in gs.grasps}
+    assert len(gs.ranking) >= 10 and "object" in stops and len(stops) >= 2
+
+
+def test_cells_hold_every_point_and_list_them_ascending():
+    """_Cells against brute force on a random cloud: every point lies in its cell's ball; the
+    points of any set of cells come back exactly and in ascending order; a ball query through the
+    cells misses no point that the brute-force query finds."""
+    from pregrasp_core.planner import _Cells
+
+    rng = np.random.default_rng(7)
+    pts = rng.normal(scale=0.05, size=(3000, 3))
+    cells = _Cells(pts, 0.01)
+    assert cells.count.sum() == len(pts) and np.array_equal(np.sort(cells.order), np.arange(3000))
+    owner = np.repeat(np.arange(len(cells.count)), cells.count)  # cell of each row of order
+    d = np.linalg.norm(pts[cells.order] - cells.centre[owner], axis=1)
+    assert np.all(d <= cells.radius[owner])
+    for _ in range(20):
+        some = np.flatnonzero(rng.random(len(cells.count)) < 0.3)
+        ref = np.sort(cells.order[np.isin(owner, some)])
+        assert np.array_equal(cells.points_of(some), ref)
+        c, r = rng.normal(scale=0.05, size=3), rng.uniform(0.005, 0.05)
+        hit = np.flatnonzero(np.linalg.norm(cells.centre - c, axis=1) <= r + cells.radius)
+        found = cells.points_of(hit)
+        truth = np.flatnonzero(np.linalg.norm(pts - c, axis=1) <= r)
+        assert np.all(np.isin(truth, found))
+    empty = _Cells(np.zeros((0, 3)), 0.01)
+    assert len(empty.points_of(np.zeros(0, dtype=np.int64))) == 0
+
+
+@pytest.mark.parametrize("spread", [0.004, 0.5])
+def test_thin_2d_keeps_the_first_point_of_every_cell(spread):
+    """_thin_2d against a loop over the points with a set of the cells seen so far, on a dense
+    patch (the grid branch) and on a sparse spread (the sorting branch)."""
+    from pregrasp_core.planner import _thin_2d
+
+    rng = np.random.default_rng(1)
+    p2 = rng.uniform(-spread, spread, size=(800, 2))
+    p2[::7] = p2[1::7][: len(p2[::7])]  # exact duplicates
+    seen, ref = set(), []
+    for p in p2:  # the reference: one pass in order
+        key = (int(np.floor(p[0] / 0.0007)), int(np.floor(p[1] / 0.0007)))
+        if key not in seen:
+            seen.add(key)
+            ref.append(p)
+    assert np.array_equal(_thin_2d(p2, 0.0007), np.array(ref))
+    assert np.array_equal(_thin_2d(p2, 0.0), p2)
