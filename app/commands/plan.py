@@ -229,15 +229,15 @@ def summary(result: Any, timings: dict, top: int) -> str:
     ]
     best = gs.top(top)
     if best:
-        lines.append(f"best {len(best)} grasps (rank by epsilon, then volume):")
+        lines.append(f"best {len(best)} grasps (#1 = best; by epsilon, then volume):")
         lines.append(
-            f"  {'rank':>4}  {'type':<17} {'node':>4} {'pre':>5} {'contacts':>8} "
+            f"  {'#':>4}  {'type':<17} {'node':>4} {'pre':>5} {'contacts':>8} "
             f"{'epsilon':>8} {'volume':>10}  links"
         )
         for g in best:
             links = ",".join(c.link for c in g.contacts)
             lines.append(
-                f"  {g.rank:>4}  {g.grasp_type:<17} {int(pool.node[g.pregrasp]):>4} "
+                f"  {g.rank + 1:>4}  {g.grasp_type:<17} {int(pool.node[g.pregrasp]):>4} "
                 f"{g.pregrasp:>5} {g.n_contacts:>8} {g.epsilon:>8.4f} {g.volume:>10.3e}  {links}"
             )
         lines.append("by grasp type (why the best has its type):")

@@ -27,15 +27,15 @@ def test_summary_lists_parts_pool_and_best_grasps(capsys):
     assert "parts: 1" in out
     assert "pool:" in out and "planned:" in out
     assert "timings:" in out and "grasps" in out.split("timings:")[1]
-    assert "best 2 grasps (rank by epsilon, then volume):" in out
+    assert "best 2 grasps (#1 = best; by epsilon, then volume):" in out
     lines = out.splitlines()
     header = next(k for k, line in enumerate(lines) if "contacts" in line and "epsilon" in line)
-    assert lines[header].split()[:3] == ["rank", "type", "node"]
+    assert lines[header].split()[:3] == ["#", "type", "node"]
     first = lines[header + 1].split()
     by_type = lines.index("by grasp type (why the best has its type):")
     assert lines[by_type + 1].strip().startswith(first[1] + ":")  # the best type comes first
     assert "force closure" in lines[by_type + 1] and "best epsilon" in lines[by_type + 1]
-    assert first[0] == "0" and first[1] in ("spherical", "cylindrical", "three_finger_tip",
+    assert first[0] == "1" and first[1] in ("spherical", "cylindrical", "three_finger_tip",
                                             "two_finger_tip")  # fmt: skip
 
 
