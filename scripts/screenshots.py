@@ -20,14 +20,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--no-first-run",
-    "--disable-sync",
-]
+from app.headless import CHROMIUM, launch  # noqa: E402 (the repository on the path first)
 
 
 def _settle(page, app) -> None:
@@ -69,7 +62,7 @@ def main() -> int:
     ap.add_argument("input", nargs="?", type=Path, help="object to show (default: the mug)")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "screenshots")
     ap.add_argument("--points", type=int, default=20000)
-    ap.add_argument("--chromium", default="/usr/bin/chromium")
+    ap.add_argument("--chromium", default=CHROMIUM)
     args = ap.parse_args()
 
     import viser
@@ -84,11 +77,10 @@ def main() -> int:
     c = app.controller
     try:
         with sync_playwright() as p:
-            ctx = p.chromium.launch_persistent_context(
-                user_data_dir=tempfile.mkdtemp(prefix="pregrasp-shots-"),
-                executable_path=args.chromium,
-                headless=True,
-                args=CHROMIUM_ARGS,
+            ctx = launch(
+                p,
+                tempfile.mkdtemp(prefix="pregrasp-shots-"),
+                args.chromium,
                 viewport={"width": 1600, "height": 900},
             )
             page = ctx.new_page()

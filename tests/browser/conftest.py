@@ -15,17 +15,7 @@ from pathlib import Path
 
 import pytest
 
-CHROMIUM = os.environ.get("PREGRASP_CHROMIUM", "/usr/bin/chromium")
-"""The browser binary (Debian's chromium package)."""
-
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--no-first-run",
-    "--disable-sync",
-]
+from app.headless import CHROMIUM, launch
 
 SHOTS_DIR = Path(os.environ.get("PREGRASP_SHOTS_DIR", tempfile.gettempdir())) / "pregrasp-shots"
 """Where the browser tests save their screenshots."""
@@ -61,13 +51,8 @@ def browser_context(chromium) -> Iterator:
 
     profile = tempfile.mkdtemp(prefix="pregrasp-chromium-")
     with sync_playwright() as p:
-        ctx = p.chromium.launch_persistent_context(
-            user_data_dir=profile,
-            executable_path=chromium,
-            headless=True,
-            args=CHROMIUM_ARGS,
-            viewport={"width": 1400, "height": 900},
-            accept_downloads=True,
+        ctx = launch(
+            p, profile, chromium, viewport={"width": 1400, "height": 900}, accept_downloads=True
         )
         try:
             yield ctx
