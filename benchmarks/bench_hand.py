@@ -232,6 +232,29 @@ def bench_self_collision(hand: Hand, n_points: int, repeats: int) -> None:
                 f"{fmt(t_many / B)} | {fmt(t_one / B)} | {fmt(t_ref / B)} | "
                 f"{t_ref / t_many:.1f}x | {same} |"
             )
+    # one hand: the filter forced on (threshold 0) against off, by ball-candidate count; this
+    # is what ``_SAT_MIN_PAIRS`` is set from
+    Q = rng.uniform(hand.lower, hand.upper, size=(3000, hand.n_joints))
+    Tb = hand.box_poses(Q)
+    c = Tb[:, :, :3, 3]
+    n_cand = (np.linalg.norm(c[:, ia] - c[:, ib], axis=2) - reach <= 1e-6).sum(axis=1)
+    print("\nOne hand (`self_collisions`, random configurations), separating-axis filter on/off:\n")
+    print("| ball candidates | hands | filter on | filter off (ball + fcl) |")
+    print("|---|---:|---:|---:|")
+    default = hand_module._SAT_MIN_PAIRS
+    for lo, hi in ((0, 6), (6, 12), (12, 18), (18, 24), (24, 37)):
+        sel = np.flatnonzero((n_cand >= lo) & (n_cand < hi))[:100]
+        times = []
+        for threshold in (0, 10**9):  # filter on every call / never
+            hand_module._SAT_MIN_PAIRS = threshold
+            times.append(
+                median_time(
+                    lambda sel=sel: [hand.self_collisions(Q[b], Tb[b]) for b in sel], repeats
+                )
+            )
+        hand_module._SAT_MIN_PAIRS = default
+        on, off = (fmt(t / len(sel)) for t in times)
+        print(f"| {lo}-{hi - 1} | {len(sel)} | {on} | {off} |")
 
 
 def main() -> None:
