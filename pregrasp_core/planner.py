@@ -817,15 +817,6 @@ def _closing_records(q0: np.ndarray, slices: list[_Slice], cls: list) -> tuple[n
     return q, closings
 
 
-def _close_fingers(
-    ctx: _Context, T: np.ndarray, view: _View, q0: np.ndarray, gt: str, spread: float
-) -> tuple[np.ndarray, list]:
-    """Slice and close every finger of the grasp type for the hand at pose ``T`` (see
-    :func:`_slices` and :func:`_closing_records`)."""
-    slices = _slices(ctx, T, view, q0, gt, spread)
-    return _closing_records(q0, slices, _close_slices(ctx, slices))
-
-
 def _open_self_collisions(
     ctx: _Context, q: np.ndarray, closings: list, corrected: dict
 ) -> tuple[np.ndarray, bool]:
@@ -923,9 +914,9 @@ def _prepare(ctx: _Context, pool: Any, i: int) -> _Prepared | Grasp:
     return _Prepared(i, gt, T0, q0, spread, T, s, stop, view, slices)
 
 
-def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Grasp:
-    """After the closing (``q`` and ``closings`` from :func:`_closing_records`): retreat from
-    the support, 3D verification, contacts and quality."""
+def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list, lift: float) -> Grasp:
+    """After the closing (``q`` and ``closings`` from :func:`_closing_records`, at the height
+    ``lift`` that :func:`_lift_retries` chose): 3D verification and contacts."""
     hand, prm = ctx.hand, ctx.params
     i, gt, T0, q0, spread = pre.i, pre.gt, pre.T0, pre.q0, pre.spread
     T, s, stop, view = pre.T.copy(), pre.s, pre.stop, pre.view
@@ -933,28 +924,11 @@ def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list) -> Gra
     def rejected(reason: str, detail: str, T=T0, s=0.0, stop="", q=q0, fingers=()) -> Grasp:
         return _rejected(i, gt, T, q, reason, detail, s, stop, fingers)
 
-    lift = 0.0
-    if ctx.support is not None and prm.max_lift > 0.0 and stop in ("support", "start"):
-        # the table, not the object, ended the approach: fingers that closed on the table (or
-        # could not move) get another chance from a little higher up (back along the approach)
-        n_touch = sum(bool(c[3]) for c in closings)
-        for k in range(1, int(round(prm.max_lift / LIFT_STEP)) + 1):  # <= ~8 retreats
-            if n_touch == len(closings):
-                break
-            up = k * LIFT_STEP
-            T_up = T.copy()
-            T_up[:3, 3] -= up * T0[:3, 2]
-            q_up, cl_up = _close_fingers(ctx, T_up, view.moved(up), q0, gt, spread)
-            n_up = sum(bool(c[3]) for c in cl_up)
-            if n_up > n_touch:
-                n_touch, q, closings, lift = n_up, q_up, cl_up, up
-            if not any(c[4] and not c[3] for c in cl_up):
-                break  # no finger is held by the table any more: going higher cannot help
-        if lift > 0.0:
-            T[:3, 3] -= lift * T0[:3, 2]
-            view = view.moved(lift)
-            s -= lift
-            stop = "support_lifted"
+    if lift > 0.0:  # the hand closed from higher up (see _lift_retries)
+        T[:3, 3] -= lift * T0[:3, 2]
+        view = view.moved(lift)
+        s -= lift
+        stop = "support_lifted"
 
     # 3. verification in 3D. Fingers that closed into each other (python-fcl) stop where they
     # meet: the finger that needs the least opening goes back along its closing path.
@@ -1074,6 +1048,46 @@ def _n_threads(threads: int) -> int:
         return os.cpu_count() or 1
 
 
+def _lift_retries(ctx: _Context, todo: list[_Prepared], records: dict, each: Callable) -> None:
+    """Retreats from the support (``PlannerParams.max_lift``) for the pre-grasps of a chunk:
+    when the table, not the object, ended the approach and some finger closed on the table (or
+    could not move), the hand closes again from ``k * LIFT_STEP`` higher up (back along the
+    approach), k = 1, 2, ..., and keeps the height where the most fingers touch the object. It
+    stops when every finger touches the object or when no finger is held by the table any more
+    (going higher cannot help). Round k closes the fingers of every pre-grasp still retreating
+    in one call of the batched closing model. ``records`` (pre-grasp -> (q, closings, lift)) is
+    updated in place."""
+    prm = ctx.params
+    if ctx.support is None or prm.max_lift <= 0.0:
+        return
+    active = [p for p in todo if p.stop in ("support", "start")]
+    best = {p.i: sum(bool(c[3]) for c in records[p.i][1]) for p in active}  # fingers on object
+    for k in range(1, int(round(prm.max_lift / LIFT_STEP)) + 1):  # <= ~8 retreats
+        active = [p for p in active if best[p.i] != len(records[p.i][1])]
+        if not active:
+            break
+        up = k * LIFT_STEP
+
+        def slices_up(p: _Prepared, up: float = up) -> list[_Slice]:
+            T_up = p.T.copy()
+            T_up[:3, 3] -= up * p.T0[:3, 2]
+            return _slices(ctx, T_up, p.view.moved(up), p.q0, p.gt, p.spread)
+
+        sls = each(slices_up, active)
+        cls = _close_slices(ctx, [sl for ss in sls for sl in ss])
+        going, j = [], 0
+        for p, ss in zip(active, sls, strict=True):  # loop over the retreating pre-grasps
+            q_up, cl_up = _closing_records(p.q0, ss, cls[j : j + len(ss)])
+            j += len(ss)
+            n_up = sum(bool(c[3]) for c in cl_up)
+            if n_up > best[p.i]:
+                best[p.i] = n_up
+                records[p.i] = (q_up, cl_up, up)
+            if any(c[4] and not c[3] for c in cl_up):  # a finger is still held by the table
+                going.append(p)
+        active = going
+
+
 def _finish_or_keep(ctx: _Context, records: dict, p: _Prepared | Grasp) -> Grasp:
     """:func:`_finish` for a prepared pre-grasp (its closing in ``records``); a rejection as
     it is."""
@@ -1089,9 +1103,9 @@ def _plan_chunks(
     progress: Callable[[int, int], None] | None,
 ) -> None:
     """Plan the pre-grasps of ``pool`` chunk by chunk into ``grasps`` (see :func:`plan_grasps`).
-    The per-pre-grasp phases run on the thread pool ``ex`` when there is one (numpy, the k-d
-    tree and qhull release Python's global lock for most of their work); every pre-grasp is
-    planned independently, so the results never depend on the threads."""
+    The per-pre-grasp phases run on the thread pool ``ex`` when there is one (numpy and qhull
+    release Python's global lock for most of their work); every pre-grasp is planned
+    independently, so the results never depend on the threads."""
 
     def each(fn: Callable[[Any], Any], items: list) -> list:
         return (
@@ -1105,13 +1119,14 @@ def _plan_chunks(
         todo = [p for p in preps if isinstance(p, _Prepared)]
         t1 = time.perf_counter()
         cls = _close_slices(ctx, [sl for p in todo for sl in p.slices])
-        t2 = time.perf_counter()
         records, k = {}, 0
         for p in todo:  # loop over the chunk's pre-grasps
-            records[p.i] = _closing_records(p.q0, p.slices, cls[k : k + len(p.slices)])
+            records[p.i] = (*_closing_records(p.q0, p.slices, cls[k : k + len(p.slices)]), 0.0)
             k += len(p.slices)
+        _lift_retries(ctx, todo, records, each)
+        t2 = time.perf_counter()
         if records:  # the link boxes of every closed hand of the chunk: one batched FK
-            ctx.prefetch_boxes(np.array([q for q, _ in records.values()]))
+            ctx.prefetch_boxes(np.array([r[0] for r in records.values()]))
         chunk = each(functools.partial(_finish_or_keep, ctx, records), preps)
         t3 = time.perf_counter()
         # 5. quality of the kept grasps: one 6D hull each
