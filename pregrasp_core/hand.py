@@ -1243,21 +1243,18 @@ class Hand:
         if len(todo) == 0:
             return out
         geoms = self._link_fcl_boxes
-        objs: dict[tuple[int, int], fcl.CollisionObject] = {}
-
-        def obj(b: int, li: int) -> fcl.CollisionObject:
-            if (b, li) not in objs:
-                objs[(b, li)] = fcl.CollisionObject(
-                    geoms[li], fcl.Transform(Tb[b, li, :3, :3], Tb[b, li, :3, 3])
-                )
-            return objs[(b, li)]
-
+        objs: dict[tuple[int, int], fcl.CollisionObject] = {}  # (hand, link) -> placed box
         req = fcl.CollisionRequest()
         pairs = self.self_collision_pairs_checked
-        for n in todo.tolist():  # loop over the pairs no separating axis parts (a few per hand)
-            b, k = int(bb[n]), int(kk[n])
+        # loop over the pairs no separating axis parts (a few per hand); plain ints (fast keys)
+        for b, k, *links in zip(*(x[todo].tolist() for x in (bb, kk, la, lb)), strict=True):
+            for li in links:  # place each link box of this hand once
+                if (b, li) not in objs:
+                    objs[(b, li)] = fcl.CollisionObject(
+                        geoms[li], fcl.Transform(Tb[b, li, :3, :3], Tb[b, li, :3, 3])
+                    )
             res = fcl.CollisionResult()
-            if fcl.collide(obj(b, int(la[n])), obj(b, int(lb[n])), req, res) > 0:
+            if fcl.collide(objs[(b, links[0])], objs[(b, links[1])], req, res) > 0:
                 out[b].append(pairs[k])
         return out
 
@@ -1313,8 +1310,8 @@ _SAT_MIN_PAIRS: int = 40
 """Self-collision: the separating-axis pre-filter runs only when at least this many (hand, link
 pair) candidates pass the ball test, so never for one hand (36 checked pairs). Its fixed numpy
 cost (about 80 us) exceeds python-fcl on each candidate (about 1 us a test plus 3-4 us per placed
-link box) for one hand at every candidate count (measured: 99 vs 61 us at 0-5 candidates, 271 vs
-160 us at 24-36), and pays off for a batch (``benchmarks/bench_hand.py``). Either way the answer
+link box) for one hand at every candidate count (measured: 98 vs 60 us at 0-5 candidates, 275 vs
+162 us at 24-36), and pays off for a batch (``benchmarks/bench_hand.py``). Either way the answer
 is python-fcl's."""
 
 _I1 = np.array([1, 2, 0])
