@@ -1195,11 +1195,12 @@ class Hand:
         ``self_collisions(Q[b])`` exactly (same pairs, same order). ``box_poses``: :meth:`box_poses`
         of ``Q`` (B, L, 4, 4) when the caller already has them. B = 0 gives ``[]``.
 
-        Per (configuration, checked pair), all at once: the circumscribed-ball test, then an
-        exact oriented-box separating-axis test (3 + 3 face normals, 9 edge cross products) that
-        calls a pair apart only when an axis parts the boxes by more than
-        ``SELF_COLLISION_SAT_MARGIN``; python-fcl decides the rest (touching or intersecting
-        boxes, a few per closed hand), so every verdict is python-fcl's."""
+        Per (configuration, checked pair), all at once: the circumscribed-ball test, then (when
+        at least ``_SAT_MIN_PAIRS`` candidates are left, i.e. for batches) an exact oriented-box
+        separating-axis test (3 + 3 face normals, 9 edge cross products) that calls a pair apart
+        only when an axis parts the boxes by more than ``SELF_COLLISION_SAT_MARGIN``; python-fcl
+        decides the rest (touching or intersecting boxes, a few per closed hand), so every
+        verdict is python-fcl's."""
         Qa = np.asarray(Q, dtype=np.float64)
         J, L = self.n_joints, len(self.link_names)
         if Qa.ndim != 2 or Qa.shape[1] != J:
@@ -1238,7 +1239,7 @@ class Hand:
                 Tt[:3, :3, bb, lb], Tt[:3, 3, bb, lb], half[:, lb],
             )  # fmt: skip
             todo = np.flatnonzero(~apart)  # candidates python-fcl decides (few)
-        else:  # a few candidates: python-fcl on each costs less than the array set-up
+        else:  # one hand's candidates: python-fcl on each is cheaper (measured)
             todo = np.arange(len(bb))
         if len(todo) == 0:
             return out
