@@ -479,6 +479,7 @@ class _Context:
         self.clock = dict.fromkeys(("approach_slicing", "closing", "verification", "quality"), 0.0)
         self._planes: dict[tuple[str, float], Any] = {}
         self._boxes: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._pairs: dict[bytes, list[tuple[str, str]]] = {}
         self._lock = threading.Lock()
         # reach: half side of a cube about the palm origin that holds every link box at any
         # configuration (palm half diagonal, or first joint + middle + distal at any flexion)
@@ -497,23 +498,36 @@ class _Context:
         return hit
 
     def prefetch_boxes(self, Q: np.ndarray) -> None:
-        """Compute and cache the box poses of many configurations ``Q`` (B, J) at once."""
+        """Compute and cache the box poses and the self-collisions (:meth:`self_pairs`) of many
+        configurations ``Q`` (B, J) at once."""
         Q = np.ascontiguousarray(Q, dtype=np.float64)
-        new = [b for b in range(len(Q)) if Q[b].tobytes() not in self._boxes]
+        new = [b for b in range(len(Q)) if Q[b].tobytes() not in self._pairs]
         if not new:
             return
         Tb_all = self.hand.box_poses(Q[new])  # (B', L, 4, 4)
         corners = _box_corners(Tb_all.reshape(-1, 4, 4), np.tile(self.half, (len(new), 1)))
         corners = corners.reshape(len(new), -1, 8, 3)
         lo, hi = corners.min(axis=2), corners.max(axis=2)
-        for k, b in enumerate(new):  # loop over the configurations: fill the cache
-            self._store(Q[b].tobytes(), (Tb_all[k], lo[k], hi[k]))
+        pairs = self.hand.self_collisions_many(Q[new], Tb_all)
+        for k, b in enumerate(new):  # loop over the configurations: fill the caches
+            key = Q[b].tobytes()
+            self._store(self._boxes, key, (Tb_all[k], lo[k], hi[k]))
+            self._store(self._pairs, key, pairs[k])
 
-    def _store(self, key: bytes, value: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
-        with self._lock:  # the planner's threads share the cache; every change goes here
-            self._boxes[key] = value
-            while len(self._boxes) > 4096:  # a bound for pools of arbitrary preshapes
-                self._boxes.pop(next(iter(self._boxes)))
+    def _store(self, cache: dict, key: bytes, value: Any) -> None:
+        with self._lock:  # the planner's threads share the caches; every change goes here
+            cache[key] = value
+            while len(cache) > 4096:  # a bound for pools of arbitrary preshapes
+                cache.pop(next(iter(cache)))
+
+    def self_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
+        """:meth:`Hand.self_collisions` at ``q`` (cached)."""
+        key = q.tobytes()
+        hit = self._pairs.get(key)
+        if hit is None:
+            hit = self.hand.self_collisions(q, self.boxes(q)[0])
+            self._store(self._pairs, key, hit)
+        return hit
 
     def boxes(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Box poses (L, 4, 4) and their hand-frame AABBs lo, hi (L, 3) at ``q`` (cached)."""
@@ -523,7 +537,7 @@ class _Context:
             Tb = self.hand.box_poses(q)
             corners = _box_corners(Tb, self.half).reshape(-1, 8, 3)
             hit = (Tb, corners.min(axis=1), corners.max(axis=1))
-            self._store(key, hit)
+            self._store(self._boxes, key, hit)
         return hit
 
 
@@ -829,7 +843,7 @@ def _open_self_collisions(
     hand = ctx.hand
     q = q.copy()
     for _ in range(len(closings)):  # loop over <= 3 fingers
-        pairs = hand.self_collisions(q, ctx.boxes(q)[0])
+        pairs = ctx.self_pairs(q)
         if not pairs:
             return q, True
         a, b = pairs[0]
@@ -860,7 +874,7 @@ def _open_self_collisions(
         _, f, q_flex = best
         q[list(f.flex_index)] = q_flex
         corrected[f.name] = True
-    return q, not hand.self_collisions(q, ctx.boxes(q)[0])
+    return q, not ctx.self_pairs(q)
 
 
 @dataclass
@@ -985,7 +999,7 @@ def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list, lift: 
             T, s, stop, q, fingers,
         )  # fmt: skip
     pairs = (
-        [] if clean and np.array_equal(q, q_checked) else hand.self_collisions(q, ctx.boxes(q)[0])
+        [] if clean and np.array_equal(q, q_checked) else ctx.self_pairs(q)
     )
     if pairs:
         detail = f"{pairs[0][0]} and {pairs[0][1]}"
