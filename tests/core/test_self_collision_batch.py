@@ -103,9 +103,9 @@ def _first_contact(hand, q0: np.ndarray, q1: np.ndarray) -> float | None:
 
 
 def test_many_equals_brute_force_near_the_first_contact(hand, monkeypatch):
-    """Close one finger from a random hand until it first touches another link; configurations
-    just before and after the contact (the boxes 1e-17 to 1e-3 m apart or overlapping) give
-    python-fcl's answer in all three calls."""
+    """Close one finger from a random hand until it first touches another link (30 motions);
+    configurations 1e-14 to 1e-3 of the path before and after the contact (the boxes about
+    1e-16 to 1e-4 m apart or overlapping) give python-fcl's answer in all three calls."""
     rng = np.random.default_rng(21)
     lo = np.asarray(hand.lower, dtype=np.float64)
     hi = np.asarray(hand.upper, dtype=np.float64)
@@ -134,7 +134,7 @@ def test_many_equals_brute_force_near_the_first_contact(hand, monkeypatch):
 def _random_box_pairs(rng: np.random.Generator, n: int):
     """n box pairs with pair index last (as ``_obb_apart`` takes them), in kinds that stress
     the test: random, parallel, perpendicular (exact 90 degree turns), nearly parallel
-    (1e-12..1e-3 rad), each placed touching along a random face or edge-ish direction, then
+    (1e-12..1e-3 rad), each placed so that their extents along a direction u just meet, then
     moved by a signed gap from -1 mm to 1 mm (including 0 and +-1e-12..1e-9 m) along a face
     normal of a or b (``on_face``: that normal is one of the 15 axes and parts them by the gap)
     or along a random direction."""
