@@ -16,7 +16,7 @@ it, no thread pool); ``--threads T`` instead runs unpinned with the planner's pe
 phases on T threads (``PlannerParams.threads``). Usage::
 
     .venv/bin/python benchmarks/bench_planner.py [--points 20000] [--repeats 1] [--objects a b]
-        [--threads 1]
+        [--threads 1] [--edges 8]
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ from pregrasp_core.io import load_point_cloud  # noqa: E402
 from pregrasp_core.paths import DEFAULT_OBJECT, demo_objects  # noqa: E402
 from pregrasp_core.pipeline import PipelineParams, run_pipeline  # noqa: E402
 from pregrasp_core.planner import PlannerParams  # noqa: E402
-from pregrasp_core.quality import grasp_quality  # noqa: E402
+from pregrasp_core.quality import QualityParams, grasp_quality  # noqa: E402
 
 
 def pin_one_core() -> str:
@@ -51,7 +51,7 @@ def pin_one_core() -> str:
         return "not pinned"
 
 
-def bench_objects(paths, n_points: int, repeats: int, threads: int = 1):
+def bench_objects(paths, n_points: int, repeats: int, threads: int = 1, edges: int = 8):
     hand = load_hand()
     rows = []
     mug = None
@@ -61,7 +61,8 @@ def bench_objects(paths, n_points: int, repeats: int, threads: int = 1):
             t0 = time.perf_counter()
             cloud = load_point_cloud(path, n_points=n_points, seed=0)
             t_load = time.perf_counter() - t0
-            params = PipelineParams(planner=PlannerParams(threads=threads))
+            quality = QualityParams(n_edges=edges)
+            params = PipelineParams(planner=PlannerParams(threads=threads, quality=quality))
             result = run_pipeline(cloud, params=params, hand=hand, until="grasps")
             total = time.perf_counter() - t0
             timings = {"load": t_load, **result.timings}
@@ -95,21 +96,24 @@ def bench_objects(paths, n_points: int, repeats: int, threads: int = 1):
     return rows, mug
 
 
-def bench_quality(repeats: int = 30):
+def bench_quality(repeats: int = 30, edges: tuple[int, ...] = (4, 6, 8)):
+    """Median time of grasp_quality for 2 to 7 random contacts on a sphere, per cone edges m."""
     rng = np.random.default_rng(0)
     out = []
     for k in (2, 3, 4, 5, 6, 7):
-        times = []
+        times: dict[int, list[float]] = {m: [] for m in edges}
         for _ in range(repeats):
             p = rng.normal(size=(k, 3))
             p /= np.linalg.norm(p, axis=1, keepdims=True)
             p *= 0.04
             n = -p / 0.04 + rng.normal(scale=0.2, size=(k, 3))
-            t0 = time.perf_counter()
-            grasp_quality(p, n)
-            times.append(time.perf_counter() - t0)
-        out.append((k, statistics.median(times)))
-    return out
+            for m in edges:  # the same contacts for every m
+                prm = QualityParams(n_edges=m)
+                t0 = time.perf_counter()
+                grasp_quality(p, n, prm)
+                times[m].append(time.perf_counter() - t0)
+        out.append((k, [statistics.median(times[m]) for m in edges]))
+    return edges, out
 
 
 def main() -> None:
@@ -124,6 +128,9 @@ def main() -> None:
         help="1 (default): one CPU, no thread pool (the one-core figure); T > 1: not pinned, "
         "the per-pre-grasp phases on T threads (PlannerParams.threads)",
     )
+    ap.add_argument(
+        "--edges", type=int, default=8, help="friction cone edges m (default 8, DESIGN section 9)"
+    )
     args = ap.parse_args()
     pinned = pin_one_core() if args.threads == 1 else f"not pinned, {args.threads} threads"
     paths = demo_objects()
@@ -132,9 +139,10 @@ def main() -> None:
     print(
         f"# bench_planner: {platform.machine()}, Python {platform.python_version()}, numpy "
         f"{np.__version__}, scipy {scipy.__version__}, {pinned}, {args.points} points, "
+        f"m = {args.edges}, "
         f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}"
     )
-    rows, mug = bench_objects(paths, args.points, args.repeats, args.threads)
+    rows, mug = bench_objects(paths, args.points, args.repeats, args.threads, args.edges)
 
     print("\n## Full pipeline and planner throughput per object\n")
     print(
@@ -211,11 +219,12 @@ def main() -> None:
             + ", ".join(f"{i}: {mug.shapes[i].grasp_type.value}" for i in nodes)
         )
 
-    print("\n## Quality measure alone (6D qhull, m = 8)\n")
-    print("| contacts | median ms |")
-    print("|---|---|")
-    for k, t in bench_quality():
-        print(f"| {k} | {t * 1e3:.2f} |")
+    edges, rows = bench_quality()
+    print("\n## Quality measure alone (6D qhull; median ms per grasp; m = cone edges)\n")
+    print("| contacts | " + " | ".join(f"m = {m}" for m in edges) + " |")
+    print("|---|" + "---|" * len(edges))
+    for k, ts in rows:
+        print(f"| {k} | " + " | ".join(f"{t * 1e3:.2f}" for t in ts) + " |")
 
 
 if __name__ == "__main__":
