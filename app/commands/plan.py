@@ -400,7 +400,7 @@ def run_batch(folder: Path, args: argparse.Namespace, hand: Any) -> int:
         skipped = sum(1 for r in rows if str(r["error"]).startswith("skipped:"))
         print(
             f"wrote {args.report}: {n_ok} objects planned"
-            + (f" ({skipped} files skipped)" if skipped else "")
+            + (f" ({skipped} file{'s' if skipped > 1 else ''} skipped)" if skipped else "")
             + f", best grasp force closure on {n_fc}"
         )
     planned = sum(1 for r in rows if not r["error"])
