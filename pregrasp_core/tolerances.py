@@ -19,6 +19,10 @@ QUALITY_EPS: float = 1e-9
 QUALITY_RANK_TOL: float = 1e-9
 """Relative singular-value threshold below which a wrench set is rank-deficient (score 0)."""
 
+HULL_CHECK_TOL: float = 1e-9
+"""An exact (unmerged) wrench hull is accepted when no wrench lies farther than this, relative to
+the largest wrench coordinate, outside any of its facets (else the joggled hull is used)."""
+
 CONTACT_DISTANCE: float = 0.003
 """A hand link counts as touching the cloud when a cloud point is within this distance (metres)."""
 

@@ -12,9 +12,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog
-from scipy.spatial import ConvexHull
+from scipy.spatial import ConvexHull, QhullError
 from scipy.spatial.transform import Rotation
 
+from pregrasp_core import quality
 from pregrasp_core.quality import (
     QualityParams,
     contact_wrenches,
@@ -73,8 +74,8 @@ def test_default_tangent_rule_reproduces_tetrahedral_oracle():
     assert q.epsilon == pytest.approx(case["epsilon"], abs=1e-6)
 
 
-def test_joggled_hull_agrees_with_default_qhull():
-    """Scores from the joggled hull equal the default (merging) qhull build to 1e-8."""
+def test_hull_scores_agree_with_default_qhull():
+    """Scores equal those of qhull's default (merging) build to 1e-8."""
     rng = np.random.default_rng(3)
     for _ in range(5):
         p = rng.normal(size=(5, 3))
@@ -254,12 +255,13 @@ def test_input_shapes_are_checked():
         QualityParams(n_edges=2)
 
 
-def test_joggled_hull_gives_the_exact_hulls_epsilon_and_volume():
-    """``QJ`` (joggle, used for speed) against qhull's exact triangulated hull (``Qt``) on random
-    contact sets of 3 to 6 contacts: same epsilon and volume to 1e-8."""
+def test_exact_hull_gives_the_merged_hulls_epsilon_and_volume():
+    """The unmerged hull (``Q0``, the default) against qhull's merged triangulated hull (``Qt``,
+    scipy's default) on random contact sets of 3 to 6 contacts: same epsilon and volume to
+    1e-12 whenever the unmerged hull is accepted, to 1e-8 through the joggled fallback."""
     rng = np.random.default_rng(7)
     params = QualityParams()
-    compared = 0
+    compared = exact = 0
     for _ in range(120):
         k = int(rng.integers(3, 7))
         p = rng.normal(size=(k, 3))
@@ -267,9 +269,57 @@ def test_joggled_hull_gives_the_exact_hulls_epsilon_and_volume():
         n = -p + 0.3 * rng.normal(size=(k, 3))
         w = contact_wrenches(p, n, params)
         q = grasp_quality(p, n, params)
-        exact = ConvexHull(w, qhull_options="Qt")
-        eps_exact = max(0.0, float((-exact.equations[:, -1]).min()))
-        assert q.epsilon == pytest.approx(eps_exact, abs=1e-8)
-        assert q.volume == pytest.approx(exact.volume, rel=1e-8)
-        compared += eps_exact > 0
+        merged = ConvexHull(w, qhull_options="Qt")
+        eps_merged = max(0.0, float((-merged.equations[:, -1]).min()))
+        tol = 1e-12 if quality._exact_hull(w) is not None else 1e-8
+        exact += tol == 1e-12
+        assert q.epsilon == pytest.approx(eps_merged, abs=tol)
+        assert q.volume == pytest.approx(merged.volume, rel=tol)
+        compared += eps_merged > 0
     assert compared > 10  # the comparison covers force-closure sets, not only zeros
+    assert exact > 100  # and mostly the exact path
+
+
+def test_precision_failure_falls_back_to_the_joggled_hull():
+    """A planner grasp (tests/data/quality_q0_failure.json) whose unmerged hull qhull rejects as
+    concave by rounding: the score comes from the joggled hull and equals the merged hull's."""
+    case = json.loads((Path(__file__).parents[1] / "data" / "quality_q0_failure.json").read_text())
+    p, n, t = (np.asarray(case[k], dtype=float) for k in ("points", "normals", "tangents"))
+    params = QualityParams(mu=case["mu"], n_edges=case["m"])
+    w = contact_wrenches(p, n, params, tangents=t)
+    with pytest.raises(QhullError, match="precision error"):
+        ConvexHull(w, qhull_options=quality.QHULL_OPTIONS)
+    assert quality._exact_hull(w) is None
+    q = grasp_quality(p, n, params, tangents=t)
+    merged = ConvexHull(w, qhull_options="Qt")
+    assert q.reason == "" and q.n_contacts == len(p)
+    assert q.epsilon == pytest.approx(max(0.0, float((-merged.equations[:, -1]).min())), abs=1e-8)
+    assert q.volume == pytest.approx(merged.volume, rel=1e-8)
+
+
+def test_an_inconsistent_exact_hull_is_not_used(monkeypatch):
+    """When the unmerged hull leaves a wrench outside a facet (here: one facet moved inwards by
+    1e-6), the joggled hull is used instead."""
+    rng = np.random.default_rng(3)
+    p = rng.normal(size=(4, 3))
+    p /= np.linalg.norm(p, axis=1)[:, None]
+    n = -p + 0.2 * rng.normal(size=(4, 3))
+    w = contact_wrenches(p, n)
+    good = hull_quality(w)
+    real = quality.ConvexHull
+
+    class Moved:
+        def __init__(self, hull):
+            self.equations = hull.equations.copy()
+            self.equations[0, -1] += 1e-6  # the facet moves inwards: its vertices are outside
+            self.volume = hull.volume - 0.5  # a wrong score, which must not come out
+
+    def fake(points, qhull_options=None):
+        hull = real(points, qhull_options=qhull_options)
+        return Moved(hull) if qhull_options == quality.QHULL_OPTIONS else hull
+
+    monkeypatch.setattr(quality, "ConvexHull", fake)
+    assert quality._exact_hull(w) is None
+    eps, vol, reason = hull_quality(w)
+    assert reason == "" and eps == pytest.approx(good[0], abs=1e-8)
+    assert vol == pytest.approx(good[1], rel=1e-8)
