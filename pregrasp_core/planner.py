@@ -336,25 +336,38 @@ def sweep_hit(
     Tz[:, :3, :3] = F @ T[:, :3, :3]
     Tz[:, :3, 3] = T[:, :3, 3] @ F.T
     ip, il = np.divmod(np.arange(len(p) * len(T)), len(T))
-    s, k = _sweep_pairs(p[ip] @ F.T, Tz[il], np.asarray(half, dtype=np.float64)[il])
+    pz = p @ F.T  # (M, 3) in the frame whose z is the motion
+    hw = np.asarray(half, dtype=np.float64)
+    s, k = _sweep_pairs(pz[ip, 0], pz[ip, 1], pz[ip, 2], il, Tz, hw)
     return (s, int(il[k])) if np.isfinite(s) else (np.inf, -1)
 
 
-def _sweep_pairs(p: np.ndarray, T: np.ndarray, half: np.ndarray) -> tuple[float, int]:
-    """First travel along +z (the frame's z axis) at which box k (pose ``T[k]``, half extents
-    ``half[k]``) touches point ``p[k]``, minimised over the K pairs: ``(s, k)``, or
-    ``(inf, -1)`` if never."""
-    R = T[:, :3, :3]  # (K, 3, 3)
-    a = np.einsum("ki,kij->kj", p - T[:, :3, 3], R)  # (K, 3) box coordinates
-    d = R[:, 2, :]  # (K, 3) = R^T e_z: the motion in box coordinates
-    small = np.abs(d) < 1e-12
-    d_safe = np.where(small, 1.0, d)
-    t1 = (a - half) / d_safe
-    t2 = (a + half) / d_safe
-    inside_axis = np.abs(a) <= half
-    lo = np.where(small, np.where(inside_axis, -np.inf, np.inf), np.minimum(t1, t2))
-    hi = np.where(small, np.where(inside_axis, np.inf, -np.inf), np.maximum(t1, t2))
-    s_in, s_out = lo.max(axis=1), hi.min(axis=1)
+def _sweep_pairs(
+    px: np.ndarray, py: np.ndarray, pz: np.ndarray, il: np.ndarray, T: np.ndarray, half: np.ndarray
+) -> tuple[float, int]:
+    """First travel along +z (the frame's z axis) at which box ``il[k]`` (pose ``T[il[k]]``,
+    half extents ``half[il[k]]``; T (L, 4, 4), half (L, 3)) touches point k (coordinates ``px,
+    py, pz`` (K,)), minimised over the K pairs: ``(s, k)``, or ``(inf, -1)`` if never. Exact
+    slab intersection in each box's frame, one axis at a time."""
+    R, t = T[:, :3, :3], T[:, :3, 3]
+    v0, v1, v2 = px - t[il, 0], py - t[il, 1], pz - t[il, 2]
+    s_in = np.full(len(il), -np.inf)
+    s_out = np.full(len(il), np.inf)
+    for j in range(3):  # the box's three axes
+        a = v0 * R[il, 0, j] + v1 * R[il, 1, j] + v2 * R[il, 2, j]  # box coordinate j
+        d = R[il, 2, j]  # the motion (+z) in box coordinate j
+        h = half[il, j]
+        small = np.abs(d) < 1e-12
+        d_safe = np.where(small, 1.0, d)
+        t1 = (a - h) / d_safe
+        t2 = (a + h) / d_safe
+        inside = np.abs(a) <= h
+        s_in = np.maximum(
+            s_in, np.where(small, np.where(inside, -np.inf, np.inf), np.minimum(t1, t2))
+        )
+        s_out = np.minimum(
+            s_out, np.where(small, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2))
+        )
     hit = (s_in <= s_out) & (s_out >= 0.0)
     if not hit.any():
         return np.inf, -1
@@ -590,7 +603,7 @@ def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray, c0: np.ndarray) -> t
             & (py <= whi[il, 1])
         )  # (K,) the candidate pairs: the point is in the link's window
         if len(hit):
-            s_obj = _sweep_pairs(ps[:, hit].T, Tb[il[hit]], ctx.half[il[hit]] + c)[0]
+            s_obj = _sweep_pairs(px[hit], py[hit], pz[hit], il[hit], Tb, ctx.half + c)[0]
         if s_obj <= window or window >= S_eff:
             break
     s = min(s_obj, s_sup)
@@ -998,9 +1011,7 @@ def _finish(ctx: _Context, pre: _Prepared, q: np.ndarray, closings: list, lift: 
             f"{ctx.link_names[j]} holds a point {depth[j] * 1e3:.1f} mm deep",
             T, s, stop, q, fingers,
         )  # fmt: skip
-    pairs = (
-        [] if clean and np.array_equal(q, q_checked) else ctx.self_pairs(q)
-    )
+    pairs = [] if clean and np.array_equal(q, q_checked) else ctx.self_pairs(q)
     if pairs:
         detail = f"{pairs[0][0]} and {pairs[0][1]}"
         return rejected("self_collision", detail, T, s, stop, q, fingers)
