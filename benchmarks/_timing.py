@@ -3,6 +3,7 @@ as ``python benchmarks/bench_x.py``, whose folder is then first on ``sys.path``)
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 
@@ -19,3 +20,12 @@ def median_time(fn: Callable[[], object], repeats: int) -> float:
         fn()
         times.append(time.process_time() - t0)
     return float(np.median(times))
+
+
+def pin_one_core() -> str:
+    """Pin this process to the first CPU it may use (Linux); says whether it worked."""
+    try:
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
+        return "pinned to one CPU"
+    except (AttributeError, OSError):
+        return "not pinned"

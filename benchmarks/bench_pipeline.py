@@ -27,6 +27,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import scipy  # noqa: E402
+from _timing import pin_one_core  # noqa: E402
 
 from pregrasp_core.hand import load_hand  # noqa: E402
 from pregrasp_core.io import load_point_cloud  # noqa: E402
@@ -36,14 +37,6 @@ from pregrasp_core.planner import PlannerParams  # noqa: E402
 
 STAGES = ("load", "decompose", "classify", "facemask", "pool", "normals", "grasps")
 PHASES = ("approach_slicing", "closing", "verification", "quality")
-
-
-def pin_one_core() -> str:
-    try:
-        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
-        return "pinned to one CPU"
-    except (AttributeError, OSError):
-        return "not pinned"
 
 
 def run_once(path: Path, n: int, hand) -> dict:

@@ -34,6 +34,7 @@ from collections import defaultdict  # noqa: E402
 
 import numpy as np  # noqa: E402
 import scipy  # noqa: E402
+from _timing import pin_one_core  # noqa: E402
 
 from pregrasp_core.hand import load_hand  # noqa: E402
 from pregrasp_core.io import load_point_cloud  # noqa: E402
@@ -41,14 +42,6 @@ from pregrasp_core.paths import DEFAULT_OBJECT, demo_objects  # noqa: E402
 from pregrasp_core.pipeline import PipelineParams, run_pipeline  # noqa: E402
 from pregrasp_core.planner import PlannerParams  # noqa: E402
 from pregrasp_core.quality import QualityParams, grasp_quality  # noqa: E402
-
-
-def pin_one_core() -> str:
-    try:
-        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
-        return "pinned to one CPU"
-    except (AttributeError, OSError):
-        return "not pinned"
 
 
 def bench_objects(paths, n_points: int, repeats: int, threads: int = 1, edges: int = 8):
