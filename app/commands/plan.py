@@ -9,7 +9,9 @@ A folder: every mesh or cloud in it (sorted by name) is planned in turn with a t
 on stderr (files that do not read as a cloud, such as a ``manifest.csv``, are listed as
 skipped); ``--report report.csv`` writes one row per object (object, points, parts, pool, kept,
 force closure, best type, contacts, epsilon, volume, seconds, error), else the CSV goes to
-stdout; ``-o DIR`` also writes ``DIR/<object>.json`` per object.
+stdout; ``-o DIR`` also writes ``DIR/<object>.json`` per object. ``--jobs J`` plans J objects
+at a time in worker processes (each with a one-thread planner unless ``--threads`` says
+otherwise); the report lists the objects in name order whatever order they finish in.
 """
 
 from __future__ import annotations
@@ -17,10 +19,13 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import functools
 import io
 import json
+import multiprocessing
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -133,6 +138,14 @@ def add_planner_args(p: argparse.ArgumentParser) -> None:
         help="planner threads; 0 = one per CPU, 1 = none (default %(default)s; results never "
         "depend on it)",
     )
+    g.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        metavar="J",
+        help="for a folder INPUT: plan J objects at a time in worker processes (default "
+        "%(default)s; with J > 1 each planner runs on one thread unless --threads is given)",
+    )
 
 
 def planner_params(args: argparse.Namespace) -> PlannerParams:
@@ -185,11 +198,15 @@ def run(args: argparse.Namespace) -> int:
 
     if args.top < 0:
         raise PregraspError(f"--top must be >= 0, got {args.top}")
+    if args.jobs < 1:
+        raise PregraspError(f"--jobs must be >= 1, got {args.jobs}")
     path = Path(common.input_path(args))
     pipeline_params(args)  # validate every option before any work
     hand = load_hand()
     if path.is_dir():
         return run_batch(path, args, hand)
+    if args.jobs != 1:
+        raise PregraspError("--jobs is for a folder INPUT")
     if args.report is not None:
         raise PregraspError("--report is for a folder INPUT; use -o OUT.json for one object")
     result, timings = plan_one(path, args, hand)
@@ -351,6 +368,42 @@ class ProgressBar:
         self.stream.flush()
 
 
+def _batch_item(f: Path, args: argparse.Namespace, hand: Any, out_dir: Path | None) -> tuple:
+    """Plan one file of a batch: ``(report row, failed)``. A file that does not read as a
+    cloud or mesh gives a row with ``skipped: <reason>``; a later failure a row with the error."""
+    t0 = time.perf_counter()
+    error, failed = "", False
+    try:
+        cloud = load_point_cloud(f, n_points=args.points, seed=args.seed, scale=args.scale)
+    except InputError as exc:  # not an object (a manifest, notes...): listed, skipped
+        error = f"skipped: {exc}"
+    else:
+        try:
+            result, timings = plan_loaded(cloud, time.perf_counter() - t0, args, hand)
+            row = report_row(f.name, result, time.perf_counter() - t0)
+            if out_dir is not None:
+                write_result(result_doc(result, timings, args), out_dir / f"{f.stem}.json")
+            return row, False
+        except PregraspError as exc:  # a failed object does not stop the batch
+            error, failed = str(exc), True
+    row = {c: "" for c in REPORT_COLUMNS}
+    row.update(object=f.name, seconds=round(time.perf_counter() - t0, 4), error=error)
+    return row, failed
+
+
+@functools.cache
+def _worker_hand() -> Any:
+    """The hand of a worker process (loaded once per process)."""
+    from pregrasp_core.hand import load_hand
+
+    return load_hand()
+
+
+def _worker_item(f: Path, args: argparse.Namespace, out_dir: Path | None) -> tuple:
+    """:func:`_batch_item` in a worker process."""
+    return _batch_item(f, args, _worker_hand(), out_dir)
+
+
 def run_batch(folder: Path, args: argparse.Namespace, hand: Any) -> int:
     """Plan every object of ``folder``; write the CSV report. Files that do not read as a cloud
     or mesh (a manifest, notes) are listed with ``skipped: <reason>``; the exit status is 1 when
@@ -363,30 +416,25 @@ def run_batch(folder: Path, args: argparse.Namespace, hand: Any) -> int:
         out_dir = Path(args.output)
         out_dir.mkdir(parents=True, exist_ok=True)
     bar = ProgressBar(len(files))
-    rows = []
-    failed = 0
+    results: list[tuple | None] = [None] * len(files)
     bar.update(0, "")
-    for k, f in enumerate(files):  # loop over objects
-        t0 = time.perf_counter()
-        error = ""
-        try:
-            cloud = load_point_cloud(f, n_points=args.points, seed=args.seed, scale=args.scale)
-        except InputError as exc:  # not an object (a manifest, notes...): listed, skipped
-            error = f"skipped: {exc}"
-        else:
-            try:
-                result, timings = plan_loaded(cloud, time.perf_counter() - t0, args, hand)
-                rows.append(report_row(f.name, result, time.perf_counter() - t0))
-                if out_dir is not None:
-                    write_result(result_doc(result, timings, args), out_dir / f"{f.stem}.json")
-            except PregraspError as exc:  # a failed object does not stop the batch
-                failed += 1
-                error = str(exc)
-        if error:
-            row = {c: "" for c in REPORT_COLUMNS}
-            row.update(object=f.name, seconds=round(time.perf_counter() - t0, 4), error=error)
-            rows.append(row)
-        bar.update(k + 1, f.name)
+    jobs = min(int(args.jobs), len(files))
+    if jobs <= 1:
+        for k, f in enumerate(files):  # loop over objects
+            results[k] = _batch_item(f, args, hand, out_dir)
+            bar.update(k + 1, f.name)
+    else:  # worker processes (spawned: no state shared with this one)
+        if args.threads == _PP.threads:  # the default: one planner thread per process
+            args = argparse.Namespace(**{**vars(args), "threads": 1})
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(jobs, mp_context=ctx) as ex:
+            futures = {ex.submit(_worker_item, f, args, out_dir): k for k, f in enumerate(files)}
+            for done, fut in enumerate(as_completed(futures), start=1):  # as they finish
+                k = futures[fut]
+                results[k] = fut.result()
+                bar.update(done, files[k].name)
+    rows = [r[0] for r in results if r is not None]
+    failed = sum(1 for r in results if r is not None and r[1])
     text = io.StringIO()
     writer = csv.DictWriter(text, fieldnames=list(REPORT_COLUMNS), lineterminator="\n")
     writer.writeheader()

@@ -124,6 +124,31 @@ def test_batch_without_report_prints_csv(tmp_path, capsys):
     assert len(rows) == 1 and rows[0]["object"] == "box.obj"
 
 
+def test_batch_on_worker_processes_gives_the_same_report(tmp_path, capsys):
+    """--jobs 2 (two spawned worker processes) against the serial batch on the same folder:
+    the same rows in name order (all but the seconds), the same result files, a full bar."""
+    folder = tmp_path / "objects"
+    folder.mkdir()
+    shutil.copy(LEMON, folder / "a_lemon.obj")
+    _box_obj(folder / "b_box.obj")
+    (folder / "c_manifest.csv").write_text("name,source\nmug,pybullet\n")
+    reports = []
+    for jobs in ("1", "2"):
+        report, js = tmp_path / f"r{jobs}.csv", tmp_path / f"js{jobs}"
+        argv = ["plan", str(folder), *FAST, "--report", str(report), "-o", str(js)]
+        assert main([*argv, "--jobs", jobs]) == 0
+        err = capsys.readouterr().err
+        assert "3/3" in err
+        rows = list(csv.DictReader(report.open()))
+        reports.append([{k: v for k, v in r.items() if k != "seconds"} for r in rows])
+        docs = {p.name: json.loads(p.read_text()) for p in sorted(js.iterdir())}
+        assert sorted(docs) == ["a_lemon.json", "b_box.json"]
+        reports[-1].append({n: d["best"] for n, d in docs.items()})
+    assert reports[0] == reports[1]
+    assert [r["object"] for r in reports[1][:3]] == ["a_lemon.obj", "b_box.obj", "c_manifest.csv"]
+    assert reports[1][2]["error"].startswith("skipped:")
+
+
 def test_progress_bar_redraws_in_place_on_a_terminal():
     class Tty(io.StringIO):
         def isatty(self):
@@ -146,6 +171,8 @@ def test_progress_bar_redraws_in_place_on_a_terminal():
         (["--threads", "-3"], "invalid planner option: threads must be"),
         (["--top", "-2"], "--top must be >= 0"),
         (["--report", "r.csv"], "--report is for a folder INPUT"),
+        (["--jobs", "0"], "--jobs must be >= 1"),
+        (["--jobs", "2"], "--jobs is for a folder INPUT"),
     ],
 )
 def test_bad_options_are_one_line_errors(argv, message, capsys):
