@@ -2,7 +2,7 @@
 the real slices of a pre-grasp pool.
 
 For each object the pool is built (``run_pipeline(..., until="pool")``); for every pre-grasp
-and every finger of its grasp type the slice is built as the planner's ``_close_fingers`` does
+and every finger of its grasp type the slice is built as the planner's ``_slices`` does
 at the pre-grasp pose (no approach, no table): the cloud in the hand frame, the points within
 half a finger width of the flexion plane and within the finger's reach, thinned with the
 planner's ``_thin_2d`` (0.7 mm), the preshape's flexion as ``q_start``, the planner's defaults
