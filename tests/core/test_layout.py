@@ -22,9 +22,7 @@ def _imported_modules(path: Path) -> set[str]:
 
 
 def test_core_sources_never_import_viser_or_app():
-    offenders = {
-        p.name: sorted(_imported_modules(p) & {"viser", "app"}) for p in CORE.glob("*.py")
-    }
+    offenders = {p.name: sorted(_imported_modules(p) & {"viser", "app"}) for p in CORE.glob("*.py")}
     assert {k: v for k, v in offenders.items() if v} == {}
 
 
