@@ -12,14 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .geometry import CORNER_SIGNS, as_points
 from .tolerances import BOX_CONTAINS_TOL
-
-
-def _as_points(points: np.ndarray, name: str = "points") -> np.ndarray:
-    pts = np.asarray(points, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"{name} must have shape (N, 3), got {pts.shape}")
-    return pts
 
 
 def canonical_axes(rotation: np.ndarray, extents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -54,7 +48,7 @@ class OrientedBox:
     @classmethod
     def from_points_in_frame(cls, points: np.ndarray, rotation: np.ndarray) -> OrientedBox:
         """The tightest box with the given axes around ``points`` (N, 3), canonicalised."""
-        pts = _as_points(points)
+        pts = as_points(points)
         R = np.asarray(rotation, dtype=np.float64)
         p_box = pts @ R  # (N, 3) coordinates along the axes
         lo, hi = p_box.min(axis=0), p_box.max(axis=0)
@@ -82,11 +76,11 @@ class OrientedBox:
 
     def to_box(self, points: np.ndarray) -> np.ndarray:
         """World points (N, 3) -> box-frame points ``p_box`` (N, 3)."""
-        return (_as_points(points) - self.center) @ self.rotation
+        return (as_points(points) - self.center) @ self.rotation
 
     def to_world(self, p_box: np.ndarray) -> np.ndarray:
         """Box-frame points (N, 3) -> world points (N, 3)."""
-        return _as_points(p_box, "p_box") @ self.rotation.T + self.center
+        return as_points(p_box, "p_box") @ self.rotation.T + self.center
 
     def contains(self, points: np.ndarray, tol: float = BOX_CONTAINS_TOL) -> np.ndarray:
         """(N,) bool: which points lie inside the box grown by ``tol`` on every side."""
@@ -95,9 +89,7 @@ class OrientedBox:
 
     def corners(self) -> np.ndarray:
         """(8, 3) world corners; corner k has sign bits (k & 1, k & 2, k & 4) on axes 0, 1, 2."""
-        k = np.arange(8)
-        signs = np.stack([(k >> 0) & 1, (k >> 1) & 1, (k >> 2) & 1], axis=1) * 2.0 - 1.0
-        return self.to_world(signs * self.half_extents)
+        return self.to_world(CORNER_SIGNS * self.half_extents)
 
     def transformed(self, T: np.ndarray) -> OrientedBox:
         """This box moved by a rigid transform ``T`` (4, 4)."""

@@ -36,8 +36,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .box import OrientedBox, _as_points, canonical_axes
+from .box import OrientedBox, canonical_axes
 from .errors import DegenerateGeometryError
+from .geometry import as_points
 from .mvbb import MvbbParams, minimum_volume_box
 from .tolerances import FLAT_EXTENT
 
@@ -239,7 +240,7 @@ def best_cut(p_box: np.ndarray, min_points: int) -> tuple[int, int, np.ndarray, 
     ``volume`` is the minimal summed volume of the two parent-frame child boxes. ``None`` when no
     cut leaves ``min_points`` on each side between distinct coordinate values.
     """
-    p = _as_points(p_box, "p_box")
+    p = as_points(p_box, "p_box")
     n = p.shape[0]
     if isinstance(min_points, bool) or not isinstance(min_points, (int, np.integer)):
         raise ValueError(f"min_points must be an integer >= 1, got {min_points!r}")
@@ -325,7 +326,7 @@ def decompose(points: np.ndarray, params: DecompositionParams | None = None) -> 
     params = DecompositionParams() if params is None else params
     if not isinstance(params, DecompositionParams):
         raise TypeError(f"params must be DecompositionParams, got {type(params).__name__}")
-    pts = _as_points(points)
+    pts = as_points(points)
     n = pts.shape[0]
     if n < MIN_BOX_POINTS:
         raise DegenerateGeometryError(

@@ -32,9 +32,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .box import OrientedBox, _as_points
+from .box import OrientedBox
 from .decomposition import BoxTree
 from .errors import InputError
+from .geometry import as_points
 from .tolerances import (
     FACE_OVERLAP_TOL,
     GEOM_EPS,
@@ -174,7 +175,7 @@ class SupportPlane:
         n = np.asarray(up, dtype=np.float64)
         n = n / np.linalg.norm(n)
         if height is None:
-            pts = _as_points(points)
+            pts = as_points(points)
             if pts.shape[0] == 0:
                 raise InputError("the support plane needs at least one cloud point, got none")
             height = float(np.min(pts @ n))
@@ -182,7 +183,7 @@ class SupportPlane:
 
     def signed_distance(self, points: np.ndarray) -> np.ndarray:
         """(N,) metres above the plane (negative below) of world ``points`` (N, 3)."""
-        return _as_points(points) @ self.normal - self.height
+        return as_points(points) @ self.normal - self.height
 
     def to_dict(self) -> dict:
         """JSON-ready dict (normal, height)."""

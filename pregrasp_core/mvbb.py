@@ -36,8 +36,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from .box import OrientedBox, _as_points, canonical_axes
+from .box import OrientedBox, canonical_axes
 from .errors import DegenerateGeometryError, InputError
+from .geometry import as_points
 from .tolerances import GEOM_EPS, MVBB_DEGENERATE_REL
 
 logger = logging.getLogger(__name__)
@@ -101,7 +102,7 @@ def pca_box(points: np.ndarray) -> OrientedBox:
 
     The axes are the eigenvectors of the covariance; the box is tight around the points.
     """
-    pts = _as_points(points)
+    pts = as_points(points)
     if pts.shape[0] == 0:
         raise ValueError("points must have shape (N, 3) with N >= 1, got (0, 3)")
     centered = pts - pts.mean(axis=0)
@@ -124,7 +125,7 @@ def minimum_volume_box(points: np.ndarray, params: MvbbParams = DEFAULT_PARAMS) 
         InputError: ``points`` contains NaN or infinite values.
         DegenerateGeometryError: fewer than 4 points, all points identical or all collinear.
     """
-    pts = _as_points(points)
+    pts = as_points(points)
     n = pts.shape[0]
     if n < 4:
         raise DegenerateGeometryError(

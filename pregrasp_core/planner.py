@@ -49,6 +49,7 @@ from typing import Any
 import fcl
 import numpy as np
 
+from .geometry import box_corners
 from .normals import NormalParams, estimate_normals
 from .quality import GraspQuality, QualityParams, grasp_quality
 from .tolerances import CONTACT_DISTANCE, GEOM_EPS, PENETRATION_TOL
@@ -518,7 +519,7 @@ class _Context:
         if not new:
             return
         Tb_all = self.hand.box_poses(Q[new])  # (B', L, 4, 4)
-        corners = _box_corners(Tb_all.reshape(-1, 4, 4), np.tile(self.half, (len(new), 1)))
+        corners = box_corners(Tb_all.reshape(-1, 4, 4), np.tile(self.half, (len(new), 1)))
         corners = corners.reshape(len(new), -1, 8, 3)
         lo, hi = corners.min(axis=2), corners.max(axis=2)
         pairs = self.hand.self_collisions_many(Q[new], Tb_all)
@@ -548,7 +549,7 @@ class _Context:
         hit = self._boxes.get(key)
         if hit is None:
             Tb = self.hand.box_poses(q)
-            corners = _box_corners(Tb, self.half).reshape(-1, 8, 3)
+            corners = box_corners(Tb, self.half).reshape(-1, 8, 3)
             hit = (Tb, corners.min(axis=1), corners.max(axis=1))
             self._store(self._boxes, key, hit)
         return hit
@@ -569,7 +570,7 @@ def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray, c0: np.ndarray) -> t
     s_sup = np.inf
     if ctx.support is not None:
         n = np.asarray(ctx.support.normal, dtype=np.float64)
-        corners = _box_corners(Tb, ctx.half) @ T0[:3, :3].T + T0[:3, 3]  # (8L, 3) world
+        corners = box_corners(Tb, ctx.half) @ T0[:3, :3].T + T0[:3, 3]  # (8L, 3) world
         heights = corners @ n - (ctx.support.height + c)
         rate = float(n @ T0[:3, 2])  # height change per metre of approach
         s_sup = max(float(heights.min()), 0.0) / -rate if rate < -GEOM_EPS else np.inf
@@ -612,14 +613,6 @@ def _approach(ctx: _Context, T0: np.ndarray, q: np.ndarray, c0: np.ndarray) -> t
     if s <= 0.0:
         return 0.0, "start"
     return float(s), "object" if s_obj <= s_sup else "support"
-
-
-def _box_corners(Tb: np.ndarray, half: np.ndarray) -> np.ndarray:
-    """(8 L, 3) corners of boxes with poses ``Tb`` (L, 4, 4) and half extents ``half`` (L, 3)."""
-    k = np.arange(8)
-    signs = np.stack([(k >> 0) & 1, (k >> 1) & 1, (k >> 2) & 1], axis=1) * 2.0 - 1.0
-    local = signs[None] * half[:, None, :]  # (L, 8, 3)
-    return (np.einsum("lij,lkj->lki", Tb[:, :3, :3], local) + Tb[:, None, :3, 3]).reshape(-1, 3)
 
 
 def _support_collision(ctx: _Context, T: np.ndarray, q: np.ndarray) -> str | None:

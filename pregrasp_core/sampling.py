@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .box import OrientedBox, _as_points
+from .box import OrientedBox
 from .decomposition import BoxTree
 from .facemask import (
     FACE_AXIS,
@@ -37,6 +37,7 @@ from .facemask import (
     subface_scheme,
     usable_subfaces,
 )
+from .geometry import as_points
 from .shape import GraspType, NodeShape, ShapeParams, is_small
 from .tolerances import GEOM_EPS
 
@@ -633,7 +634,7 @@ def build_pool(
     :func:`traverse` when ``None``).
     """
     params = SamplingParams() if params is None else params
-    pts = _as_points(points)
+    pts = as_points(points)
     if traversal is None:
         traversal = traverse(tree, shapes, hand, params, shape_params)
     joint_names = tuple(hand.joint_names)
@@ -865,7 +866,7 @@ def hand_hits_points(
     its inscribed sphere: hit); the undecided cells get the exact point-in-box test on the points
     of their circumscribed sphere. Hands already hit skip their remaining cells. ``cells``: an
     optional dict caching :func:`link_cells` per preshape across calls."""
-    pts = _as_points(points)
+    pts = as_points(points)
     P = len(T_world_hand)
     out = np.zeros(P, dtype=bool)
     if P == 0 or len(pts) == 0:

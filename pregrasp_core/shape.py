@@ -21,9 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .box import OrientedBox, _as_points
+from .box import OrientedBox
 from .decomposition import BoxTree
 from .errors import DegenerateGeometryError
+from .geometry import as_points
 from .tolerances import GEOM_EPS
 
 
@@ -126,7 +127,7 @@ class NodeShape:
 
 def pca_eigenvalues(points: np.ndarray) -> np.ndarray:
     """(3,) descending eigenvalues of the covariance (1/n normalisation) of ``points`` (N, 3)."""
-    pts = _as_points(points)
+    pts = as_points(points)
     if pts.shape[0] < 2:
         raise DegenerateGeometryError(
             f"PCA needs at least 2 points, got {pts.shape[0]}; use a part with more points"
@@ -183,7 +184,7 @@ def classify_tree(
 
     points: (tree.n_points, 3) float64, the cloud the tree was built from.
     """
-    pts = _as_points(points)
+    pts = as_points(points)
     if pts.shape[0] != tree.n_points:
         raise ValueError(
             f"points must have shape ({tree.n_points}, 3) like the tree's cloud, got {pts.shape}"

@@ -1,0 +1,31 @@
+"""Geometry shared by the stages: input checks, box corners and frame changes.
+
+Every stage coerces its point arrays with :func:`as_points`; the eight corners of a box are
+numbered the same way everywhere (:data:`CORNER_SIGNS`: corner k has the sign bits
+``(k & 1, k & 2, k & 4)`` on axes 0, 1, 2, see ``docs/conventions.md``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+CORNER_SIGNS: np.ndarray = np.stack([(np.arange(8) >> b) & 1 for b in range(3)], axis=1) * 2.0 - 1.0
+"""(8, 3) float64: the sign of each corner on the box axes 0, 1, 2 (corner k: bits of k)."""
+CORNER_SIGNS.setflags(write=False)
+
+
+def as_points(points: np.ndarray, name: str = "points") -> np.ndarray:
+    """``points`` as (N, 3) float64; a ``ValueError`` naming ``name`` and the shape if not."""
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3), got {pts.shape}")
+    return pts
+
+
+def box_corners(T_world_box: np.ndarray, half_extents: np.ndarray) -> np.ndarray:
+    """(8 L, 3) world corners of L boxes with poses ``T_world_box`` (L, 4, 4) and half extents
+    ``half_extents`` (L, 3); box l's corners are rows 8 l .. 8 l + 7 in :data:`CORNER_SIGNS`
+    order."""
+    local = CORNER_SIGNS[None] * half_extents[:, None, :]  # (L, 8, 3)
+    R, t = T_world_box[:, :3, :3], T_world_box[:, None, :3, 3]
+    return (np.einsum("lij,lkj->lki", R, local) + t).reshape(-1, 3)
