@@ -18,6 +18,7 @@ import argparse
 import csv
 import io
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -40,11 +41,18 @@ RUNS: tuple[tuple[str, list[str]], ...] = (
 
 def _make(out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    exe = Path(sys.executable).with_name("pregrasp")
+    # the code of this script's own tree (a git worktree too), whatever is installed
+    env = {
+        **os.environ,
+        "PYTHONPATH": str(REPO),
+        "OPENBLAS_NUM_THREADS": "1",
+        "OMP_NUM_THREADS": "1",
+    }
     for name, argv in RUNS:
-        args = [a.replace("{out}", str(out)) for a in argv]
+        args = [a.replace("{out}", str(out.resolve())) for a in argv]
         print(f"compare_results: {name}: pregrasp {' '.join(args[:2])} ...", file=sys.stderr)
-        subprocess.run([str(exe), *args], check=True, stdout=subprocess.DEVNULL)
+        cmd = [sys.executable, "-m", "app.cli", *args]
+        subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, cwd=REPO, env=env)
 
 
 def _normalised(path: Path) -> bytes:
