@@ -17,12 +17,12 @@ from typing import Any
 import numpy as np
 
 from pregrasp_core.paths import demo_objects
+from pregrasp_core.shape import GRASP_TYPES
 
 from .controller import Controller
 from .scene import SceneRenderer, contact_arrays, ghost_selection, ranked_grasps
 from .state import ALL, AppState, n_splits
 
-GRASP_TYPES = ("cylindrical", "spherical", "three_finger_tip", "two_finger_tip")
 """Options of the grasp-type filter (besides ``all``)."""
 
 DECOMPOSITION_CONTROLS: tuple[tuple[str, str, str, float, float, float], ...] = (

@@ -37,6 +37,7 @@ import yourdfpy
 from .box import OrientedBox
 from .errors import HandModelError
 from .paths import HAND_URDF
+from .shape import GRASP_TYPES
 from .tolerances import (
     GEOM_EPS,
     HAND_CLOSING_ANGLE_TOL,
@@ -45,9 +46,6 @@ from .tolerances import (
 )
 
 logger = logging.getLogger(__name__)
-
-GRASP_TYPES: tuple[str, ...] = ("cylindrical", "spherical", "three_finger_tip", "two_finger_tip")
-"""The four grasp types (the values of ``pregrasp_core.shape.GraspType``)."""
 
 FINGER_NAMES: tuple[str, ...] = ("thumb", "f1", "f2")
 """Finger names; finger ``n`` has links ``n_knuckle, n_middle, n_distal`` and joints

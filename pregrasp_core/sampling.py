@@ -38,13 +38,10 @@ from .facemask import (
     usable_subfaces,
 )
 from .geometry import as_points
-from .shape import GraspType, NodeShape, ShapeParams, is_small
+from .shape import GRASP_TYPES, NodeShape, ShapeParams, is_small
 from .tolerances import GEOM_EPS
 
 logger = logging.getLogger(__name__)
-
-GRASP_TYPES: tuple[str, ...] = tuple(g.value for g in GraspType)
-"""The grasp-type strings, in :class:`~pregrasp_core.shape.GraspType` order."""
 
 FALLBACK_ORDER: tuple[str, ...] = ("cylindrical", "spherical", "three_finger_tip", "two_finger_tip")
 """Order in which other grasp types are tried when a candidate's own type gives nothing."""

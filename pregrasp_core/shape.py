@@ -52,6 +52,9 @@ class GraspType(str, enum.Enum):
         return self.value
 
 
+GRASP_TYPES: tuple[str, ...] = tuple(g.value for g in GraspType)
+"""The grasp-type strings, in :class:`GraspType` order (the one definition every stage uses)."""
+
 GRASP_TYPE_OF_CLASS: dict[ShapeClass, GraspType] = {
     ShapeClass.ONE_D: GraspType.CYLINDRICAL,
     ShapeClass.TWO_D: GraspType.THREE_FINGER_TIP,
