@@ -41,7 +41,7 @@ from pregrasp_core.hand import Hand  # noqa: E402
 from pregrasp_core.io import load_point_cloud  # noqa: E402
 from pregrasp_core.paths import demo_objects  # noqa: E402
 from pregrasp_core.pipeline import STAGES, PipelineParams, run_pipeline  # noqa: E402
-from pregrasp_core.sampling import hand_hits_points  # noqa: E402
+from pregrasp_core.pregrasps import hand_hits_points  # noqa: E402
 
 POOL_STAGES = STAGES[: STAGES.index("pool") + 1]
 

@@ -33,7 +33,7 @@ from .decomposition import BoxTree, DecompositionParams, decompose
 from .facemask import FaceMaskParams, FaceMasks, compute_face_masks, support_plane
 from .io import PointCloud
 from .planner import GraspSet, PlannerParams, cloud_normals, grasps_sections, plan_grasps
-from .sampling import PreGraspPool, SamplingParams, Traversal, build_pool, traverse
+from .pregrasps import PreGraspPool, SamplingParams, Traversal, build_pool, traverse
 from .shape import NodeShape, ShapeParams, classify_tree
 
 logger = logging.getLogger(__name__)

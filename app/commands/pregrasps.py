@@ -31,8 +31,8 @@ from app.commands.common import (
 from pregrasp_core.errors import PregraspError
 from pregrasp_core.facemask import FaceMaskParams
 from pregrasp_core.pipeline import PipelineParams, PipelineResult, result_document, run_pipeline
+from pregrasp_core.pregrasps import SamplingParams, TraversalPolicy
 from pregrasp_core.result import to_jsonable, write_result
-from pregrasp_core.sampling import SamplingParams, TraversalPolicy
 
 _FP = FaceMaskParams()
 _SA = SamplingParams()

@@ -11,8 +11,8 @@ from app.cli import main
 from app.commands.pregrasps import add_pool_args, facemask_params, sampling_params
 from pregrasp_core.errors import PregraspError
 from pregrasp_core.facemask import FaceMaskParams
+from pregrasp_core.pregrasps import SamplingParams, TraversalPolicy
 from pregrasp_core.result import SCHEMA, read_result
-from pregrasp_core.sampling import SamplingParams, TraversalPolicy
 
 
 @pytest.fixture(scope="module")

@@ -20,8 +20,8 @@ from pregrasp_core.pipeline import (
     result_document,
     run_pipeline,
 )
+from pregrasp_core.pregrasps import SamplingParams
 from pregrasp_core.result import read_result, write_result
-from pregrasp_core.sampling import SamplingParams
 from pregrasp_core.shape import ShapeParams
 
 POOL_STAGES = STAGES[: STAGES.index("pool") + 1]

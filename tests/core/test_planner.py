@@ -24,8 +24,8 @@ from pregrasp_core.planner import (
     rank_grasps,
     sweep_hit,
 )
+from pregrasp_core.pregrasps import PreGraspPool
 from pregrasp_core.quality import grasp_quality
-from pregrasp_core.sampling import PreGraspPool
 
 
 @pytest.fixture(scope="module")

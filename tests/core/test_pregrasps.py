@@ -1,4 +1,4 @@
-"""Traversal, enclosing-surface sampling and the pre-grasp pool (DESIGN section 6)."""
+"""Traversal, enclosing-surface sampling and the pre-grasp pool (`pregrasp_core.pregrasps`)."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from pregrasp_core.facemask import (
     usable_subfaces,
 )
 from pregrasp_core.hand import load_hand
-from pregrasp_core.sampling import (
+from pregrasp_core.pregrasps import (
     PreGraspPool,
     SamplingParams,
     TraversalPolicy,

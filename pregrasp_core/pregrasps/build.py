@@ -1,0 +1,240 @@
+"""Build the pre-grasp pool of an object (:func:`build_pool`).
+
+The samples of every candidate (:func:`~.surfaces.sample_node`) go through three filters, each
+counted in ``PreGraspPool.dropped``: samples on sub-faces that are not usable are dropped; the
+others are backed off along their approach line until the open hand clears the support plane
+and the cloud, or dropped when it cannot within ``max_backoff``. A candidate whose own grasp type
+leaves nothing may fall back to another type (``SamplingParams.fallback``).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..decomposition import BoxNode, BoxTree
+from ..facemask import FaceMasks, SupportPlane, usable_subfaces
+from ..geometry import as_points
+from ..hand import grasp_type_name
+from ..shape import GRASP_TYPES, NodeShape, ShapeParams
+from .collision import CellCache, hand_hits_points, hand_min_height
+from .params import SamplingParams
+from .pool import DROP_REASONS, PreGraspPool
+from .surfaces import sample_node
+from .traversal import Traversal, grip_width, traverse
+
+if TYPE_CHECKING:
+    from ..hand import Hand
+
+logger = logging.getLogger(__name__)
+
+FALLBACK_ORDER: tuple[str, ...] = ("cylindrical", "spherical", "three_finger_tip", "two_finger_tip")
+"""Order in which other grasp types are tried when a candidate's own type gives nothing."""
+
+
+def _concat_pools(pools: list[PreGraspPool], joint_names: Sequence[str]) -> PreGraspPool:
+    """The pools one after the other (an empty pool when there are none)."""
+    if not pools:
+        return PreGraspPool.empty(joint_names)
+    return PreGraspPool(
+        T_world_hand=np.concatenate([p.T_world_hand for p in pools]),
+        approach=np.concatenate([p.approach for p in pools]),
+        grasp_type=np.concatenate([p.grasp_type for p in pools]).astype("<U16"),
+        spread=np.concatenate([p.spread for p in pools]),
+        q=np.concatenate([p.q for p in pools]),
+        node=np.concatenate([p.node for p in pools]),
+        face=np.concatenate([p.face for p in pools]),
+        subface=np.concatenate([p.subface for p in pools]),
+        surface=np.concatenate([p.surface for p in pools]),
+        backoff=np.concatenate([p.backoff for p in pools]),
+        joint_names=tuple(joint_names),
+    )
+
+
+def build_pool(
+    points: np.ndarray,
+    tree: BoxTree,
+    shapes: Sequence[NodeShape],
+    masks: FaceMasks,
+    hand: Hand,
+    params: SamplingParams | None = None,
+    traversal: Traversal | None = None,
+    shape_params: ShapeParams | None = None,
+) -> PreGraspPool:
+    """The pre-grasp pool of an object.
+
+    points: (N, 3) the cloud (world frame) for the collision filter; tree, shapes, masks: the
+    decomposition, its shapes and face masks (``masks.support`` is the support plane or None);
+    hand: the ``pregrasp_core.hand.Hand``; traversal: the candidates (computed with
+    :func:`traverse` when ``None``).
+    """
+    params = SamplingParams() if params is None else params
+    pts = as_points(points)
+    if traversal is None:
+        traversal = traverse(tree, shapes, hand, params, shape_params)
+    joint_names = tuple(hand.joint_names)
+    dropped = {r: 0 for r in DROP_REASONS}
+    kd = cKDTree(pts) if len(pts) else None
+    # the types each candidate may use, in order: its own, then (fallback) the others that fit
+    queue: dict[int, list[str]] = {}
+    for i in traversal.candidates:
+        own = grasp_type_name(shapes[i].grasp_type)
+        queue[i] = [own]
+        if params.fallback:
+            queue[i] += [
+                t
+                for t in FALLBACK_ORDER
+                if t != own
+                and grip_width(tree.nodes[i].box, t)
+                <= float(hand.aperture(t)) * params.aperture_scale
+            ]
+    kept: list[PreGraspPool] = []
+    fallback: dict[int, str] = {}
+    todo = list(traversal.candidates)
+    for attempt in range(len(GRASP_TYPES)):  # own type, then up to 3 fallbacks
+        pools = [
+            _node_pool(tree.nodes[i], queue[i][attempt], masks, hand, params, dropped)
+            for i in todo
+            if attempt < len(queue[i])
+        ]
+        got = _clear_the_hand(
+            _concat_pools(pools, joint_names), hand, pts, kd, masks.support, params, dropped
+        )
+        kept.append(got)
+        placed = set(np.unique(got.node).tolist())
+        if attempt > 0:
+            fallback.update({i: queue[i][attempt] for i in placed})
+        todo = [i for i in todo if i not in placed and attempt + 1 < len(queue[i])]
+        if not todo:
+            break
+    pool = _concat_pools(kept, joint_names)
+    order = np.lexsort((np.arange(len(pool)), pool.node))  # group by node, stable
+    pool = replace(
+        pool.select(order), candidates=traversal.candidates, dropped=dropped, fallback=fallback
+    )
+    logger.info("pool: %d pre-grasps, dropped %s, fallback %s", len(pool), dropped, fallback)
+    return pool
+
+
+def _node_pool(
+    nd: BoxNode,
+    gt: str,
+    masks: FaceMasks,
+    hand: Hand,
+    params: SamplingParams,
+    dropped: dict[str, int],
+) -> PreGraspPool:
+    """The samples of one node for one grasp type on its usable sub-faces, as a pool."""
+    every = sample_node(nd.box, gt, params)
+    use = usable_subfaces(masks.blocked[nd.id], gt)
+    table = np.zeros((6, max(len(u) for u in use) or 1), dtype=bool)  # (6, S_max) usable
+    for f, u in enumerate(use):
+        table[f, : len(u)] = u
+    keep = table[every.face, every.subface]  # (M,)
+    ok = replace(
+        every,
+        T_box_grasp=every.T_box_grasp[keep],
+        face=every.face[keep],
+        subface=every.subface[keep],
+        surface=every.surface[keep],
+        aim=every.aim[keep],
+    )
+    dropped["blocked_subface"] += int(np.count_nonzero(~keep))
+    M = len(ok.face)
+    # the samples place the hand's grasp centre (a point of the palm plane, hand frame);
+    # the hand's origin sits at -grasp_center from it
+    T_grasp_hand = np.eye(4)
+    T_grasp_hand[:3, 3] = -np.asarray(hand.grasp_center(gt), dtype=np.float64)
+    T = nd.box.T_world_box @ ok.T_box_grasp @ T_grasp_hand  # (M, 4, 4)
+    q = np.asarray(hand.preshape(gt), dtype=np.float64)
+    return PreGraspPool(
+        T_world_hand=T,
+        approach=T[:, :3, 2].copy(),
+        grasp_type=np.full(M, gt, dtype="<U16"),
+        spread=np.full(M, float(hand.spread_for(gt))),
+        q=np.tile(q, (M, 1)),
+        node=np.full(M, nd.id, dtype=np.int64),
+        face=ok.face,
+        subface=ok.subface,
+        surface=ok.surface,
+        joint_names=tuple(hand.joint_names),
+    )
+
+
+def _clear_the_hand(
+    pool: PreGraspPool,
+    hand: Hand,
+    points: np.ndarray,
+    kd: cKDTree | None,
+    support: SupportPlane | None,
+    params: SamplingParams,
+    dropped: dict[str, int],
+) -> PreGraspPool:
+    """Back every pre-grasp off along its approach line by the smallest multiple of
+    ``backoff_step`` (up to ``max_backoff``) at which its open hand is above the support plane
+    and holds no cloud point, provided the hand is also clear at ``max_backoff`` (where the
+    approach starts from); drop it otherwise (counted in ``dropped``). Levels are tested in the
+    order 0, ``max_backoff``, then the ones between, so hopeless pre-grasps cost two tests."""
+    P = len(pool)
+    if P == 0:
+        return pool
+    step, n_levels = params.backoff_step, int(np.floor(params.max_backoff / params.backoff_step))
+    levels = np.arange(n_levels + 1) * step  # (K,) candidate back-offs, metres
+    first = np.zeros(P, dtype=np.int64)  # first level the support allows
+    if support is not None:
+        low = hand_min_height(hand, pool.T_world_hand, pool.grasp_type, pool.q, support)
+        low = low - params.support_margin  # (P,) above plane
+        down = -(pool.approach @ support.normal)  # (P,) > 0: backing off raises the hand
+        with np.errstate(divide="ignore", invalid="ignore"):
+            need = np.where(low >= 0, 0.0, np.where(down > 1e-9, -low / down, np.inf))
+        first = np.ceil(need / step - 1e-6).astype(np.float64)  # 1e-6: round-off
+        no_room = ~(first <= n_levels)
+        dropped["support"] += int(np.count_nonzero(no_room))
+        first = np.where(no_room, n_levels + 1, first).astype(np.int64)
+    backoff = np.full(P, np.nan)
+    cells: CellCache = {}  # link cells per preshape, shared by the back-off levels
+    hopeless = np.zeros(P, dtype=bool)  # still colliding at the largest back-off
+
+    def test(idx: np.ndarray, k: int) -> np.ndarray:
+        T = pool.T_world_hand[idx].copy()
+        T[:, :3, 3] -= levels[k] * pool.approach[idx]
+        return hand_hits_points(
+            hand, T, pool.grasp_type[idx], pool.q[idx], points, kd, params.collision_margin, cells
+        )
+
+    # levels in the order 0, then the last (to drop hopeless ones at once), then 1, 2, ...
+    order = [0, n_levels] + list(range(1, n_levels)) if n_levels > 0 else [0]
+    for k in order:  # loop over the few back-off levels
+        todo = np.flatnonzero((first <= k) & np.isnan(backoff) & ~hopeless)
+        if len(todo) == 0:
+            continue
+        hit = test(todo, k)
+        if k == n_levels and n_levels > 0:
+            hopeless[todo[hit]] = True
+            # free at the largest back-off: placed there unless a smaller level also is
+            free_last = todo[~hit]
+            backoff[free_last] = -1.0  # marker: free at the last level, smaller ones untested
+            continue
+        done = todo[~hit]
+        backoff[done] = levels[k]
+    # the marked ones get the smallest free level >= their first, scanning 1 .. n_levels - 1
+    marked = np.flatnonzero(backoff == -1.0)
+    backoff[marked] = np.nan
+    for k in range(1, n_levels):
+        todo = marked[(first[marked] <= k) & np.isnan(backoff[marked])]
+        if len(todo) == 0:
+            continue
+        backoff[todo[~test(todo, k)]] = levels[k]
+    rest = marked[np.isnan(backoff[marked])]
+    backoff[rest] = levels[n_levels] if n_levels > 0 else np.nan
+    placed = ~np.isnan(backoff)
+    dropped["object_collision"] += int(np.count_nonzero(~placed & (first <= n_levels)))
+    out = pool.select(placed)
+    T = out.T_world_hand.copy()
+    T[:, :3, 3] -= backoff[placed][:, None] * out.approach
+    return replace(out, T_world_hand=T, backoff=backoff[placed])

@@ -1,0 +1,195 @@
+"""Samples of the enclosing surface of a box for a grasp type (:func:`sample_node`).
+
+Sphere for spherical and two-finger tip, cylinder (side and caps) for cylindrical, circle for
+three-finger tip; the samples lie on the usable sub-faces at a fixed interval, each aims the
+hand's approach (+z of the hand frame) at the box (its centre, or its axis for radial cylinder
+samples) and rolls the hand so that it closes across the part as its grasp type needs. See
+``docs/pregrasps.md`` section 4.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..box import OrientedBox
+from ..facemask import FACE_AXIS, FACE_NORMAL, FACE_RIGHT, FACE_UP, subface_scheme
+from ..hand import grasp_type_name
+from ..tolerances import GEOM_EPS
+from .params import SamplingParams
+
+SURFACES: tuple[str, ...] = ("sphere", "cylinder_side", "cylinder_cap", "circle")
+"""Names of the enclosing-surface patches a pre-grasp can come from."""
+
+
+@dataclass(frozen=True)
+class NodeSamples:
+    """Pre-grasp samples of one box in its box frame (before any filter)."""
+
+    T_box_grasp: np.ndarray
+    """(M, 4, 4) float64: grasp frames in the box frame: origin = the sample (where the hand's
+    grasp centre goes), axes = the hand's axes (+z = approach)."""
+    face: np.ndarray
+    """(M,) int64: the face the sample projects onto."""
+    subface: np.ndarray
+    """(M,) int64: the sub-face of that face."""
+    surface: np.ndarray
+    """(M,) int64: index into :data:`SURFACES`."""
+    aim: np.ndarray
+    """(M, 3) float64, box frame: the point the approach is aimed at (box centre or axis)."""
+
+
+def _grid(half_range: float, step: float) -> np.ndarray:
+    """Centres of 2 m + 1 equal cells tiling [-half_range, half_range] with width ~``step``:
+    symmetric about 0 and always containing 0 (the face's centre line)."""
+    m = int(round(half_range / step - 0.5)) if step > 0 else 0
+    m = max(m, 0)
+    return np.arange(-m, m + 1) * (2.0 * half_range / (2 * m + 1))
+
+
+def _frames(approach: np.ndarray, closing: np.ndarray, closing_is_x: bool) -> np.ndarray:
+    """(M, 3, 3) rotations R_box_hand with z = approach and y (or x) = closing made orthogonal."""
+    z = approach / np.linalg.norm(approach, axis=1, keepdims=True)
+    c = closing - np.sum(closing * z, axis=1, keepdims=True) * z
+    c = c / np.linalg.norm(c, axis=1, keepdims=True)
+    if closing_is_x:
+        x = c
+        y = np.cross(z, x)
+    else:
+        y = c
+        x = np.cross(y, z)
+    return np.stack([x, y, z], axis=2)
+
+
+def _with_both_signs(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Repeat every row twice; the last array (the closing axis) gets + then - sign."""
+    out = [np.repeat(a, 2, axis=0) for a in arrays]
+    sign = np.tile([1.0, -1.0], len(arrays[-1]))
+    out[-1] = out[-1] * sign[:, None]
+    return tuple(out)
+
+
+def sample_node(
+    box: OrientedBox,
+    grasp_type: str,
+    params: SamplingParams | None = None,
+    usable: Sequence[np.ndarray] | None = None,
+) -> NodeSamples:
+    """Samples of the enclosing surface of ``box`` for ``grasp_type``, in the box frame.
+
+    usable: the usable sub-faces (list of 6 bool arrays, see
+    :func:`~pregrasp_core.facemask.usable_subfaces`); ``None`` = every sub-face. Every sample
+    comes twice, with the hand rolled by 180 degrees about its approach (the closing axis with
+    both signs), so that the set does not depend on the sign convention of the box axes.
+    """
+    params = SamplingParams() if params is None else params
+    gt = grasp_type_name(grasp_type)
+    scheme = subface_scheme(gt)
+    h = box.half_extents
+    step = params.interval
+    pos, app, clo, face, sub, surf, aim = [], [], [], [], [], [], []
+
+    def _keep(f: int, s: np.ndarray) -> np.ndarray:
+        return np.ones(len(s), bool) if usable is None else np.asarray(usable[f], bool)[s]
+
+    if gt in ("spherical", "two_finger_tip"):
+        radius = float(np.linalg.norm(h))
+        for f in range(6):
+            a = FACE_AXIS[f]
+            r_ax, u_ax, n_ax = FACE_RIGHT[f], FACE_UP[f], FACE_NORMAL[f]
+            hr, hu = float(np.abs(r_ax) @ h), float(np.abs(u_ax) @ h)
+            tr = _grid(np.arctan2(hr, h[a]), step / max(radius, GEOM_EPS))
+            tu = _grid(np.arctan2(hu, h[a]), step / max(radius, GEOM_EPS))
+            TR, TU = np.meshgrid(tr, tu, indexing="ij")
+            tan_r, tan_u = np.tan(TR.ravel()), np.tan(TU.ravel())
+            d = n_ax + tan_r[:, None] * r_ax + tan_u[:, None] * u_ax  # (m, 3) unnormalised
+            d = d / np.linalg.norm(d, axis=1, keepdims=True)
+            # exit point of the ray from the centre through face f: n . p = h_a
+            s = scheme.cell(f, tan_r * h[a], tan_u * h[a], hr, hu)
+            keep = _keep(f, s)
+            d, s = d[keep], s[keep]
+            # closing axis: spherical -> hand y along the face's longer in-plane box axis;
+            # two-finger tip -> the pinch (hand x) across the face's shorter in-plane axis
+            inplane = np.sort([int(np.argmax(np.abs(r_ax))), int(np.argmax(np.abs(u_ax)))])
+            ref_axis = inplane[0] if gt == "spherical" else inplane[1]
+            ref = np.tile(np.eye(3)[ref_axis], (len(d), 1))
+            pos.append(d * (radius + params.standoff))
+            app.append(-d)
+            clo.append(ref)
+            face.append(np.full(len(d), f))
+            sub.append(s)
+            surf.append(np.zeros(len(d), int))
+            aim.append(np.zeros((len(d), 3)))
+    elif gt == "cylindrical":
+        radius = float(np.hypot(h[1], h[2]))
+        xs = _grid(h[0], step)
+        for f in range(2, 6):  # side faces: radial approach towards the axis
+            a = FACE_AXIS[f]
+            u_ax, n_ax = FACE_UP[f], FACE_NORMAL[f]
+            hu = float(np.abs(u_ax) @ h)
+            tu = _grid(np.arctan2(hu, h[a]), step / max(radius, GEOM_EPS))
+            X, TU = np.meshgrid(xs, tu, indexing="ij")
+            x, tan_u = X.ravel(), np.tan(TU.ravel())
+            d = n_ax + tan_u[:, None] * u_ax
+            d = d / np.linalg.norm(d, axis=1, keepdims=True)
+            right = x * FACE_RIGHT[f][0]  # 'right' of a side face is +-axis 0
+            s = scheme.cell(f, right, tan_u * h[a], h[0], hu)
+            keep = _keep(f, s)
+            d, s, x = d[keep], s[keep], x[keep]
+            on_axis = np.zeros((len(d), 3))
+            on_axis[:, 0] = x
+            pos.append(on_axis + d * (radius + params.standoff))
+            app.append(-d)
+            clo.append(np.cross(d, np.eye(3)[0]))  # hand x along the cylinder axis
+            face.append(np.full(len(d), f))
+            sub.append(s)
+            surf.append(np.full(len(d), 1))
+            aim.append(on_axis)
+        for f in (0, 1):  # caps: axial approach through the centre, closing along axes 1 and 2
+            s = np.zeros(2, dtype=np.int64)
+            keep = _keep(f, s)
+            n_ax = FACE_NORMAL[f]
+            p = np.tile(n_ax * (h[0] + params.standoff), (2, 1))[keep]
+            pos.append(p)
+            app.append(np.tile(-n_ax, (len(p), 1)))
+            clo.append(np.eye(3)[1:3][keep])
+            face.append(np.full(len(p), f))
+            sub.append(s[keep])
+            surf.append(np.full(len(p), 2))
+            aim.append(np.zeros((len(p), 3)))
+    else:  # three_finger_tip: circle in the plane of axes 0 and 1
+        radius = float(np.hypot(h[0], h[1]))
+        for f in range(4):
+            a = FACE_AXIS[f]
+            r_ax, n_ax = FACE_RIGHT[f], FACE_NORMAL[f]
+            hr = float(np.abs(r_ax) @ h)
+            tr = _grid(np.arctan2(hr, h[a]), step / max(radius, GEOM_EPS))
+            tan_r = np.tan(tr)
+            d = n_ax + tan_r[:, None] * r_ax
+            d = d / np.linalg.norm(d, axis=1, keepdims=True)
+            s = scheme.cell(f, tan_r * h[a], np.zeros_like(tan_r), hr, h[2])
+            keep = _keep(f, s)
+            d, s = d[keep], s[keep]
+            pos.append(d * (radius + params.standoff))
+            app.append(-d)
+            clo.append(np.tile(np.eye(3)[2], (len(d), 1)))  # fingertips close across axis 2
+            face.append(np.full(len(d), f))
+            sub.append(s)
+            surf.append(np.full(len(d), 3))
+            aim.append(np.zeros((len(d), 3)))
+
+    cat = [np.concatenate(v, axis=0) for v in (pos, app, face, sub, surf, aim, clo)]
+    P, A, F, S, U, M, C = _with_both_signs(*cat)
+    T = np.tile(np.eye(4), (len(P), 1, 1))
+    if len(P):
+        T[:, :3, :3] = _frames(A, C, closing_is_x=(gt == "two_finger_tip"))
+        T[:, :3, 3] = P
+    return NodeSamples(
+        T_box_grasp=T,
+        face=F.astype(np.int64),
+        subface=S.astype(np.int64),
+        surface=U.astype(np.int64),
+        aim=M,
+    )

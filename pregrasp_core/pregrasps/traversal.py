@@ -1,0 +1,108 @@
+"""Which nodes of the decomposition tree get pre-grasps (:func:`traverse`)."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from ..box import OrientedBox
+from ..decomposition import BoxTree
+from ..hand import grasp_type_name
+from ..shape import NodeShape, ShapeParams, is_small
+from .params import SamplingParams, TraversalPolicy
+
+if TYPE_CHECKING:
+    from ..hand import Hand
+
+logger = logging.getLogger(__name__)
+
+
+def grip_width(box: OrientedBox, grasp_type: str) -> float:
+    """Metres: the width of the part the open hand must span for this grasp type.
+
+    cylindrical: the larger side of the cross-section (the fingers close across axis 0);
+    spherical and two-finger tip: the longest side (sampled from every direction);
+    three-finger tip: the thickness (the fingertips close across axis 2).
+    """
+    gt = grasp_type_name(grasp_type)
+    e = box.extents
+    return float({"cylindrical": e[1], "three_finger_tip": e[2]}.get(gt, e[0]))
+
+
+@dataclass(frozen=True)
+class Traversal:
+    """Which nodes get pre-grasps, and why each node does or does not."""
+
+    candidates: tuple[int, ...]
+    """Ids of the candidate nodes, in traversal order (breadth-first from the root)."""
+    reasons: tuple[str, ...]
+    """Per node id: ``"candidate"`` or why not (``"no small child"``, ``"too big: ..."``)."""
+    policy: TraversalPolicy
+    """The policy used."""
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict."""
+        return {
+            "policy": self.policy.value,
+            "candidates": list(self.candidates),
+            "reasons": list(self.reasons),
+        }
+
+
+def traverse(
+    tree: BoxTree,
+    shapes: Sequence[NodeShape],
+    hand: Hand,
+    params: SamplingParams | None = None,
+    shape_params: ShapeParams | None = None,
+) -> Traversal:
+    """Visit the tree from the root down and pick the candidate nodes (see
+    :class:`TraversalPolicy`). ``hand`` provides ``aperture(grasp_type) -> metres``;
+    ``shape_params.small_size`` decides which children are small."""
+    params = SamplingParams() if params is None else params
+    if len(shapes) != len(tree.nodes):
+        raise ValueError(
+            f"shapes must have one entry per node ({len(tree.nodes)}), got {len(shapes)}"
+        )
+    order: list[int] = []
+    queue = [tree.root.id]
+    while queue:  # breadth-first over nodes (small set)
+        i = queue.pop(0)
+        order.append(i)
+        queue.extend(tree.nodes[i].children)
+    reasons = [""] * len(tree.nodes)
+    candidates: list[int] = []
+    for i in order:
+        nd = tree.nodes[i]
+        gt = shapes[i].grasp_type
+        if params.policy is TraversalPolicy.ALL:
+            ok, why = True, "candidate"
+        else:
+            width = grip_width(nd.box, gt)
+            aperture = float(hand.aperture(gt)) * params.aperture_scale
+            fits = width <= aperture
+            if params.policy is TraversalPolicy.LEAVES:
+                structural = nd.is_leaf
+                no_why = "not a leaf"
+            else:
+                structural = nd.is_leaf or any(
+                    is_small(tree.nodes[c].box, shape_params) for c in nd.children
+                )
+                no_why = "no small child"
+            if not structural:
+                ok, why = False, no_why
+            elif not fits:
+                ok, why = (
+                    False,
+                    f"too big: {grasp_type_name(gt)} width {width:.3f} m > aperture "
+                    f"{aperture:.3f} m",
+                )
+            else:
+                ok, why = True, "candidate"
+        reasons[i] = why
+        if ok:
+            candidates.append(i)
+    logger.info("traversal (%s): candidates %s", params.policy.value, candidates)
+    return Traversal(candidates=tuple(candidates), reasons=tuple(reasons), policy=params.policy)
