@@ -1,0 +1,55 @@
+"""Point-cloud input: read clouds and meshes from files or uploaded bytes into a PointCloud.
+
+Formats (the file name's extension picks the reader in ``READERS``, case-insensitive):
+
+- point clouds: PLY without faces (ascii, binary little/big endian; ``ply``), PCD (PCL's format;
+  ascii and binary, ``binary_compressed`` is refused with a message; ``pcd``), XYZ/TXT/CSV (3
+  columns, or 6 with normals; whitespace or comma separated; ``#`` comments; a column-name first
+  line is skipped; ``text``), NPY (``allow_pickle=False``) and NPZ (key ``points`` or a single
+  array; optional ``normals``; ``numpy_format``);
+- meshes: OBJ, STL, OFF, GLB/GLTF and PLY with faces (``mesh``), sampled uniformly on the surface
+  to ``n_points`` points with ``seed`` (area-weighted, the face normal of each sample kept as its
+  normal). Same bytes + same ``n_points`` + same ``seed`` = same cloud.
+
+A point cloud larger than ``n_points`` is subsampled to ``n_points`` points (seeded, without
+replacement, in file order); ``n_points=None`` keeps every point of a cloud.
+
+Every problem with the input raises :class:`~pregrasp_core.errors.InputError` (or
+:class:`~pregrasp_core.errors.DegenerateGeometryError` for identical/collinear points) whose
+message names the file, the problem and what to do; nothing is ever unpickled or executed.
+Recoverable oddities (non-finite rows dropped, coplanar points, millimetre-looking extents,
+ignored columns) are logged with ``logging`` and listed in ``PointCloud.info["warnings"]``.
+See ``docs/input.md``.
+"""
+
+from .cloud import (
+    CLOUD_EXTENSIONS,
+    DEFAULT_MAX_BYTES,
+    DEFAULT_N_POINTS,
+    MAX_COORDINATE,
+    MAX_POINTS,
+    MESH_EXTENSIONS,
+    MILLIMETRE_EXTENT,
+    MIN_POINTS,
+    SUPPORTED_EXTENSIONS,
+    CloudInfo,
+    PointCloud,
+)
+from .load import READERS, load_point_cloud, load_point_cloud_bytes
+
+__all__ = [
+    "CLOUD_EXTENSIONS",
+    "DEFAULT_MAX_BYTES",
+    "DEFAULT_N_POINTS",
+    "MAX_COORDINATE",
+    "MAX_POINTS",
+    "MESH_EXTENSIONS",
+    "MILLIMETRE_EXTENT",
+    "MIN_POINTS",
+    "READERS",
+    "SUPPORTED_EXTENSIONS",
+    "CloudInfo",
+    "PointCloud",
+    "load_point_cloud",
+    "load_point_cloud_bytes",
+]

@@ -1,0 +1,125 @@
+"""PCD point clouds (the Point Cloud Library's format): ``DATA ascii`` and ``DATA binary``;
+``binary_compressed`` is refused with a message."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from .cloud import FileData, RawCloud
+from .text import decode_text, parse_numbers
+
+_PCD_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT",
+             "POINTS", "DATA")  # fmt: skip
+
+
+def read_pcd(file: FileData) -> RawCloud:
+    """A PCD file (PCL), ``DATA ascii`` or ``DATA binary``."""
+    data, source = file.data, file.source
+
+    def bad(problem: str) -> InputError:
+        return InputError(
+            f"{source}: malformed PCD header: {problem}; re-save the cloud with PCL "
+            "(pcl::io::savePCDFile) as ascii or binary"
+        )
+
+    header: dict[str, list[str]] = {}
+    pos = 0
+    while True:
+        nl = data.find(b"\n", pos)
+        line_b = data[pos:] if nl < 0 else data[pos:nl]
+        pos = len(data) if nl < 0 else nl + 1
+        try:
+            line = line_b.decode("ascii").strip()
+        except UnicodeDecodeError:
+            raise bad("non-ASCII bytes in the header") from None
+        if line and not line.startswith("#"):
+            tok = line.split()
+            key = tok[0].upper()
+            if key not in _PCD_KEYS:
+                raise bad(f"unexpected line {line[:60]!r}")
+            header[key] = tok[1:]
+            if key == "DATA":
+                break
+        if nl < 0:
+            raise bad("no DATA line")
+    for key in ("FIELDS", "SIZE", "TYPE", "WIDTH", "HEIGHT"):
+        if key not in header:
+            raise bad(f"no {key} line")
+    fields = header["FIELDS"]
+    n_f = len(fields)
+    counts_s = header.get("COUNT", ["1"] * n_f)
+    if not (len(header["SIZE"]) == len(header["TYPE"]) == len(counts_s) == n_f) or n_f == 0:
+        raise bad(
+            f"FIELDS ({n_f}), SIZE ({len(header['SIZE'])}), TYPE ({len(header['TYPE'])}) and "
+            f"COUNT ({len(counts_s)}) must list the same number of entries"
+        )
+    try:
+        sizes = [int(s) for s in header["SIZE"]]
+        counts = [int(c) for c in counts_s]
+        width = int(header["WIDTH"][0])
+        height = int(header["HEIGHT"][0])
+        n_pts = int(header["POINTS"][0]) if "POINTS" in header else width * height
+    except (ValueError, IndexError):
+        raise bad("SIZE, COUNT, WIDTH, HEIGHT and POINTS must be integers") from None
+    types = [t.upper() for t in header["TYPE"]]
+    dtypes = []
+    for name, t, s, c in zip(fields, types, sizes, counts, strict=True):
+        if t not in ("F", "I", "U") or s not in (1, 2, 4, 8) or (t == "F" and s not in (4, 8)):
+            raise bad(f"field {name!r} has unsupported TYPE {t} SIZE {s}")
+        if c < 1:
+            raise bad(f"field {name!r} has COUNT {c}")
+        code = {"F": "f", "I": "i", "U": "u"}[t] + str(s)
+        dtypes.append((name, "<" + code, (c,)) if c > 1 else (name, "<" + code))
+    if n_pts < 0 or width < 0 or height < 0:
+        raise bad("negative WIDTH, HEIGHT or POINTS")
+    for axis in ("x", "y", "z"):
+        if axis not in fields:
+            raise InputError(f"{source}: the PCD has fields {fields}, no {axis!r}; nothing to read")
+    if n_pts == 0:
+        raise InputError(f"{source}: the PCD declares 0 points; nothing to read")
+    mode = header["DATA"][0].lower() if header["DATA"] else ""
+    if mode == "ascii":
+        text = decode_text(data[pos:], source, "ascii PCD")
+        arr = parse_numbers(text, source, "ascii PCD data")
+        n_cols = sum(counts)
+        if arr.size == 0:
+            raise InputError(f"{source}: the ascii PCD has no data rows; re-save the cloud")
+        if arr.shape[1] != n_cols:
+            raise InputError(
+                f"{source}: wrong column count in the ascii PCD: {arr.shape[1]} numbers per "
+                f"row, the header declares {n_cols}"
+            )
+        if arr.shape[0] != n_pts:
+            raise InputError(
+                f"{source}: the PCD header declares {n_pts} points, the data has "
+                f"{arr.shape[0]} rows; re-save the cloud"
+            )
+        starts = np.cumsum([0] + counts[:-1])
+        col = {f: arr[:, st] for f, st in zip(fields, starts, strict=True)}
+    elif mode == "binary":
+        dt = np.dtype(dtypes)
+        need = n_pts * dt.itemsize
+        if len(data) - pos < need:
+            raise InputError(
+                f"{source}: truncated PCD: the header declares {n_pts} points ({need} bytes), "
+                f"the file holds {len(data) - pos} data bytes; re-save the cloud"
+            )
+        rec = np.frombuffer(data, dtype=dt, count=n_pts, offset=pos)
+        col = {
+            f: (rec[f] if rec[f].ndim == 1 else rec[f][:, 0]).astype(np.float64)
+            for f in ("x", "y", "z", "normal_x", "normal_y", "normal_z")
+            if f in fields
+        }
+    elif mode == "binary_compressed":
+        raise InputError(
+            f"{source}: PCD 'DATA binary_compressed' is not supported; re-save it as binary "
+            "or ascii (e.g. pcl_convert_pcd_ascii_binary in.pcd out.pcd 1)"
+        )
+    else:
+        raise bad(f"unknown DATA mode {' '.join(header['DATA'])!r} (ascii or binary)")
+    pts = np.column_stack([col["x"], col["y"], col["z"]])
+    nrm = None
+    if {"normal_x", "normal_y", "normal_z"} <= set(fields):
+        nrm = np.column_stack([col["normal_x"], col["normal_y"], col["normal_z"]])
+    return RawCloud(pts, nrm, int(n_pts), [])
