@@ -9,11 +9,15 @@ flipped so that their component of largest magnitude is positive, and axis 2 = a
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .geometry import CORNER_SIGNS, as_points
 from .tolerances import BOX_CONTAINS_TOL
+
+if TYPE_CHECKING:
+    from .result import JsonDocument
 
 
 def canonical_axes(rotation: np.ndarray, extents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -98,7 +102,7 @@ class OrientedBox:
         Rc, ext = canonical_axes(R, self.extents)
         return OrientedBox(center=T[:3, :3] @ self.center + T[:3, 3], rotation=Rc, extents=ext)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> JsonDocument:
         """JSON-ready dict (center, rotation as row-major 3x3, extents, volume)."""
         return {
             "center": self.center.tolist(),

@@ -29,6 +29,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -36,11 +37,15 @@ from .box import OrientedBox
 from .decomposition import BoxTree
 from .errors import InputError
 from .geometry import as_points
+from .shape import GraspType
 from .tolerances import (
     FACE_OVERLAP_TOL,
     GEOM_EPS,
     SUPPORT_PENETRATION_TOL,
 )
+
+if TYPE_CHECKING:
+    from .result import JsonDocument
 
 logger = logging.getLogger(__name__)
 
@@ -65,9 +70,6 @@ FACE_UP: np.ndarray = np.array(
     [[0, 0, 1], [0, 0, 1], [0, 0, 1], [0, 0, 1], [0, 1, 0], [0, -1, 0]], dtype=np.float64
 )
 """(6, 3) the 'up' direction of each face seen from outside (box frame); right x up = normal."""
-
-ADJ_NAMES: tuple[str, ...] = ("l", "d", "r", "u")
-"""Order of the adjacent faces in :data:`ADJACENT` and in columns 1..4 of a mask row."""
 
 
 def face_of_direction(direction: np.ndarray) -> np.ndarray:
@@ -185,7 +187,7 @@ class SupportPlane:
         """(N,) metres above the plane (negative below) of world ``points`` (N, 3)."""
         return as_points(points) @ self.normal - self.height
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> JsonDocument:
         """JSON-ready dict (normal, height)."""
         return {"normal": self.normal.tolist(), "height": self.height}
 
@@ -320,10 +322,6 @@ class FaceMasks:
         """(6, 5) int8: the face mask of one node."""
         return face_mask_matrix(self.blocked[node])
 
-    def to_list(self) -> list[list[list[int]]]:
-        """(K, 6, 5) nested lists of 0/1 for the result file."""
-        return self.masks.tolist()
-
 
 def face_mask_matrix(blocked: np.ndarray) -> np.ndarray:
     """(..., 6, 5) int8 face mask(s) from the blocked state of the faces (..., 6) bool."""
@@ -448,7 +446,9 @@ class SubfaceScheme:
         col, row = s % max(nc, 1), s // max(nc, 1)
         return np.stack([col == 0, row == 0, col == nc - 1, row == nr - 1], axis=1)
 
-    def cell(self, face: int, right: np.ndarray, up: np.ndarray, half_r: float, half_u: float):
+    def cell(
+        self, face: int, right: np.ndarray, up: np.ndarray, half_r: float, half_u: float
+    ) -> np.ndarray:
         """Sub-face index (...,) of face coordinates ``right``, ``up`` (metres from the face
         centre) on a face of half sizes ``half_r``, ``half_u``."""
         nc, nr = self.grid[face]
@@ -478,7 +478,7 @@ SUBFACE_SCHEMES: dict[str, SubfaceScheme] = {
 values)."""
 
 
-def subface_scheme(grasp_type: object) -> SubfaceScheme:
+def subface_scheme(grasp_type: GraspType | str) -> SubfaceScheme:
     """The sub-face scheme of a grasp type (a ``GraspType`` or its string value)."""
     key = getattr(grasp_type, "value", grasp_type)
     try:
@@ -489,7 +489,7 @@ def subface_scheme(grasp_type: object) -> SubfaceScheme:
         ) from None
 
 
-def usable_subfaces(blocked: np.ndarray, grasp_type: object) -> list[np.ndarray]:
+def usable_subfaces(blocked: np.ndarray, grasp_type: GraspType | str) -> list[np.ndarray]:
     """Which sub-faces of a box may carry pre-grasps.
 
     blocked: (6,) bool, the blocked state of the box's faces. Returns a list of 6 arrays
@@ -508,7 +508,7 @@ def usable_subfaces(blocked: np.ndarray, grasp_type: object) -> list[np.ndarray]
     return out
 
 
-def subface_rectangles(box: OrientedBox, grasp_type: object) -> list[np.ndarray]:
+def subface_rectangles(box: OrientedBox, grasp_type: GraspType | str) -> list[np.ndarray]:
     """World corners of every sub-face of ``box`` for drawing: a list of 6 arrays (S_f, 4, 3),
     corners counter-clockwise seen from outside (bottom-left, bottom-right, top-right, top-left).
     """

@@ -577,7 +577,7 @@ def _pattern_search(
             active = [np.compress(near_k[k], Vf, axis=1) for k in range(3)]  # (3, a_k) each
         trial_t = stencils_t[lv] @ Ct[:, None]  # (T', 26, 3, 3): rows = trial axes
         trial_e = trial_t.astype(dtype, copy=False)
-        tv = np.ones((n_live, 26), dtype=dtype)
+        tv: np.ndarray = np.ones((n_live, 26), dtype=dtype)
         for k in range(3):
             pk = trial_e[:, :, k, :].reshape(-1, 3) @ active[k]  # (T' * 26, a_k)
             tv *= (pk.max(axis=1) - pk.min(axis=1)).reshape(n_live, 26)

@@ -25,7 +25,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -34,7 +34,12 @@ from .facemask import FaceMaskParams, FaceMasks, compute_face_masks, support_pla
 from .io import PointCloud
 from .planner import GraspSet, PlannerParams, cloud_normals, grasps_sections, plan_grasps
 from .pregrasps import PreGraspPool, SamplingParams, Traversal, build_pool, traverse
+from .result import JsonDocument
+from .result import result_document as _result_document
 from .shape import NodeShape, ShapeParams, classify_tree
+
+if TYPE_CHECKING:  # the hand (python-fcl, URDF) is loaded only when the pool stage runs
+    from .hand import Hand
 
 logger = logging.getLogger(__name__)
 
@@ -61,7 +66,7 @@ class PipelineParams:
     planner: PlannerParams = field(default_factory=PlannerParams)
     """Slicing contact planner, quality measure and cloud normals."""
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> dict[str, object]:
         """Section name -> parameters dataclass (for the result file's ``parameters``)."""
         return {
             "decomposition": self.decomposition,
@@ -98,8 +103,8 @@ class PipelineResult:
     """Seconds per stage (when it was computed)."""
     reused: tuple[str, ...] = ()
     """Stages taken unchanged from the ``previous`` result."""
-    hand: Any = None
-    """The hand the pool was built for (``pregrasp_core.hand.Hand``), or ``None``."""
+    hand: Hand | None = None
+    """The hand the pool was built for, or ``None``."""
 
 
 def _same_cloud(a: PointCloud, b: PointCloud) -> bool:
@@ -118,7 +123,7 @@ def _stage_index(until: str) -> int:
 def run_pipeline(
     cloud: PointCloud,
     params: PipelineParams | None = None,
-    hand: Any = None,
+    hand: Hand | None = None,
     until: str = "pool",
     previous: PipelineResult | None = None,
     progress: Callable[[float], None] | None = None,
@@ -126,7 +131,7 @@ def run_pipeline(
     """Run the stages up to ``until`` (one of :data:`ALL_STAGES`), reusing those of ``previous``
     whose inputs are unchanged.
 
-    hand: the ``pregrasp_core.hand.Hand`` (loaded with ``Hand.load()`` when ``None`` and the
+    hand: the hand (loaded with ``Hand.load()`` when ``None`` and the
     ``pool`` stage runs). progress: called with the fraction of stages done (0..1).
     """
     params = PipelineParams() if params is None else params
@@ -140,9 +145,11 @@ def run_pipeline(
     reused: list[str] = []
     out: dict[str, Any] = {}
 
-    def stage(name: str, can_reuse: bool, fields: tuple[str, ...], compute: Callable[[], dict]):
+    def stage(
+        name: str, can_reuse: bool, fields: tuple[str, ...], compute: Callable[[], dict[str, Any]]
+    ) -> bool:
         """Reuse ``fields`` from ``prev`` when ``can_reuse``, else compute and time them."""
-        if can_reuse and all(getattr(prev, f) is not None for f in fields):
+        if can_reuse and prev is not None and all(getattr(prev, f) is not None for f in fields):
             out.update({f: getattr(prev, f) for f in fields})
             timings[name] = prev.timings.get(name, 0.0)
             reused.append(name)
@@ -168,20 +175,20 @@ def run_pipeline(
     if last >= 1:
         ok_cls = stage(
             "classify",
-            tree_same and pp.shape == params.shape,
+            tree_same and pp is not None and pp.shape == params.shape,
             ("shapes",),
             lambda: {"shapes": classify_tree(out["tree"], points, params.shape)},
         )
         tick(1)
     if last >= 2:
 
-        def _masks() -> dict:
+        def _masks() -> dict[str, Any]:
             sp = support_plane(points, params.facemask)
             return {"masks": compute_face_masks(out["tree"], sp, params.facemask)}
 
         ok_fm = stage(
             "facemask",
-            tree_same and pp.facemask == params.facemask,
+            tree_same and pp is not None and pp.facemask == params.facemask,
             ("masks",),
             _masks,
         )
@@ -190,7 +197,7 @@ def run_pipeline(
         if hand is None:
             hand = prev.hand if prev is not None and prev.hand is not None else _load_hand()
 
-        def _pool() -> dict:
+        def _pool() -> dict[str, Any]:
             trav = traverse(out["tree"], out["shapes"], hand, params.sampling, params.shape)
             pool = build_pool(
                 points,
@@ -206,7 +213,12 @@ def run_pipeline(
 
         stage(
             "pool",
-            ok_cls and ok_fm and pp.sampling == params.sampling and prev.hand is hand,
+            ok_cls
+            and ok_fm
+            and prev is not None
+            and pp is not None
+            and pp.sampling == params.sampling
+            and prev.hand is hand,
             ("traversal", "pool"),
             _pool,
         )
@@ -216,7 +228,7 @@ def run_pipeline(
         if (
             prev is not None
             and prev.normals is not None
-            and pp.planner.normals == params.planner.normals
+            and prev.params.planner.normals == params.planner.normals
         ):
             out["normals"] = prev.normals
             timings["normals"] = prev.timings.get("normals", 0.0)
@@ -229,7 +241,7 @@ def run_pipeline(
             if progress is not None:
                 progress((4 + done / max(total, 1)) / (last + 1))
 
-        def _grasps() -> dict:
+        def _grasps() -> dict[str, Any]:
             masks = out["masks"]
             gs = plan_grasps(
                 points,
@@ -244,7 +256,7 @@ def run_pipeline(
 
         stage(
             "grasps",
-            "pool" in reused and pp.planner == params.planner,
+            "pool" in reused and pp is not None and pp.planner == params.planner,
             ("grasps",),
             _grasps,
         )
@@ -259,13 +271,13 @@ def run_pipeline(
     )
 
 
-def _load_hand() -> Any:
+def _load_hand() -> Hand:
     from .hand import Hand
 
     return Hand.load()
 
 
-def pool_section(result: PipelineResult) -> dict[str, Any]:
+def pool_section(result: PipelineResult) -> dict[str, object]:
     """The ``pool`` section of the result file: support plane, traversal and pre-grasps."""
     if result.pool is None:
         raise ValueError("the result has no pool: run the pipeline with until='pool'")
@@ -284,23 +296,21 @@ def result_document(
     params: PipelineParams | None = None,
     include_indices: bool = False,
     extra_timings: dict[str, float] | None = None,
-) -> dict[str, Any]:
+) -> JsonDocument:
     """The ``pregrasp/1`` document of a pipeline result (tree with face masks, pool, timings).
 
     extra_timings: stages run outside the pipeline (e.g. ``load``), listed first.
     """
-    from .result import result_document as _doc
-
     params = result.params if params is None else params
     if result.tree is None:
         raise ValueError("the result has no tree: run the pipeline at least to 'decompose'")
     timings = {**(extra_timings or {}), **result.timings}
-    extra: dict[str, Any] = {}
+    extra: dict[str, object] = {}
     if result.pool is not None:
         extra["pool"] = pool_section(result)
     if result.grasps is not None:
         extra.update(grasps_sections(result.grasps, result.hand, params.planner))
-    return _doc(
+    return _result_document(
         result.cloud,
         params.as_dict(),
         timings,

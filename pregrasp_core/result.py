@@ -24,7 +24,7 @@ import tempfile
 from collections.abc import Mapping, Sequence
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
 
@@ -32,7 +32,20 @@ from .decomposition import BoxTree
 from .errors import InputError
 from .shape import NodeShape
 
+if TYPE_CHECKING:
+    from .io import PointCloud
+
 logger = logging.getLogger(__name__)
+
+JsonValue: TypeAlias = "None | bool | int | float | str | list[JsonValue] | dict[str, JsonValue]"
+"""A value of plain JSON types, what :func:`to_jsonable` returns."""
+
+JsonDocument: TypeAlias = "dict[str, JsonValue]"
+"""A JSON object (a result document or one of its sections)."""
+
+FaceMaskInput: TypeAlias = "np.ndarray | Sequence[np.ndarray | None] | None"
+"""Face masks given to :func:`tree_section`: an (n_nodes, 6, 5) array, a (6, 5) array or
+``None`` per node, or ``None``."""
 
 SCHEMA: str = "pregrasp/1"
 """The value of the document's ``"schema"`` key."""
@@ -51,7 +64,7 @@ FACE_MASK_SHAPE: tuple[int, int] = (6, 5)
 """Shape of one node's face mask: row f = [f, l(f), d(f), r(f), u(f)], 0 free, 1 blocked."""
 
 
-def to_jsonable(obj: Any) -> Any:
+def to_jsonable(obj: object) -> JsonValue:
     """``obj`` as plain JSON types (dict, list, str, int, float, bool, None).
 
     Dataclasses become dicts of their fields, enums their value, numpy arrays nested lists,
@@ -82,6 +95,13 @@ def to_jsonable(obj: Any) -> Any:
     raise TypeError(f"cannot write a {type(obj).__name__} to the result JSON: {obj!r}")
 
 
+def _json_object(value: JsonValue) -> JsonDocument:
+    """``value`` (a JSON object) as a dict; ``TypeError`` when it is another JSON value."""
+    if not isinstance(value, dict):
+        raise TypeError(f"expected a JSON object, got {type(value).__name__}")
+    return value
+
+
 def _version() -> str | None:
     try:
         return metadata.version("pregrasp")
@@ -89,8 +109,8 @@ def _version() -> str | None:
         return None
 
 
-def input_section(cloud: Any, seed: int | None = None) -> dict[str, Any]:
-    """The ``input`` section for a ``PointCloud`` (anything with points, source and info)."""
+def input_section(cloud: PointCloud, seed: int | None = None) -> JsonDocument:
+    """The ``input`` section for a ``PointCloud``."""
     info = dict(getattr(cloud, "info", {}) or {})
     pts = np.asarray(cloud.points)
     lo, hi = (pts.min(axis=0), pts.max(axis=0)) if pts.size else (np.zeros(3), np.zeros(3))
@@ -109,7 +129,7 @@ def input_section(cloud: Any, seed: int | None = None) -> dict[str, Any]:
     }
 
 
-def _face_mask_list(face_masks: Any, n_nodes: int) -> list[np.ndarray | None]:
+def _face_mask_list(face_masks: FaceMaskInput, n_nodes: int) -> list[np.ndarray | None]:
     """Normalise face masks to one (6, 5) int array or None per node."""
     if face_masks is None:
         return [None] * n_nodes
@@ -119,7 +139,7 @@ def _face_mask_list(face_masks: Any, n_nodes: int) -> list[np.ndarray | None]:
             raise ValueError(
                 f"face_masks must have shape ({n_nodes}, 6, 5) (one per node), got {fm.shape}"
             )
-        masks: list[Any] = list(fm)
+        masks: list[np.ndarray | None] = list(fm)
     else:
         masks = list(face_masks)
         if len(masks) != n_nodes:
@@ -143,9 +163,9 @@ def _face_mask_list(face_masks: Any, n_nodes: int) -> list[np.ndarray | None]:
 def tree_section(
     tree: BoxTree,
     shapes: Sequence[NodeShape] | None = None,
-    face_masks: Any = None,
+    face_masks: FaceMaskInput = None,
     include_indices: bool = False,
-) -> dict[str, Any]:
+) -> JsonDocument:
     """The ``tree`` section: summary and one entry per node (see ``docs/result-schema.md``).
 
     shapes: one ``NodeShape`` per node (by id) or None; face_masks: None, an (n_nodes, 6, 5)
@@ -156,22 +176,23 @@ def tree_section(
     if shapes is not None and len(shapes) != n:
         raise ValueError(f"shapes must have {n} entries (one per node), got {len(shapes)}")
     masks = _face_mask_list(face_masks, n)
-    nodes = []
+    nodes: list[JsonValue] = []
     for nd in tree.nodes:
-        entry: dict[str, Any] = {
+        entry: JsonDocument = {
             "id": nd.id,
             "parent": nd.parent,
             "children": list(nd.children),
             "depth": nd.depth,
             "split_order": nd.split_order,
             "n_points": nd.n_points,
-            **to_jsonable(nd.box.to_dict()),
+            **_json_object(nd.box.to_dict()),
         }
         sh = None if shapes is None else shapes[nd.id]
         entry["eigenvalues"] = None if sh is None else to_jsonable(sh.eigenvalues)
         entry["shape_class"] = None if sh is None else sh.shape_class.value
         entry["grasp_type"] = None if sh is None else sh.grasp_type.value
-        entry["face_mask"] = None if masks[nd.id] is None else masks[nd.id].tolist()
+        mask = masks[nd.id]
+        entry["face_mask"] = None if mask is None else mask.tolist()
         if include_indices:
             entry["indices"] = nd.indices.tolist()
         nodes.append(entry)
@@ -179,23 +200,23 @@ def tree_section(
         "n_points": tree.n_points,
         "n_nodes": n,
         "n_splits": tree.n_splits,
-        "leaves": tree.leaves(),
+        "leaves": list(tree.leaves()),
         "includes_indices": bool(include_indices),
         "nodes": nodes,
     }
 
 
 def result_document(
-    cloud: Any,
-    params: Mapping[str, Any],
+    cloud: PointCloud,
+    params: Mapping[str, object],
     timings: Mapping[str, float],
     tree: BoxTree,
     shapes: Sequence[NodeShape] | None,
-    face_masks: Any = None,
+    face_masks: FaceMaskInput = None,
     include_indices: bool = False,
-    extra_sections: Mapping[str, Any] | None = None,
+    extra_sections: Mapping[str, object] | None = None,
     seed: int | None = None,
-) -> dict[str, Any]:
+) -> JsonDocument:
     """The ``pregrasp/1`` document as a JSON-ready dict.
 
     cloud: the ``PointCloud`` the tree was built from; params: stage name -> its parameters
@@ -209,14 +230,14 @@ def result_document(
         raise ValueError(
             f"the tree has {tree.n_points} points but the cloud {np.asarray(cloud.points).shape[0]}"
         )
-    t: dict[str, float] = {}
+    t: JsonDocument = {}  # stage name -> seconds
     for k, v in timings.items():
         if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
             raise ValueError(f"timing {k!r} must be a number of seconds, got {v!r}")
         if not (math.isfinite(v) and v >= 0):
             raise ValueError(f"timing {k!r} must be a finite number of seconds >= 0, got {v!r}")
         t[str(k)] = float(v)
-    doc: dict[str, Any] = {
+    doc: JsonDocument = {
         "schema": SCHEMA,
         "generator": {"name": "pregrasp", "version": _version()},
         "input": input_section(cloud, seed),
@@ -231,7 +252,7 @@ def result_document(
     return doc
 
 
-def write_result(doc: Mapping[str, Any], path: str | os.PathLike) -> Path:
+def write_result(doc: Mapping[str, object], path: str | os.PathLike[str]) -> Path:
     """Write ``doc`` as JSON to ``path`` atomically (a temporary file beside it, then rename).
 
     Raises ``InputError`` when the folder does not exist or cannot be written.
@@ -260,7 +281,7 @@ def write_result(doc: Mapping[str, Any], path: str | os.PathLike) -> Path:
     return out
 
 
-def read_result(path: str | os.PathLike) -> dict[str, Any]:
+def read_result(path: str | os.PathLike[str]) -> JsonDocument:
     """Read a result document and check its schema; raises ``InputError`` naming the file."""
     p = Path(path)
     try:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,6 +27,9 @@ from .decomposition import BoxTree
 from .errors import DegenerateGeometryError
 from .geometry import as_points
 from .tolerances import GEOM_EPS
+
+if TYPE_CHECKING:
+    from .result import JsonDocument
 
 
 class ShapeClass(str, enum.Enum):
@@ -114,12 +118,7 @@ class NodeShape:
         ev.setflags(write=False)
         object.__setattr__(self, "eigenvalues", ev)
 
-    @property
-    def std(self) -> np.ndarray:
-        """(3,) float64, metres: standard deviations along the principal axes, sqrt(l)."""
-        return np.sqrt(self.eigenvalues)
-
-    def to_dict(self) -> dict:
+    def to_dict(self) -> JsonDocument:
         """JSON-ready dict (eigenvalues, shape_class, grasp_type)."""
         return {
             "eigenvalues": self.eigenvalues.tolist(),

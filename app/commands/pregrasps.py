@@ -192,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
         out = write_result(doc, args.output)
         print(f"wrote {out}: {len(result.tree.leaves())} parts, {len(result.pool)} pre-grasps")
     else:
-        print(summary(result, doc["timings"]))
+        print(summary(result, {"load": t_load, **result.timings}))
     return 0
 
 
