@@ -2,10 +2,10 @@
 the real slices of a pre-grasp pool.
 
 For each object the pool is built (``run_pipeline(..., until="pool")``); for every pre-grasp
-and every finger of its grasp type the slice is built as the planner's ``_slices`` does
+and every finger of its grasp type the slice is built as the planner's ``finger_slices`` does
 at the pre-grasp pose (no approach, no table): the cloud in the hand frame, the points within
 half a finger width of the flexion plane and within the finger's reach, thinned with the
-planner's ``_thin_2d`` (0.7 mm), the preshape's flexion as ``q_start``, the planner's defaults
+planner's ``thin_2d`` (0.7 mm), the preshape's flexion as ``q_start``, the planner's defaults
 (48 steps, 1 mm margin). One ``close_fingers`` call on all slices is timed against the loop of
 ``close_finger`` calls (same run, same slices), and every result is compared (q, path, contacts,
 flags). Timings are medians of ``--repeats`` runs of the process's CPU time, one BLAS thread.
@@ -34,7 +34,8 @@ from _timing import median_time  # noqa: E402
 from pregrasp_core.hand import FingerClosing, load_hand  # noqa: E402
 from pregrasp_core.io import load_point_cloud  # noqa: E402
 from pregrasp_core.pipeline import run_pipeline  # noqa: E402
-from pregrasp_core.planner import PlannerParams, _thin_2d  # noqa: E402
+from pregrasp_core.planner import PlannerParams  # noqa: E402
+from pregrasp_core.planner.slicing import thin_2d  # noqa: E402
 
 OBJECTS = Path(__file__).resolve().parents[1] / "assets" / "objects"
 
@@ -59,7 +60,7 @@ def pool_slices(hand, name: str) -> tuple[list, list[int]]:
                 p2[:, 0] ** 2 + p2[:, 1] ** 2 <= (r_f + 1e-9) ** 2
             )
             slices.append(
-                (f, _thin_2d(p2[keep], prm.slice_resolution), pool.q[i][list(f.flex_index)])
+                (f, thin_2d(p2[keep], prm.slice_resolution), pool.q[i][list(f.flex_index)])
             )
             owner.append(i)
     return slices, owner

@@ -245,21 +245,22 @@ def test_rejections_and_support_stop(hand):
 def test_support_collision_check_uses_fcl_half_space(hand):
     """The closed hand's boxes against the table: fcl's box/half-space test (the last line of
     defence: the closing model already stops links on the table)."""
-    from pregrasp_core.planner import _Context, _support_collision
+    from pregrasp_core.planner.context import Context
+    from pregrasp_core.planner.verify import support_collision
 
     q = hand.preshape("cylindrical")
     lowest = hand.collision_mesh(q).vertices[:, 2].min()  # hand frame = world here
     tol = PlannerParams().penetration_tol
     pts = np.zeros((20, 3))
     for height, expect in ((lowest + tol - 1e-4, None), (lowest + tol + 1e-4, "some link")):
-        ctx = _Context(
+        ctx = Context(
             pts,
             pts,
             hand,
             PlannerParams(),
             SupportPlane(normal=np.array([0.0, 0.0, 1.0]), height=height),
         )
-        got = _support_collision(ctx, np.eye(4), q)
+        got = support_collision(ctx, np.eye(4), q)
         assert (got is None) == (expect is None)
         if got is not None:
             assert got in hand.link_names
@@ -449,7 +450,8 @@ def test_fingers_closed_into_each_other_are_opened_back_along_their_paths(hand):
     them overlap: the correction leaves no self-collision and every finger on its own path."""
     from types import SimpleNamespace
 
-    from pregrasp_core.planner import _Context, _open_self_collisions
+    from pregrasp_core.planner.context import Context
+    from pregrasp_core.planner.verify import open_self_collisions
 
     q0 = hand.preshape("spherical")
     t = np.linspace(0.0, 1.0, 60)
@@ -469,9 +471,9 @@ def test_fingers_closed_into_each_other_are_opened_back_along_their_paths(hand):
     closings = [(f, SimpleNamespace(path=paths[f.name][: k + 1]), 0, (), False)
                 for f in hand.fingers]  # fmt: skip
     pts = np.zeros((20, 3))
-    ctx = _Context(pts, pts, hand, PlannerParams(), None)
+    ctx = Context(pts, pts, hand, PlannerParams(), None)
     corrected = {f.name: False for f in hand.fingers}
-    q, clean = _open_self_collisions(ctx, at(k), closings, corrected)
+    q, clean = open_self_collisions(ctx, at(k), closings, corrected)
     assert clean and hand.self_collisions(q) == []
     assert any(corrected.values())
     for f in hand.fingers:
@@ -558,17 +560,18 @@ def test_cell_size_changes_no_result(hand, monkeypatch):
     """The cloud's cells only find candidates for exact tests: planning the default object (with
     its table: approach stops on the support, retreats, corrections) with cells of 2 mm, 1 cm
     and 8 cm gives the same grasps, field for field, bit for bit."""
-    import pregrasp_core.planner as planner
+    import pregrasp_core.planner.context as context
     from pregrasp_core.io import load_point_cloud
     from pregrasp_core.paths import DEFAULT_OBJECT
     from pregrasp_core.pipeline import run_pipeline
+    from pregrasp_core.planner import cloud_normals
 
     cloud = load_point_cloud(DEFAULT_OBJECT, n_points=4000, seed=3)
     res = run_pipeline(cloud, hand=hand, until="pool")
-    pool, support, normals = res.pool, res.masks.support, planner.cloud_normals(cloud)
+    pool, support, normals = res.pool, res.masks.support, cloud_normals(cloud)
     rows = []
     for size in (0.002, 0.01, 0.08):
-        monkeypatch.setattr(planner, "CELL_SIZE", size)
+        monkeypatch.setattr(context, "CELL_SIZE", size)
         gs = plan_grasps(cloud.points, normals, pool, hand, PlannerParams(threads=1), support)
         rows.append(_grasp_rows(gs))
     assert rows[0] == rows[1] == rows[2]
@@ -577,14 +580,14 @@ def test_cell_size_changes_no_result(hand, monkeypatch):
 
 
 def test_cells_hold_every_point_and_list_them_ascending():
-    """_Cells against brute force on a random cloud: every point lies in its cell's ball; the
+    """Cells against brute force on a random cloud: every point lies in its cell's ball; the
     points of any set of cells come back exactly and in ascending order; a ball query through the
     cells misses no point that the brute-force query finds."""
-    from pregrasp_core.planner import _Cells
+    from pregrasp_core.planner.cells import Cells
 
     rng = np.random.default_rng(7)
     pts = rng.normal(scale=0.05, size=(3000, 3))
-    cells = _Cells(pts, 0.01)
+    cells = Cells(pts, 0.01)
     assert cells.count.sum() == len(pts) and np.array_equal(np.sort(cells.order), np.arange(3000))
     owner = np.repeat(np.arange(len(cells.count)), cells.count)  # cell of each row of order
     d = np.linalg.norm(pts[cells.order] - cells.centre[owner], axis=1)
@@ -598,15 +601,15 @@ def test_cells_hold_every_point_and_list_them_ascending():
         found = cells.points_of(hit)
         truth = np.flatnonzero(np.linalg.norm(pts - c, axis=1) <= r)
         assert np.all(np.isin(truth, found))
-    empty = _Cells(np.zeros((0, 3)), 0.01)
+    empty = Cells(np.zeros((0, 3)), 0.01)
     assert len(empty.points_of(np.zeros(0, dtype=np.int64))) == 0
 
 
 @pytest.mark.parametrize("spread", [0.004, 0.5])
 def test_thin_2d_keeps_the_first_point_of_every_cell(spread):
-    """_thin_2d against a loop over the points with a set of the cells seen so far, on a dense
+    """thin_2d against a loop over the points with a set of the cells seen so far, on a dense
     patch (the grid branch) and on a sparse spread (the sorting branch)."""
-    from pregrasp_core.planner import _thin_2d
+    from pregrasp_core.planner.slicing import thin_2d
 
     rng = np.random.default_rng(1)
     p2 = rng.uniform(-spread, spread, size=(800, 2))
@@ -617,5 +620,5 @@ def test_thin_2d_keeps_the_first_point_of_every_cell(spread):
         if key not in seen:
             seen.add(key)
             ref.append(p)
-    assert np.array_equal(_thin_2d(p2, 0.0007), np.array(ref))
-    assert np.array_equal(_thin_2d(p2, 0.0), p2)
+    assert np.array_equal(thin_2d(p2, 0.0007), np.array(ref))
+    assert np.array_equal(thin_2d(p2, 0.0), p2)

@@ -1,0 +1,249 @@
+"""Planning a whole pool: chunks of pre-grasps through approach and slicing, one batched
+closing per chunk (and per retreat from the support), verification and quality, on a thread
+pool when there is one; then the ranking (:func:`plan_grasps`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import logging
+import os
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from typing import TYPE_CHECKING, TypeVar
+
+import numpy as np
+
+from ..normals import NormalParams, estimate_normals
+from ..quality import GraspQuality, grasp_quality
+from .approach import Prepared, prepare
+from .context import Context
+from .slicing import ClosedFinger, Slice, close_slices, closing_records, finger_slices
+from .types import REJECTION_REASONS, Grasp, GraspSet, PlannerParams
+from .verify import finish
+
+if TYPE_CHECKING:
+    from ..facemask import SupportPlane
+    from ..hand import Hand
+    from ..io import PointCloud
+    from ..pregrasps import PreGraspPool
+
+logger = logging.getLogger(__name__)
+
+LIFT_STEP: float = 0.005
+"""Retreat step (metres) when the support plane stops the fingers (see ``max_lift``)."""
+
+_CHUNK: int = 64
+"""Pre-grasps whose fingers are closed together in one call of the batched closing model."""
+
+_In = TypeVar("_In")
+_Out = TypeVar("_Out")
+
+_Records = dict[int, tuple[np.ndarray, list[ClosedFinger], float]]
+"""Per pre-grasp index of a chunk: the joints after closing, what each finger did, and how far
+back along the approach the hand closed (see :func:`_lift_retries`)."""
+
+
+def _score(prm: PlannerParams, g: Grasp) -> Grasp:
+    """``g`` with the epsilon, volume and quality detail of its contacts."""
+    pts = np.array([c.point for c in g.contacts])
+    nrm = np.array([c.normal for c in g.contacts])
+    tng = np.array([c.tangent for c in g.contacts])
+    qual: GraspQuality = grasp_quality(pts, nrm, prm.quality, tangents=tng)
+    return dataclasses.replace(g, epsilon=qual.epsilon, volume=qual.volume, detail=qual.reason)
+
+
+def _n_threads(threads: int) -> int:
+    """Threads of the planner (``PlannerParams.threads``; 0 = the usable CPUs)."""
+    if threads:
+        return int(threads)
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not on Linux
+        return os.cpu_count() or 1
+
+
+def _lift_retries(
+    ctx: Context,
+    todo: list[Prepared],
+    records: _Records,
+    each: Callable[[Callable[[Prepared], list[Slice]], list[Prepared]], list[list[Slice]]],
+) -> None:
+    """Retreats from the support (``PlannerParams.max_lift``) for the pre-grasps of a chunk:
+    when the table, not the object, ended the approach and some finger closed on the table (or
+    could not move), the hand closes again from ``k * LIFT_STEP`` higher up (back along the
+    approach), k = 1, 2, ..., and keeps the height where the most fingers touch the object. It
+    stops when every finger touches the object or when no finger is held by the table any more
+    (going higher cannot help). Round k closes the fingers of every pre-grasp still retreating
+    in one call of the batched closing model. ``records`` (pre-grasp -> (q, closings, lift)) is
+    updated in place."""
+    prm = ctx.params
+    if ctx.support is None or prm.max_lift <= 0.0:
+        return
+    active = [p for p in todo if p.stop in ("support", "start")]
+    best = {p.i: sum(bool(c.touched) for c in records[p.i][1]) for p in active}  # fingers on object
+    for k in range(1, int(round(prm.max_lift / LIFT_STEP)) + 1):  # <= ~8 retreats
+        active = [p for p in active if best[p.i] != len(records[p.i][1])]
+        if not active:
+            break
+        up = k * LIFT_STEP
+
+        def slices_up(p: Prepared, up: float = up) -> list[Slice]:
+            T_up = p.T.copy()
+            T_up[:3, 3] -= up * p.T0[:3, 2]
+            return finger_slices(ctx, T_up, p.view.moved(up), p.q0, p.gt, p.spread)
+
+        sls = each(slices_up, active)
+        cls = close_slices(ctx, [sl for ss in sls for sl in ss])
+        going, j = [], 0
+        for p, ss in zip(active, sls, strict=True):  # loop over the retreating pre-grasps
+            q_up, cl_up = closing_records(p.q0, ss, cls[j : j + len(ss)])
+            j += len(ss)
+            n_up = sum(bool(c.touched) for c in cl_up)
+            if n_up > best[p.i]:
+                best[p.i] = n_up
+                records[p.i] = (q_up, cl_up, up)
+            if any(
+                c.on_table and not c.touched for c in cl_up
+            ):  # a finger is still held by the table
+                going.append(p)
+        active = going
+
+
+def _finish_or_keep(ctx: Context, records: _Records, p: Prepared | Grasp) -> Grasp:
+    """:func:`~pregrasp_core.planner.verify.finish` for a prepared pre-grasp (its closing in
+    ``records``); a rejection as it is."""
+    return finish(ctx, p, *records[p.i]) if isinstance(p, Prepared) else p
+
+
+def _plan_chunks(
+    ctx: Context,
+    pool: PreGraspPool,
+    P: int,
+    ex: ThreadPoolExecutor | None,
+    grasps: list[Grasp],
+    progress: Callable[[int, int], None] | None,
+) -> None:
+    """Plan the pre-grasps of ``pool`` chunk by chunk into ``grasps`` (see :func:`plan_grasps`).
+    The per-pre-grasp phases run on the thread pool ``ex`` when there is one (numpy and qhull
+    release Python's global lock for most of their work); every pre-grasp is planned
+    independently, so the results never depend on the threads."""
+
+    def each(fn: Callable[[_In], _Out], items: list[_In]) -> list[_Out]:
+        return (
+            list(ex.map(fn, items)) if ex is not None and len(items) > 1 else list(map(fn, items))
+        )
+
+    prm, clock, done = ctx.params, ctx.clock, 0
+    for c0 in range(0, P, _CHUNK):  # loop over chunks of pre-grasps
+        t0 = time.perf_counter()
+        preps = each(functools.partial(prepare, ctx, pool), list(range(c0, min(P, c0 + _CHUNK))))
+        todo = [p for p in preps if isinstance(p, Prepared)]
+        t1 = time.perf_counter()
+        cls = close_slices(ctx, [sl for p in todo for sl in p.slices])
+        records: _Records = {}
+        k = 0
+        for p in todo:  # loop over the chunk's pre-grasps
+            records[p.i] = (*closing_records(p.q0, p.slices, cls[k : k + len(p.slices)]), 0.0)
+            k += len(p.slices)
+        _lift_retries(ctx, todo, records, each)
+        t2 = time.perf_counter()
+        if records:  # the link boxes of every closed hand of the chunk: one batched FK
+            ctx.prefetch_boxes(np.array([r[0] for r in records.values()]))
+        chunk = each(functools.partial(_finish_or_keep, ctx, records), preps)
+        t3 = time.perf_counter()
+        # 5. quality of the kept grasps: one 6D hull each
+        kept = [k for k, g in enumerate(chunk) if g.kept]
+        scored = each(functools.partial(_score, prm), [chunk[k] for k in kept])
+        for k, g in zip(kept, scored, strict=True):
+            chunk[k] = g
+        t4 = time.perf_counter()
+        clock["approach_slicing"] += t1 - t0
+        clock["closing"] += t2 - t1
+        clock["verification"] += t3 - t2
+        clock["quality"] += t4 - t3
+        grasps.extend(chunk)
+        done += len(chunk)
+        if progress is not None:
+            progress(done, P)
+
+
+def rank_grasps(grasps: list[Grasp] | tuple[Grasp, ...]) -> np.ndarray:
+    """(K,) indices of the kept grasps, best first: epsilon, then volume, then contacts (all
+    descending), ties by pre-grasp index."""
+    kept = [k for k, g in enumerate(grasps) if g.kept]
+    if not kept:
+        return np.zeros(0, dtype=np.int64)
+    eps = np.array([grasps[k].epsilon for k in kept])
+    vol = np.array([grasps[k].volume for k in kept])
+    nc = np.array([grasps[k].n_contacts for k in kept])
+    order = np.lexsort((np.array(kept), -nc, -vol, -eps))
+    return np.asarray(kept, dtype=np.int64)[order]
+
+
+def plan_grasps(
+    points: np.ndarray,
+    normals: np.ndarray,
+    pool: PreGraspPool,
+    hand: Hand,
+    params: PlannerParams | None = None,
+    support: SupportPlane | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> GraspSet:
+    """Plan every pre-grasp of ``pool`` against the cloud.
+
+    points: (N, 3) metres, world; normals: (N, 3) unit outward normals of the cloud (see
+    :func:`cloud_normals`); pool: a ``PreGraspPool`` (``T_world_hand`` (P, 4, 4), ``q`` (P, J),
+    ``spread`` (P,), ``grasp_type`` (P,)); hand: ``pregrasp_core.hand.Hand``; support: the
+    ``SupportPlane`` (normal, height) or None; progress: called as ``progress(done, total)``.
+    """
+    prm = PlannerParams() if params is None else params
+    pts = np.asarray(points, dtype=np.float64)
+    nrm = np.asarray(normals, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points must have shape (N, 3), got {pts.shape}")
+    if nrm.shape != pts.shape:
+        raise ValueError(f"normals must have shape {pts.shape}, got {nrm.shape}")
+    P = len(pool)
+    joint_names = tuple(hand.joint_names)
+    if P and np.shape(pool.q)[1] != len(joint_names):
+        raise ValueError(
+            f"pool.q has {np.shape(pool.q)[1]} joints, the hand has {len(joint_names)}"
+        )
+    ctx = Context(pts, nrm, hand, prm, support)
+    grasps: list[Grasp] = []
+    # chunks of pre-grasps: approach and slicing per pre-grasp, the closing of every finger of
+    # the chunk in one call of the batched closing model, verification and quality per
+    # pre-grasp; the per-pre-grasp phases on a thread pool when prm.threads allows one
+    n_threads = min(_n_threads(prm.threads), _CHUNK)
+    ex = ThreadPoolExecutor(n_threads) if n_threads > 1 and P > 1 else None
+    try:
+        _plan_chunks(ctx, pool, P, ex, grasps, progress)
+    finally:
+        if ex is not None:
+            ex.shutdown()
+    order = rank_grasps(grasps)
+    ranked = list(grasps)
+    for r, k in enumerate(order):
+        g = ranked[k]
+        ranked[k] = dataclasses.replace(g, rank=r)
+    rejected = {key: 0 for key in REJECTION_REASONS}
+    for g in ranked:
+        if g.rejection is not None:
+            rejected[g.rejection] += 1
+    logger.info(
+        "planned %d pre-grasps: %d kept, %d force closure, rejected %s",
+        P,
+        len(order),
+        sum(g.epsilon > 0 for g in ranked),
+        rejected,
+    )
+    return GraspSet(tuple(ranked), order, joint_names, rejected, dict(ctx.clock))
+
+
+def cloud_normals(cloud: PointCloud, params: NormalParams | None = None) -> np.ndarray:
+    """(N, 3) outward unit normals of a ``PointCloud`` by local PCA, oriented by its own normals
+    when it has them (mesh-sampled clouds), else by propagation (:mod:`pregrasp_core.normals`)."""
+    prm = NormalParams() if params is None else params
+    return estimate_normals(cloud.points, prm, reference=cloud.normals).normals

@@ -1,0 +1,235 @@
+"""The planner's parameters and results: :class:`PlannerParams`, and per pre-grasp one
+:class:`Grasp` (kept or rejected, with its :class:`FingerTrace` and :class:`Contact` records),
+gathered with the ranking in a :class:`GraspSet`."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..normals import NormalParams
+from ..quality import QualityParams
+from ..tolerances import CONTACT_DISTANCE, PENETRATION_TOL
+
+REJECTION_REASONS: dict[str, str] = {
+    "nothing_ahead": "the hand meets no cloud point within max_approach along its approach",
+    "no_contact": "after closing, no link is within contact_distance of the cloud",
+    "penetration": "a link holds cloud points deeper than penetration_tol and opening its "
+    "finger does not clear them (or the palm/knuckle does)",
+    "self_collision": "two links of the closed hand intersect (python-fcl)",
+    "support_collision": "a link of the closed hand goes below the support plane (python-fcl)",
+}
+"""Why a pre-grasp can be rejected (keys used in ``Grasp.rejection`` and the result file)."""
+
+APPROACH_STOPS: tuple[str, ...] = ("object", "support", "start", "support_lifted")
+"""What ended the approach: a cloud point, the support plane, already close at the start, or
+the support followed by a retreat so that the fingers close on the object (``max_lift``)."""
+
+
+@dataclass(frozen=True)
+class PlannerParams:
+    """Parameters of the slicing contact planner (lengths in metres)."""
+
+    approach_clearance: float = 0.002
+    """The approach stops when a hand box is this close to a cloud point (or the support)."""
+    max_approach: float = 0.15
+    """Farthest the hand travels along its approach from the pre-grasp pose."""
+    max_lift: float = 0.04
+    """When the support plane ended the approach and a finger closes on the table instead of the
+    object, retreat along the approach in 5 mm steps up to this far and keep the pose where the
+    most fingers touch the object (0: never)."""
+    closing_margin: float = 0.001
+    """A finger link touches a slice point when within this distance (planar closing model)."""
+    closing_steps: int = 48
+    """Samples per closing phase of the closing model (refined by bisection)."""
+    slice_resolution: float = 0.0007
+    """A slice keeps one point per square cell of this side in its plane (0: every point). A
+    dropped point lies within the cell diagonal (side x sqrt(2) = 0.99 mm) of a kept one, so
+    with the diagonal below ``closing_margin`` no link ever touches a dropped point either."""
+    contact_distance: float = CONTACT_DISTANCE
+    """A link makes a contact when a cloud point lies within this distance of its box."""
+    penetration_tol: float = PENETRATION_TOL
+    """Largest depth a cloud point may have inside a link of the final hand."""
+    quality: QualityParams = field(default_factory=QualityParams)
+    """Friction coefficient, cone edges and torque scale of the quality measure."""
+    normals: NormalParams = field(default_factory=NormalParams)
+    """Normal estimation (computed once per cloud)."""
+    threads: int = 0
+    """Threads for the per-pre-grasp phases (approach and slicing, verification, quality: numpy,
+    and qhull release Python's global lock for most of their work); 0 = one per
+    CPU this process may use (at most 64), 1 = none. Only the speed depends on it, never a
+    result."""
+
+    def __post_init__(self) -> None:
+        if int(self.threads) != self.threads or self.threads < 0:
+            raise ValueError(f"threads must be an integer >= 0, got {self.threads}")
+        for name in ("approach_clearance", "closing_margin", "penetration_tol"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0.0):
+                raise ValueError(f"{name} must be a finite length >= 0, got {v}")
+        if not self.max_approach > 0.0:
+            raise ValueError(f"max_approach must be > 0, got {self.max_approach}")
+        if not self.contact_distance >= self.closing_margin:
+            raise ValueError(
+                f"contact_distance ({self.contact_distance}) must be >= closing_margin "
+                f"({self.closing_margin}) so that a finger stopped by a point touches it"
+            )
+        if not (np.isfinite(self.slice_resolution) and self.slice_resolution >= 0.0):
+            raise ValueError(f"slice_resolution must be >= 0, got {self.slice_resolution}")
+        if self.slice_resolution * np.sqrt(2.0) > self.closing_margin:
+            raise ValueError(
+                f"slice_resolution ({self.slice_resolution}) times sqrt(2) must not exceed "
+                f"closing_margin ({self.closing_margin}): a link could touch a dropped point"
+            )
+        if int(self.closing_steps) != self.closing_steps or self.closing_steps < 2:
+            raise ValueError(f"closing_steps must be an integer >= 2, got {self.closing_steps}")
+
+
+@dataclass(frozen=True)
+class Contact:
+    """One hand-object contact of a planned grasp."""
+
+    point: np.ndarray
+    """(3,) float64, metres, world frame: the touched cloud point."""
+    normal: np.ndarray
+    """(3,) float64 unit, world: the surface normal pointing INTO the object (force direction)."""
+    link: str
+    """The touching hand link (e.g. ``f1_distal``, ``palm``)."""
+    point_index: int
+    """Index of the touched point in the cloud."""
+    distance: float
+    """Signed distance (metres) from the link's box to the point (< 0: inside by that much)."""
+    tangent: np.ndarray
+    """(3,) float64 unit, world: first friction-cone edge direction (the link box's y axis)."""
+
+
+@dataclass(frozen=True)
+class FingerTrace:
+    """What the closing model did with one finger."""
+
+    finger: str
+    """Finger name."""
+    n_slice: int
+    """Cloud points in the finger's slice."""
+    q: np.ndarray
+    """(2,) final flexion angles (radians) after any correction."""
+    links_touched: tuple[str, ...]
+    """Links the planar closing model stopped on cloud points (middle first, then distal)."""
+    palm_stop: bool
+    """A link reached the palm and stopped there."""
+    support_stop: bool
+    """A link reached the support plane and stopped there."""
+    at_limits: bool
+    """The finger closed to its limits without touching anything."""
+    corrected: bool
+    """The finger was opened back along its path to clear a 3D penetration."""
+
+
+@dataclass(frozen=True)
+class Grasp:
+    """The planner's outcome for one pre-grasp: a scored grasp or a rejection, with its trace."""
+
+    pregrasp: int
+    """Index of the pre-grasp in the pool."""
+    grasp_type: str
+    """The pre-grasp's grasp type."""
+    T_world_hand: np.ndarray
+    """(4, 4) float64: the hand pose at the end of the approach (pose of the grasp)."""
+    approach_distance: float
+    """Metres travelled along the approach from the pre-grasp pose (negative when the hand
+    backed off from the table, ``approach_stop == "support_lifted"``)."""
+    approach_stop: str
+    """What ended the approach (:data:`APPROACH_STOPS`; '' when nothing did)."""
+    q: np.ndarray
+    """(J,) float64, radians: final joint positions (``Hand.joint_names`` order)."""
+    fingers: tuple[FingerTrace, ...]
+    """Per closed finger, what the closing model did."""
+    contacts: tuple[Contact, ...]
+    """The contacts (empty for most rejections)."""
+    epsilon: float
+    """Ferrari-Canny epsilon L1 (0: not force closure or rejected)."""
+    volume: float
+    """Wrench-hull volume (0 when degenerate or rejected)."""
+    rank: int | None
+    """0 = best among the kept grasps; None when rejected."""
+    rejection: str | None
+    """None when kept, else a key of :data:`REJECTION_REASONS`."""
+    detail: str = ""
+    """Human-readable detail of the rejection or of the quality ('' if nothing to say)."""
+
+    @classmethod
+    def from_rejection(
+        cls,
+        pregrasp: int,
+        grasp_type: str,
+        T_world_hand: np.ndarray,
+        q: np.ndarray,
+        rejection: str,
+        detail: str,
+        approach_distance: float = 0.0,
+        approach_stop: str = "",
+        fingers: tuple[FingerTrace, ...] = (),
+    ) -> Grasp:
+        """A rejected pre-grasp (``rejection``: a key of :data:`REJECTION_REASONS`): no
+        contacts, no scores, no rank."""
+        return cls(
+            pregrasp, grasp_type, T_world_hand, approach_distance, approach_stop, q,
+            tuple(fingers), (), 0.0, 0.0, None, rejection, detail,
+        )  # fmt: skip
+
+    @property
+    def n_contacts(self) -> int:
+        """Number of contacts."""
+        return len(self.contacts)
+
+    @property
+    def kept(self) -> bool:
+        """True when the grasp was not rejected."""
+        return self.rejection is None
+
+
+@dataclass(frozen=True)
+class GraspSet:
+    """Every pre-grasp's outcome, in pool order, and the ranking of the kept ones."""
+
+    grasps: tuple[Grasp, ...]
+    """One per pre-grasp of the pool (``grasps[i].pregrasp == i``)."""
+    ranking: np.ndarray
+    """(K,) int64: indices into ``grasps`` of the kept grasps, best first."""
+    joint_names: tuple[str, ...]
+    """Names of the joints of ``Grasp.q``."""
+    rejected: dict[str, int]
+    """Number of rejected pre-grasps per reason (every key of :data:`REJECTION_REASONS`)."""
+    phase_seconds: dict[str, float] = field(default_factory=dict)
+    """Wall time per planner phase over the whole pool: ``approach_slicing``, ``closing``,
+    ``verification`` (retreat from the support, 3D checks, contacts) and ``quality``."""
+
+    def __len__(self) -> int:
+        return len(self.grasps)
+
+    def __iter__(self) -> Iterator[Grasp]:
+        return iter(self.grasps)
+
+    def __getitem__(self, i: int) -> Grasp:
+        return self.grasps[i]
+
+    @property
+    def ranked(self) -> list[Grasp]:
+        """The kept grasps, best first."""
+        return [self.grasps[i] for i in self.ranking]
+
+    @property
+    def best(self) -> int | None:
+        """Index into ``grasps`` of the best grasp, or None when every pre-grasp was rejected."""
+        return int(self.ranking[0]) if len(self.ranking) else None
+
+    def top(self, k: int) -> list[Grasp]:
+        """The ``k`` best kept grasps."""
+        return [self.grasps[i] for i in self.ranking[: max(int(k), 0)]]
+
+    @property
+    def n_force_closure(self) -> int:
+        """Number of kept grasps with epsilon > 0."""
+        return int(sum(g.epsilon > 0.0 for g in self.grasps))

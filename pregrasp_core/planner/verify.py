@@ -1,0 +1,281 @@
+"""Steps 3 and 4 for one pre-grasp, after the closing: 3D verification of the closed hand
+(fingers closed into each other or into the cloud are opened back along their closing paths;
+penetration, self-collision and support checks) and its contacts (:func:`finish`)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import fcl
+import numpy as np
+
+from .boxes import box_signed_distance
+from .context import Context, View
+from .types import Contact, FingerTrace, Grasp
+
+if TYPE_CHECKING:
+    from ..hand import Finger
+    from .approach import Prepared
+    from .slicing import ClosedFinger
+
+CONTACT_TIE: float = 1e-12
+"""Metres: cloud points this close to a link's least distance tie for its contact."""
+
+
+def finish(
+    ctx: Context, pre: Prepared, q: np.ndarray, closings: list[ClosedFinger], lift: float
+) -> Grasp:
+    """Pre-grasp ``pre`` after the closing (``q`` and ``closings`` from
+    :func:`~pregrasp_core.planner.slicing.closing_records`, closed ``lift`` metres back along
+    the approach): 3D verification and contacts; the grasp is scored by the caller."""
+    prm = ctx.params
+    i, gt, T0 = pre.i, pre.gt, pre.T0
+    T, s, stop, view = pre.T.copy(), pre.s, pre.stop, pre.view
+
+    if lift > 0.0:  # the hand closed from higher up (the retreat from the support)
+        T[:3, 3] -= lift * T0[:3, 2]
+        view = view.moved(lift)
+        s -= lift
+        stop = "support_lifted"
+
+    # 3. verification in 3D. Fingers that closed into each other (python-fcl) stop where they
+    # meet: the finger that needs the least opening goes back along its closing path.
+    corrected = {c.finger.name: False for c in closings}
+    q, clean = open_self_collisions(ctx, q, closings, corrected)
+    q_checked = q.copy()
+    # depth of the nearby cloud points in every link
+    reach = max(prm.contact_distance, prm.penetration_tol)
+    ids, dists = _link_distances(ctx, view, q, reach)
+    bad = {ctx.link_names[j] for j, d in enumerate(dists) if np.any(d < -prm.penetration_tol)}
+    if bad:
+        q = _open_penetrating(ctx, view, q, closings, bad, pre.spread, corrected)
+        ids, dists = _link_distances(ctx, view, q, reach)
+    fingers = tuple(
+        FingerTrace(
+            f.name,
+            n,
+            q[list(f.flex_index)].copy(),
+            touched,
+            bool(cl.palm_stop),
+            on_table,
+            bool(cl.at_limits),
+            corrected[f.name],
+        )
+        for f, cl, n, touched, on_table in closings
+    )
+
+    def rejected(reason: str, detail: str) -> Grasp:
+        return Grasp.from_rejection(i, gt, T, q, reason, detail, s, stop, fingers)
+
+    depth = np.array([-d.min() if len(d) else -np.inf for d in dists])
+    if depth.max() > prm.penetration_tol:
+        j = int(np.argmax(depth))
+        detail = f"{ctx.link_names[j]} holds a point {depth[j] * 1e3:.1f} mm deep"
+        return rejected("penetration", detail)
+    pairs = [] if clean and np.array_equal(q, q_checked) else ctx.self_pairs(q)
+    if pairs:
+        return rejected("self_collision", f"{pairs[0][0]} and {pairs[0][1]}")
+    below = support_collision(ctx, T, q)
+    if below is not None:
+        return rejected("support_collision", f"{below} below the support plane")
+    contacts = _contacts(ctx, T, q, ids, dists)
+    if not contacts:
+        return rejected("no_contact", "")
+    # 5. quality: by the caller
+    return Grasp(i, gt, T, s, stop, q, fingers, contacts, 0.0, 0.0, None, None, "")
+
+
+def _open_penetrating(
+    ctx: Context,
+    view: View,
+    q: np.ndarray,
+    closings: list[ClosedFinger],
+    bad: set[str],
+    spread: float,
+    corrected: dict[str, bool],
+) -> np.ndarray:
+    """``q`` with every finger whose middle or distal link is in ``bad`` (links holding a point
+    deeper than ``penetration_tol``) opened back along its closing path (bisection over the path
+    samples) to the last sample where its links hold no such point; the fingers opened are
+    marked in ``corrected``. ``view``: the cloud in the hand frame; ``spread``: the pre-grasp's
+    finger spread."""
+    prm = ctx.params
+    reach = max(prm.contact_distance, prm.penetration_tol)
+    q = q.copy()
+    for f, cl, *_ in closings:  # loop over <= 3 fingers
+        cols = [ctx.link_index[n] for n in (f.links[1], f.links[2])]
+        if not bad & {f.links[1], f.links[2]}:
+            continue
+        origin = ctx.plane(f, spread).origin
+        near = view.near(ctx, origin, ctx.reach + reach)
+
+        def clear(k: int, f=f, cl=cl, cols=cols, near=near) -> bool:
+            qq = q.copy()
+            qq[list(f.flex_index)] = cl.path[k]
+            d = box_signed_distance(near, ctx.hand.box_poses(qq)[cols], ctx.half[cols])
+            return not np.any(d < -prm.penetration_tol)
+
+        if len(cl.path) and clear(0):
+            lo, hi = 0, len(cl.path) - 1
+            while hi - lo > 1:  # bisection over the closing steps
+                mid = (lo + hi) // 2
+                lo, hi = (mid, hi) if clear(mid) else (lo, mid)
+            q[list(f.flex_index)] = cl.path[hi if clear(hi) else lo]
+            corrected[f.name] = True
+    return q
+
+
+def _contacts(
+    ctx: Context, T: np.ndarray, q: np.ndarray, ids: list[np.ndarray], dists: list[np.ndarray]
+) -> tuple[Contact, ...]:
+    """4. The contacts of the hand at pose ``T`` and joints ``q`` (``ids``, ``dists``: per link,
+    the nearby cloud points and their distances, from :func:`_link_distances`): one per link,
+    the nearest cloud point within ``contact_distance``. Points as near as it (within
+    :data:`CONTACT_TIE`: a face of the object parallel to the link's face) form a patch; the
+    contact is its point nearest the link box's centre (then the lowest cloud index), so the
+    choice never depends on rounding or on the candidates' order."""
+    prm = ctx.params
+    centres = (T @ ctx.boxes(q)[0])[:, :3, 3]  # (L, 3) link box centres, world
+    links, local, dist = [], [], []
+    for j, (sel, d) in enumerate(zip(ids, dists, strict=True)):  # loop over the ~10 links
+        if len(d) and d.min() <= prm.contact_distance:
+            tie = np.flatnonzero(d <= d.min() + CONTACT_TIE)
+            if len(tie) > 1:
+                off = np.sum((ctx.points[sel[tie]] - centres[j]) ** 2, axis=1)
+                k = int(tie[np.lexsort((sel[tie], off))[0]])
+            else:
+                k = int(tie[0])
+            links.append(j)
+            local.append(sel[k])
+            dist.append(float(d[k]))
+    if not links:
+        return ()
+    pid = np.asarray(local, dtype=np.int64)
+    Tb = ctx.boxes(q)[0]
+    tangents = Tb[links, :3, 1] @ T[:3, :3].T  # link box y axes in the world
+    normals_in = -ctx.normals[pid]
+    return tuple(
+        Contact(
+            ctx.points[p].copy(), normals_in[k].copy(), ctx.link_names[j], int(p), dist[k],
+            tangents[k].copy(),
+        )
+        for k, (j, p) in enumerate(zip(links, pid, strict=True))
+    )  # fmt: skip
+
+
+def open_self_collisions(
+    ctx: Context, q: np.ndarray, closings: list[ClosedFinger], corrected: dict[str, bool]
+) -> tuple[np.ndarray, bool]:
+    """Undo finger-finger collisions of the closed hand (python-fcl): for a colliding pair, each
+    finger owning one of the two links is opened back along its closing path (bisection over
+    the path samples) to the last sample where the pair is apart; the finger that keeps the
+    most of its closing is used. At most ``len(closings)`` pairs are resolved; what remains is
+    rejected later as ``self_collision``. Returns ``(q, clean)``; ``clean`` says that python-fcl
+    found no pair at the returned ``q``; the fingers opened are marked in ``corrected``."""
+    hand = ctx.hand
+    q = q.copy()
+    for _ in range(len(closings)):  # loop over <= 3 fingers
+        pairs = ctx.self_pairs(q)
+        if not pairs:
+            return q, True
+        a, b = pairs[0]
+        best: tuple[int, Finger, np.ndarray] | None = None  # (kept path index, finger, q_flex)
+        for f, cl, *_ in closings:  # loop over <= 3 fingers
+            if not {a, b} & {f.links[1], f.links[2]} or len(cl.path) == 0:
+                continue
+
+            def apart(i: int, f=f, cl=cl, pair=(a, b)) -> bool:
+                qq = q.copy()
+                qq[list(f.flex_index)] = cl.path[i]
+                return pair not in hand.self_collisions(qq)
+
+            if not apart(0):
+                continue
+            lo, hi = 0, len(cl.path) - 1  # apart(lo) holds; find the last apart sample
+            while hi - lo > 1:  # bisection over the path samples
+                mid = (lo + hi) // 2
+                if apart(mid):
+                    lo = mid
+                else:
+                    hi = mid
+            i = hi if apart(hi) else lo
+            if best is None or i > best[0]:
+                best = (i, f, cl.path[i])
+        if best is None:
+            break
+        _, f, q_flex = best
+        q[list(f.flex_index)] = q_flex
+        corrected[f.name] = True
+    return q, not ctx.self_pairs(q)
+
+
+def _link_distances(
+    ctx: Context, view: View, q: np.ndarray, reach: float
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Per link of the hand at configuration ``q``: cloud indices of the points within
+    ``reach`` of its box and their exact signed distances to it (< 0 inside), in ascending
+    cloud order (``view``: the cloud in the hand's frame). Candidates: the points in the AABB
+    of a box grown by ``reach`` (found through the cells); all pairs' distances at once."""
+    Tb, lo, hi = ctx.boxes(q)  # hand frame
+    blo, bhi = lo - reach, hi + reach  # (L, 3)
+    c, ok = view.cells(ctx)
+    rad = ctx.cells.radius[:, None]
+    cm, cp = c - rad, c + rad
+    ci, il = np.nonzero(
+        ok[:, None]
+        & (cp[:, 0:1] >= blo[:, 0])
+        & (cm[:, 0:1] <= bhi[:, 0])
+        & (cp[:, 1:2] >= blo[:, 1])
+        & (cm[:, 1:2] <= bhi[:, 1])
+        & (cp[:, 2:3] >= blo[:, 2])
+        & (cm[:, 2:3] <= bhi[:, 2])
+    )  # (cell, link) pairs: the cell's ball meets the link's grown AABB
+    pid, k = ctx.cells.expand(ci)
+    seen, p = view.points(ctx, pid)
+    pid, il = pid[seen], il[k[seen]]
+    x, y, z = p
+    inside = np.flatnonzero(
+        (x >= blo[il, 0])
+        & (x <= bhi[il, 0])
+        & (y >= blo[il, 1])
+        & (y <= bhi[il, 1])
+        & (z >= blo[il, 2])
+        & (z <= bhi[il, 2])
+    )
+    il, pid = il[inside], pid[inside]
+    # the exact distance to each pair's box, in its frame
+    Tl = Tb[il]  # (K, 4, 4)
+    v0, v1, v2 = x[inside] - Tl[:, 0, 3], y[inside] - Tl[:, 1, 3], z[inside] - Tl[:, 2, 3]
+    half = ctx.half[il]
+    qd = [
+        np.abs(v0 * Tl[:, 0, j] + v1 * Tl[:, 1, j] + v2 * Tl[:, 2, j]) - half[:, j]
+        for j in range(3)  # the box's three axes
+    ]
+    out = [np.maximum(qj, 0.0) for qj in qd]
+    d = np.sqrt(out[0] ** 2 + out[1] ** 2 + out[2] ** 2) + np.minimum(
+        np.maximum(np.maximum(qd[0], qd[1]), qd[2]), 0.0
+    )
+    near = np.flatnonzero(d <= reach)
+    near = near[np.lexsort((pid[near], il[near]))]  # by link, then ascending cloud index
+    il, d, cloud = il[near], d[near], pid[near]
+    cuts = np.searchsorted(il, np.arange(1, len(Tb)))
+    return np.split(cloud, cuts), np.split(d, cuts)
+
+
+def support_collision(ctx: Context, T: np.ndarray, q: np.ndarray) -> str | None:
+    """The first link whose box reaches below the support plane by > penetration_tol (fcl)."""
+    if ctx.support is None:
+        return None
+    n = np.asarray(ctx.support.normal, dtype=np.float64)
+    table = fcl.CollisionObject(
+        fcl.Halfspace(n, float(ctx.support.height) - ctx.params.penetration_tol), fcl.Transform()
+    )
+    Tb = T @ ctx.boxes(q)[0]  # (L, 4, 4) world
+    req = fcl.CollisionRequest()
+    for i, name in enumerate(ctx.link_names):  # loop over the ~10 links
+        obj = fcl.CollisionObject(
+            fcl.Box(*(2.0 * ctx.half[i])), fcl.Transform(Tb[i, :3, :3], Tb[i, :3, 3])
+        )
+        if fcl.collide(obj, table, req, fcl.CollisionResult()) > 0:
+            return name
+    return None
