@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import logging
+import re
 import threading
 import time
 from collections.abc import Callable
@@ -25,13 +26,70 @@ from pregrasp_core import pipeline as ppl
 from pregrasp_core.errors import InputError, PregraspError
 from pregrasp_core.paths import demo_objects
 
-from .scene import SceneRenderer, ranked_grasps
+from .scene import SceneRenderer
+from .scene_data import ranked_grasps
 from .state import ALL, AppState, ObjectSource, ViewState, n_splits
 
 logger = logging.getLogger(__name__)
 
 DEFAULT_MAX_UPLOAD_BYTES = 50 * 1024 * 1024
 """Largest upload accepted (bytes): 50 MiB, about 2 million points of binary PLY."""
+
+N_POINTS_RANGE = (10, 2_000_000)
+"""Accepted numbers of points sampled on a mesh (the ``points`` control uses the same range)."""
+SEED_RANGE = (0, 2**31 - 1)
+"""Accepted sampling seeds (the ``seed`` control uses the same range)."""
+SPEED_RANGE = (0.1, 4.0)
+"""Accepted animation speeds, cycles per 2 s (the ``speed`` control uses the same range)."""
+
+
+class Superseded(Exception):
+    """Raised inside a long action when a newer request has arrived: the newer one runs instead
+    (it includes every change the superseded one asked for)."""
+
+
+def _number(value: Any, what: str, integer: bool = False) -> float:
+    """``value`` as a finite number (an integer when ``integer``), else ``ValueError`` naming
+    ``what``; GUI values arrive as whatever a browser sent."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        try:
+            value = float(str(value))
+        except ValueError:
+            raise ValueError(f"{what} must be a number, got {value!r}") from None
+    v = float(value)
+    if not np.isfinite(v):
+        raise ValueError(f"{what} must be a finite number, got {value!r}")
+    if integer:
+        if v != round(v):
+            raise ValueError(f"{what} must be a whole number, got {value!r}")
+        return int(round(v))
+    return v
+
+
+def _in_range(v: float, lo: float, hi: float, what: str) -> None:
+    if not lo <= v <= hi:
+        raise ValueError(f"{what} must be in [{lo:g}, {hi:g}], got {v:g}")
+
+
+def coerce_param(current: Any, value: Any, what: str) -> Any:
+    """``value`` (from a GUI control) in the type of the parameter's ``current`` value; the
+    parameter dataclass then checks its bounds. ``ValueError`` naming ``what`` when it is not
+    of that kind at all."""
+    if isinstance(current, bool):
+        if not isinstance(value, (bool, np.bool_)):
+            raise ValueError(f"{what} must be true or false, got {value!r}")
+        return bool(value)
+    if isinstance(current, enum.Enum):
+        try:
+            return type(current)(value)
+        except ValueError:
+            names = [m.value for m in type(current)]
+            raise ValueError(f"{what} must be one of {names}, got {value!r}") from None
+    if isinstance(current, (int, np.integer)):
+        return _number(value, what, integer=True)
+    if isinstance(current, (float, np.floating)):
+        return _number(value, what)
+    raise ValueError(f"{what} cannot be set from the GUI")
 
 
 class Controller:
@@ -66,6 +124,9 @@ class Controller:
             view=view if view is not None else ViewState(),
         )
         self._listeners: list[Callable[[AppState], None]] = []
+        self._req_lock = threading.Lock()  # guards the two fields below (never held long)
+        self._generation = 0  # bumped by every long request: older ones stop at their next stage
+        self._pending: dict[str, Any] = {}  # params/n_points/seed asked for, not yet computed
 
     # ------------------------------------------------------------------ state
     @property
@@ -77,10 +138,19 @@ class Controller:
         """Call ``fn(state)`` after every state change (the GUI mirrors the state this way)."""
         self._listeners.append(fn)
 
-    def _commit(self, state: AppState, render: bool = True) -> AppState:
-        """Replace the state, render it and tell the listeners. Call with the lock held."""
-        state = dataclasses.replace(state, version=self._state.version + 1)
-        self._state = state
+    def _commit(self, state: AppState, render: bool = True, gen: int | None = None) -> AppState:
+        """Replace the state, render it and tell the listeners. Call with the lock held.
+
+        With ``gen`` (the long request that computed ``state``), the state is replaced only if
+        no newer request has arrived, and the pending changes it included are dropped in the
+        same step, so a request arriving meanwhile builds on the new state.
+        """
+        with self._req_lock:
+            if gen is not None:
+                self._check(gen)
+                self._pending = {}
+            state = dataclasses.replace(state, version=self._state.version + 1)
+            self._state = state
         if render:
             self.scene.render(state)
         for fn in self._listeners:
@@ -99,6 +169,12 @@ class Controller:
             if isinstance(exc, (PregraspError, ValueError)):
                 title, body = "Cannot do that", str(exc)
                 logger.warning("%s", exc)
+            elif isinstance(exc, MemoryError):
+                title = "Out of memory"
+                body = "the computation needs more memory than this machine has: " + (
+                    "use larger thresholds (fewer parts, a coarser sampling interval)"
+                )
+                logger.warning("MemoryError in an action: %s", exc)
             else:
                 title, body = "Internal error", f"{type(exc).__name__}: {exc}"
                 logger.exception("callback failed")
@@ -152,28 +228,67 @@ class Controller:
             raise InputError(f"upload {filename!r} is empty: choose a point cloud or mesh file")
         return self._load(ObjectSource(name=filename, data=bytes(data)))
 
-    def set_n_points(self, n: int) -> AppState:
+    def set_n_points(self, n: Any) -> AppState:
         """Resample the current object with ``n`` points and re-run everything."""
-        n = int(n)
-        if n < 10:
-            raise ValueError(f"number of points must be at least 10, got {n}")
-        with self._lock:
-            self._state = dataclasses.replace(self._state, n_points=n)
-            return self._reload()
+        n = _number(n, "number of points", integer=True)
+        _in_range(n, *N_POINTS_RANGE, "number of points")
+        return self._request(n_points=int(n))
 
-    def set_seed(self, seed: int) -> AppState:
+    def set_seed(self, seed: Any) -> AppState:
         """Resample the current object with another seed and re-run everything."""
-        seed = int(seed)
-        if seed < 0:
-            raise ValueError(f"seed must be >= 0, got {seed}")
-        with self._lock:
-            self._state = dataclasses.replace(self._state, seed=seed)
-            return self._reload()
+        seed = _number(seed, "seed", integer=True)
+        _in_range(seed, *SEED_RANGE, "seed")
+        return self._request(seed=int(seed))
 
-    def _reload(self) -> AppState:
-        if self._state.source is None:
+    # ------------------------------------------------------------------ long actions
+    def pending(self, key: str) -> Any:
+        """The value of ``key`` (``params``, ``n_points`` or ``seed``) that the next computation
+        uses: the newest one asked for, else the state's."""
+        with self._req_lock:
+            return self._pending.get(key, getattr(self._state, key))
+
+    def _request(self, **changes: Any) -> AppState:
+        """Ask for a computation with ``changes`` on top of the pending ones; it supersedes the
+        computation in progress (which stops at its next stage)."""
+        with self._req_lock:
+            if all(self._pending.get(k, getattr(self._state, k)) == v for k, v in changes.items()):
+                return self._state
+            self._pending.update(changes)
+            self._generation += 1
+            gen = self._generation
+        if "params" in changes and not ({"n_points", "seed"} & set(self._pending)):
+            return self._long(gen, self._rerun)
+        return self._long(gen, self._reload)
+
+    def _long(self, gen: int, fn: Callable[[int], AppState]) -> AppState:
+        """Run the long action ``fn(gen)``; a superseded one returns the state as it is, a failed
+        one drops the pending changes (the GUI then shows the values in use again)."""
+        try:
+            return fn(gen)
+        except Superseded:
             return self._state
-        return self._load(self._state.source)
+        except BaseException:
+            with self._req_lock:
+                if self._generation == gen:
+                    self._pending = {}
+            raise
+
+    def _check(self, gen: int) -> None:
+        """Raise :class:`Superseded` when a newer long request has arrived."""
+        if self._generation != gen:
+            raise Superseded
+
+    def _settle(self, gen: int, state: AppState) -> AppState:
+        """Commit the result of long request ``gen`` (lock held); see :meth:`_commit`."""
+        return self._commit(state, gen=gen)
+
+    def _reload(self, gen: int) -> AppState:
+        if self._state.source is None:
+            with self._lock:
+                s = self._state
+                changes = {k: self.pending(k) for k in ("params", "n_points", "seed")}
+                return self._settle(gen, dataclasses.replace(s, **changes))
+        return self._load(self._state.source, gen)
 
     def _read(self, source: ObjectSource, n_points: int, seed: int) -> Any:
         if source.data is not None:
@@ -184,14 +299,26 @@ class Controller:
                 seed=seed,
                 max_bytes=self.max_upload_bytes,
             )
+        if source.path is None:
+            raise InputError(f"{source.name}: nothing to load (no file and no data)")
         return pio.load_point_cloud(source.path, n_points=n_points, seed=seed)
 
-    def _load(self, source: ObjectSource) -> AppState:
+    def _load(self, source: ObjectSource, gen: int | None = None) -> AppState:
+        if gen is None:
+            with self._req_lock:
+                self._generation += 1
+                gen = self._generation
+        return self._long(gen, lambda g: self._load_now(source, g))
+
+    def _load_now(self, source: ObjectSource, gen: int) -> AppState:
         with self._lock:
+            self._check(gen)
             s = self._state
+            n_points, seed, params = (self.pending(k) for k in ("n_points", "seed", "params"))
             t0 = time.perf_counter()
-            cloud = self._read(source, s.n_points, s.seed)
-            result = self._run(cloud, s.params, previous=None, plan=False)
+            cloud = self._read(source, n_points, seed)
+            self._check(gen)
+            result = self._run(cloud, params, previous=None, plan=False, gen=gen)
             dt = time.perf_counter() - t0
             tree = result.tree
             msg = (
@@ -203,6 +330,9 @@ class Controller:
             state = dataclasses.replace(
                 s,
                 source=source,
+                n_points=n_points,
+                seed=seed,
+                params=params,
                 result=result,
                 planned=False,
                 view=ViewState(
@@ -213,47 +343,44 @@ class Controller:
                 message=msg + ("; " + "; ".join(warn) if warn else ""),
                 error="",
             )
-            return self._commit(state)
+            return self._settle(gen, state)
 
     # ------------------------------------------------------------------ thresholds
     def set_param(self, section: str, name: str, value: Any) -> AppState:
         """Set ``params.<section>.<name>`` (e.g. ``decomposition.volume_ratio``) and re-run the
-        decomposition and everything downstream (re-planning when grasps were planned)."""
-        with self._lock:
-            s = self._state
-            sub = getattr(s.params, section)
-            current = getattr(sub, name)
-            if isinstance(current, bool):
-                value = bool(value)
-            elif isinstance(current, enum.Enum):
-                value = type(current)(value)
-            elif isinstance(current, int):
-                value = int(round(float(value)))
-            elif isinstance(current, float):
-                value = float(value)
-            if current == value:
-                return s
-            new_sub = dataclasses.replace(sub, **{name: value})  # validates (ValueError)
-            params = dataclasses.replace(s.params, **{section: new_sub})
-            return self._rerun(params)
+        decomposition and everything downstream (re-planning when grasps were planned).
 
-    def _rerun(self, params: Any) -> AppState:
-        s = self._state
-        if s.result is None:
-            return self._commit(dataclasses.replace(s, params=params))
-        t0 = time.perf_counter()
-        result = self._run(s.result.cloud, params, previous=s.result, plan=s.planned)
-        dt = time.perf_counter() - t0
-        view = s.view
-        new_tree = result.tree is not s.result.tree
-        if new_tree:
-            view = dataclasses.replace(view, level=None, selected_node=None, ghost_node=None)
-        if result is not s.result:
-            view = dataclasses.replace(view, selected_grasp=0 if s.planned else None)
-        msg = f"{len(result.tree.leaves())} parts, pool {len(result.pool)} ({dt * 1000:.0f} ms)"
-        return self._commit(
-            dataclasses.replace(s, params=params, result=result, view=view, message=msg, error="")
-        )
+        The value is checked by the parameter dataclass (its ``__post_init__`` holds the bounds,
+        the one source of them); a request superseded by a newer one returns the state as is.
+        """
+        base = self.pending("params")
+        sub = getattr(base, section)
+        value = coerce_param(getattr(sub, name), value, f"{section}.{name}")
+        new_sub = dataclasses.replace(sub, **{name: value})  # validates (ValueError)
+        return self._request(params=dataclasses.replace(base, **{section: new_sub}))
+
+    def _rerun(self, gen: int) -> AppState:
+        with self._lock:
+            self._check(gen)
+            s = self._state
+            params = self.pending("params")
+            if s.result is None:
+                return self._settle(gen, dataclasses.replace(s, params=params))
+            t0 = time.perf_counter()
+            result = self._run(s.result.cloud, params, previous=s.result, plan=s.planned, gen=gen)
+            dt = time.perf_counter() - t0
+            view = s.view
+            if result.tree is not s.result.tree:
+                view = dataclasses.replace(view, level=None, selected_node=None, ghost_node=None)
+            if result is not s.result:
+                view = dataclasses.replace(view, selected_grasp=0 if s.planned else None)
+            msg = f"{len(result.tree.leaves())} parts, pool {len(result.pool)} ({dt * 1000:.0f} ms)"
+            return self._settle(
+                gen,
+                dataclasses.replace(
+                    s, params=params, result=result, view=view, message=msg, error=""
+                ),
+            )
 
     # ------------------------------------------------------------------ view
     def _set_view(self, **changes: Any) -> AppState:
@@ -304,20 +431,25 @@ class Controller:
 
     # ------------------------------------------------------------------ planner
     def plan(self) -> AppState:
-        """Run the slicing planner on the pool; ranks the grasps and selects the best."""
+        """Run the slicing planner on the pool; ranks the grasps and selects the best. A newer
+        request (a threshold change, a new object) cancels it after its current chunk."""
+        with self._req_lock:
+            self._generation += 1
+            gen = self._generation
+        return self._long(gen, self._plan_now)
+
+    def _plan_now(self, gen: int) -> AppState:
         with self._lock:
+            self._check(gen)
             s = self._state
             if s.result is None:
                 raise InputError("load an object before planning")
+            params = self.pending("params")
             self._commit(dataclasses.replace(s, busy="plan", progress=0.0), render=False)
             t0 = time.perf_counter()
             try:
                 result = self._run(
-                    s.result.cloud,
-                    s.params,
-                    previous=s.result,
-                    plan=True,
-                    progress=self._progress,
+                    s.result.cloud, params, previous=s.result, plan=True, gen=gen, show=True
                 )
             finally:
                 self._state = dataclasses.replace(self._state, busy="", progress=0.0)
@@ -327,17 +459,32 @@ class Controller:
                 self._state.view, selected_grasp=0 if n else None, anim_t=0.0, playing=bool(n)
             )
             msg = f"planned {len(result.pool)} pre-grasps: {n} grasps ({dt:.1f} s)"
-            return self._commit(
+            return self._settle(
+                gen,
                 dataclasses.replace(
-                    self._state, result=result, planned=True, view=view, message=msg, error=""
-                )
+                    self._state,
+                    params=params,
+                    result=result,
+                    planned=True,
+                    view=view,
+                    message=msg,
+                    error="",
+                ),
             )
 
-    def _progress(self, fraction: float) -> None:
-        self._commit(
-            dataclasses.replace(self._state, progress=float(np.clip(fraction, 0, 1))),
-            render=False,
-        )
+    def _progress(self, gen: int, show: bool) -> Callable[[float], None]:
+        """The pipeline's progress callback of request ``gen``: stops it when superseded and,
+        when ``show``, publishes the fraction done (the GUI's progress bar)."""
+
+        def progress(fraction: float) -> None:
+            self._check(gen)
+            if show:
+                self._commit(
+                    dataclasses.replace(self._state, progress=float(np.clip(fraction, 0, 1))),
+                    render=False,
+                )
+
+        return progress
 
     def select_grasp(self, rank: int | None) -> AppState:
         """Show the grasp of rank ``rank`` (0 = best): the URDF hand plays its approach and
@@ -392,10 +539,17 @@ class Controller:
 
         return json.dumps(doc, indent=1).encode("utf-8")
 
+    def _download_stem(self) -> str:
+        """File stem of downloads: the object's name with anything but letters, digits, ``.``,
+        ``_`` and ``-`` replaced by ``_`` (an uploaded name may hold anything)."""
+        src = self._state.source
+        stem = Path(src.name).stem if src is not None else "pregrasp"
+        return re.sub(r"[^A-Za-z0-9._-]", "_", stem)[:100] or "pregrasp"
+
     def export_result(self, client: Any) -> None:
         """Send the result file to ``client`` as a download."""
         data = self.result_json()
-        name = Path(self._state.source.name).stem + ".pregrasp.json"
+        name = self._download_stem() + ".pregrasp.json"
         target = client if client is not None else self.server
         target.send_file_download(name, data, save_immediately=True)
 
@@ -408,7 +562,7 @@ class Controller:
         cam = client.camera
         height, width = max(int(cam.image_height), 64), max(int(cam.image_width), 64)
         img = client.get_render(height=height, width=width, transport_format="png", timeout=30)
-        name = Path(self._state.source.name).stem + ".png"
+        name = self._download_stem() + ".png"
         client.send_file_download(
             name, iio.imwrite("<bytes>", img, extension=".png"), save_immediately=True
         )
@@ -420,17 +574,21 @@ class Controller:
         params: Any,
         previous: Any,
         plan: bool,
-        progress: Callable[[float], None] | None = None,
+        gen: int,
+        show: bool = False,
     ) -> Any:
-        """One call into ``pregrasp_core.pipeline`` (the app has no pipeline of its own)."""
-        return ppl.run_pipeline(
+        """One call into ``pregrasp_core.pipeline`` (the app has no pipeline of its own); it
+        stops between stages (and between planner chunks) when request ``gen`` is superseded."""
+        result = ppl.run_pipeline(
             cloud,
             params,
             self.hand,
             until="grasps" if plan else "pool",
             previous=previous,
-            progress=progress,
+            progress=self._progress(gen, show),
         )
+        self._check(gen)
+        return result
 
 
 __all__ = ["ALL", "Controller", "DEFAULT_MAX_UPLOAD_BYTES"]

@@ -9,7 +9,9 @@ loops).
 
 from __future__ import annotations
 
+import dataclasses
 import enum
+import logging
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -19,15 +21,18 @@ import numpy as np
 from pregrasp_core.paths import demo_objects
 from pregrasp_core.shape import GRASP_TYPES
 
-from .controller import Controller
-from .scene import SceneRenderer, contact_arrays, ghost_selection, ranked_grasps
+from .controller import N_POINTS_RANGE, SEED_RANGE, SPEED_RANGE, Controller
+from .safe_text import md_text
+from .scene import SceneRenderer
+from .scene_data import contact_arrays, ghost_selection, mask_matrix, ranked_grasps
 from .state import ALL, AppState, n_splits
+from .viser_hooks import push_value
 
-"""Options of the grasp-type filter (besides ``all``)."""
+logger = logging.getLogger(__name__)
 
 DECOMPOSITION_CONTROLS: tuple[tuple[str, str, str, float, float, float], ...] = (
     ("decomposition", "volume_ratio", "volume ratio", 0.01, 0.05, 1.0),
-    ("decomposition", "min_points", "min points", 10, 3, 1_000_000),
+    ("decomposition", "min_points", "min points", 10, 1, 1_000_000),
     ("decomposition", "max_depth", "max depth", 1, 0, 20),
     ("shape", "max_ratio_1d", "1D ratio (s2/s1 <)", 0.01, 0.01, 1.0),
     ("shape", "max_ratio_2d", "2D ratio (s3/s2 <)", 0.01, 0.01, 1.0),
@@ -35,7 +40,8 @@ DECOMPOSITION_CONTROLS: tuple[tuple[str, str, str, float, float, float], ...] = 
     ("sampling", "aperture_scale", "aperture scale", 0.05, 0.1, 3.0),
 )
 """Threshold controls of the decomposition panel: (``PipelineParams`` section, field, label,
-step, min, max)."""
+step, min, max). The widget's range is the part of [min, max] that the parameter dataclass
+accepts (:func:`accepted_range`): the dataclass's ``__post_init__`` is the one source of bounds."""
 
 POOL_CONTROLS: tuple[tuple[str, str, str, float, float, float], ...] = (
     ("sampling", "interval", "sampling interval (m)", 0.005, 0.005, 0.2),
@@ -44,6 +50,38 @@ POOL_CONTROLS: tuple[tuple[str, str, str, float, float, float], ...] = (
     ("facemask", "support", "support plane", 0, 0, 0),
 )
 """Controls of the pre-grasp panel (booleans become checkboxes, enums dropdowns)."""
+
+
+def accepted_range(params: Any, name: str, lo: float, hi: float) -> tuple[float, float]:
+    """The part of [``lo``, ``hi``] that ``params``' dataclass accepts for field ``name``.
+
+    The bounds live in each parameter dataclass's ``__post_init__`` (a ``ValueError`` past
+    them); this finds where they cut [lo, hi] by bisection between the field's current value
+    (accepted) and the end that is refused, to a relative 1e-9 (integers: exactly), so that a
+    widget never offers a value the server then refuses.
+    """
+    current = getattr(params, name)
+    integer = isinstance(current, (int, np.integer)) and not isinstance(current, bool)
+
+    def ok(v: float) -> bool:
+        try:
+            dataclasses.replace(params, **{name: int(v) if integer else float(v)})
+        except ValueError:
+            return False
+        return True
+
+    def edge(good: float, bad: float) -> float:
+        for _ in range(200):
+            if abs(bad - good) <= (1 if integer else 1e-9 * max(abs(good), abs(bad), 1e-12)):
+                break
+            mid = (good + bad) // 2 if integer else (good + bad) / 2
+            good, bad = (mid, bad) if ok(mid) else (good, mid)
+        return good
+
+    c = float(current)
+    new_lo = lo if ok(lo) else edge(c, lo)
+    new_hi = hi if ok(hi) else edge(c, hi)
+    return new_lo, new_hi
 
 
 def _fmt_mask(mask: np.ndarray, blocked_by: list[str] | None = None) -> str:
@@ -88,14 +126,16 @@ class Gui:
             self.demo = gui.add_dropdown("demo object", names or ["(none)"])
             self.demo.on_update(lambda e: self._do(e, c.load_demo, e.target.value))
             self.upload = gui.add_upload_button("upload cloud / mesh", icon=None)
-            self.upload.on_upload(lambda e: self._do(e, c.load_upload, *_upload(e.target)))
+            self.upload.on_upload(lambda e: self._do(e, self._upload, e.target))
             self.n_points = gui.add_number(
-                "points", c.state.n_points, min=10, max=2_000_000, step=1000
+                "points", c.state.n_points, min=N_POINTS_RANGE[0], max=N_POINTS_RANGE[1], step=1000
             )
             self.n_points.on_update(
                 lambda e: self._debounced(e, "n_points", c.set_n_points, e.target.value)
             )
-            self.seed = gui.add_number("seed", c.state.seed, min=0, max=2**31 - 1, step=1)
+            self.seed = gui.add_number(
+                "seed", c.state.seed, min=SEED_RANGE[0], max=SEED_RANGE[1], step=1
+            )
             self.seed.on_update(lambda e: self._debounced(e, "seed", c.set_seed, e.target.value))
             self.status = gui.add_markdown("")
 
@@ -119,11 +159,9 @@ class Gui:
             self.show_ghosts = gui.add_checkbox("hand ghosts", c.state.view.show_ghosts)
             self.show_ghosts.on_update(lambda e: self._do(e, c.set_ghosts_visible, e.target.value))
             self.ghost_type = gui.add_dropdown("grasp type", (ALL, *GRASP_TYPES))
-            self.ghost_type.on_update(lambda e: self._do(e, c.set_ghost_filter, e.target.value))
+            self.ghost_type.on_update(lambda e: self._do(e, self._ghost_type, e.target.value))
             self.ghost_node = gui.add_dropdown("node", (ALL,))
-            self.ghost_node.on_update(
-                lambda e: self._do(e, c.set_ghost_filter, None, _node(e.target.value))
-            )
+            self.ghost_node.on_update(lambda e: self._do(e, self._ghost_node, e.target.value))
             self.pool_info = gui.add_markdown("")
 
         with gui.add_folder("Planner"):
@@ -131,12 +169,14 @@ class Gui:
             self.plan.on_click(lambda e: self._do(e, c.plan))
             self.progress = gui.add_progress_bar(0.0, visible=False, animated=True)
             self.grasp = gui.add_dropdown("grasp", ("(plan first)",), disabled=True)
-            self.grasp.on_update(lambda e: self._do(e, c.select_grasp, _rank(e.target.value)))
+            self.grasp.on_update(lambda e: self._do(e, self._grasp, e.target.value))
             self.play = gui.add_button("play")
             self.play.on_click(lambda e: self._do(e, c.play))
             self.pause = gui.add_button("pause")
             self.pause.on_click(lambda e: self._do(e, c.pause))
-            self.speed = gui.add_slider("speed", min=0.1, max=4.0, step=0.1, initial_value=1.0)
+            self.speed = gui.add_slider(
+                "speed", min=SPEED_RANGE[0], max=SPEED_RANGE[1], step=0.1, initial_value=1.0
+            )
             self.speed.on_update(lambda e: self._do(e, c.set_speed, e.target.value))
             self.phase = gui.add_slider("phase", min=0.0, max=1.0, step=0.01, initial_value=1.0)
             self.phase.on_update(lambda e: self._do(e, c.set_anim_t, e.target.value))
@@ -152,16 +192,38 @@ class Gui:
 
     # ------------------------------------------------------------------ callbacks
     def _do(self, event: Any, fn: Callable[..., Any], *args: Any) -> Any:
-        """Run a controller action for a GUI event, unless :meth:`sync` is setting the value."""
+        """Run a controller action for a GUI event, unless :meth:`sync` is setting the value;
+        then send the control's value in use to every browser (see :meth:`repush`)."""
         if getattr(self._local, "syncing", False):
             return None
-        return self.controller.act(getattr(event, "client", None), fn, *args)
+        try:
+            return self.controller.act(getattr(event, "client", None), fn, *args)
+        finally:
+            if getattr(event, "client", None) is not None:
+                self.repush(getattr(event, "target", None))
+
+    def _upload(self, handle: Any) -> Any:
+        value = handle.value
+        return self.controller.load_upload(str(value.name), bytes(value.content))
+
+    def _ghost_type(self, value: Any) -> Any:
+        if value not in (ALL, *GRASP_TYPES):
+            raise ValueError(f"grasp type must be one of {(ALL, *GRASP_TYPES)}, got {value!r}")
+        return self.controller.set_ghost_filter(str(value))
+
+    def _ghost_node(self, value: Any) -> Any:
+        return self.controller.set_ghost_filter(None, _node(value))
+
+    def _grasp(self, value: Any) -> Any:
+        return self.controller.select_grasp(_rank(value))
 
     def _add_param(
         self, section: str, name: str, label: str, step: float, lo: float, hi: float
     ) -> None:
-        """A control for ``params.<section>.<name>`` whose kind follows the value's type."""
-        value = getattr(getattr(self.controller.state.params, section), name)
+        """A control for ``params.<section>.<name>`` whose kind follows the value's type; a
+        number's range is what the parameter dataclass accepts within [lo, hi]."""
+        sub = getattr(self.controller.state.params, section)
+        value = getattr(sub, name)
         gui = self.server.gui
         if isinstance(value, bool):
             h = gui.add_checkbox(label, value)
@@ -170,6 +232,7 @@ class Gui:
                 label, [str(m.value) for m in type(value)], initial_value=str(value.value)
             )
         else:
+            lo, hi = accepted_range(sub, name, lo, hi)
             h = gui.add_number(label, value, min=lo, max=hi, step=step)
         h.on_update(self._param_cb(section, name))
         self.params[(section, name)] = h
@@ -183,15 +246,19 @@ class Gui:
     def _debounced(self, event: Any, key: Any, fn: Callable[..., Any], *args: Any) -> None:
         """Like :meth:`_do`, but a browser's edits of one control are applied only once they
         have rested for :data:`PARAM_DEBOUNCE_S` (a number input sends every keystroke: typing
-        500 would otherwise run the pipeline for 5, 50 and 500). Edits from Python (tests,
-        scripts) have no client and apply at once."""
+        500 would otherwise run the pipeline for 5, 50 and 500). Edits of one control from
+        several browsers share the timer: the last edit wins, and once it has run every browser
+        is sent the value in use. Edits from Python (tests, scripts) have no client and apply
+        at once."""
         if getattr(self._local, "syncing", False):
             return
         client = getattr(event, "client", None)
         if client is None:
             self.controller.act(None, fn, *args)
             return
-        timer = threading.Timer(PARAM_DEBOUNCE_S, self.controller.act, args=(client, fn, *args))
+        target = getattr(event, "target", None)
+        timer = threading.Timer(PARAM_DEBOUNCE_S, lambda: None)
+        timer.function = lambda: self._run_debounced(key, timer, client, target, fn, *args)
         timer.daemon = True
         with self._timers_lock:
             old = self._timers.pop(key, None)
@@ -200,12 +267,33 @@ class Gui:
             self._timers[key] = timer
             timer.start()
 
+    def _run_debounced(
+        self, key: Any, timer: Any, client: Any, target: Any, fn: Callable[..., Any], *args: Any
+    ) -> None:
+        try:
+            self.controller.act(client, fn, *args)
+        finally:
+            with self._timers_lock:
+                if self._timers.get(key) is timer:
+                    del self._timers[key]
+            self.repush(target)
+
     def close(self) -> None:
         """Cancel the pending debounced edits."""
         with self._timers_lock:
             for t in self._timers.values():
                 t.cancel()
             self._timers.clear()
+
+    def on_bad_value(self, client_id: Any, handle: Any, reason: str) -> None:
+        """A browser sent a value that is not even of the control's type (the update guard of
+        :mod:`app.viser_hooks` calls this): tell that browser, and send the value in use."""
+        label = getattr(handle, "label", "a control")
+        client = self.server.get_clients().get(client_id)
+        self.controller.notify(
+            client, "Cannot do that", f"bad value for {label!r}: {reason}", "red"
+        )
+        self.repush(handle)
 
     # ------------------------------------------------------------------ mirror the state
     def _set(self, key: str, handle: Any, attr: str, value: Any) -> None:
@@ -214,6 +302,57 @@ class Gui:
         if getattr(handle, attr) == value:
             return
         setattr(handle, attr, value)
+
+    def _input_values(self, s: AppState) -> list[tuple[str, Any, Any]]:
+        """(name, handle, value) of every input control: the value each one shows for ``s``
+        (the values its result was computed with, and its selections)."""
+        out: list[tuple[str, Any, Any]] = [
+            ("n_points", self.n_points, s.n_points),
+            ("seed", self.seed, s.seed),
+        ]
+        for (sec, name), h in self.params.items():
+            v = getattr(getattr(s.params, sec), name)
+            out.append((f"param.{sec}.{name}", h, v.value if isinstance(v, enum.Enum) else v))
+        out += [
+            ("show_masks", self.show_masks, s.view.show_face_masks),
+            ("show_ghosts", self.show_ghosts, s.view.show_ghosts),
+            ("ghost_type", self.ghost_type, s.view.ghost_type),
+            ("phase", self.phase, round(float(min(s.view.anim_t, 1.0)), 2)),
+            ("speed", self.speed, float(s.view.speed)),
+        ]
+        if s.source is not None:
+            out.append(("demo", self.demo, s.source.name))
+        if s.tree is not None:
+            out.append(("level", self.level, s.shown_level))
+        gn = ALL if s.view.ghost_node is None else f"node {s.view.ghost_node}"
+        out.append(("ghost_node", self.ghost_node, gn))
+        k = s.view.selected_grasp
+        opts = self.grasp.options
+        if s.planned and k is not None and k < len(opts) and opts[k].startswith("#"):
+            out.append(("grasp", self.grasp, opts[k]))
+        return out
+
+    def repush(self, handle: Any) -> None:
+        """Send ``handle``'s value in use to every browser, the one that edited it included.
+
+        viser sends a browser's edit on to the other browsers at once; when two browsers edit
+        one control at the same time each may end up showing the other's edit while the result
+        was computed with a third value. The value in use is the state's, or the pending one
+        while a newer request is being computed.
+        """
+        if handle is None:
+            return
+        s = self.controller.state
+        for key, h, v in self._input_values(s):
+            if h is handle:
+                if key.startswith("param."):
+                    sec, name = key.split(".")[1:]
+                    v = getattr(getattr(self.controller.pending("params"), sec), name)
+                    v = v.value if isinstance(v, enum.Enum) else v
+                elif key in ("n_points", "seed"):
+                    v = self.controller.pending(key)
+                push_value(h, v)
+                return
 
     def sync(self, state: AppState) -> None:
         """Mirror ``state`` into the GUI (values set here do not trigger actions)."""
@@ -230,46 +369,46 @@ class Gui:
         self._set("progress.visible", self.progress, "visible", busy)
         self._set("progress.value", self.progress, "value", round(100.0 * s.progress, 1))
         self._set("plan.label", self.plan, "label", "planning..." if busy else "plan grasps")
-        text = f"**{s.error}**" if s.error else s.message
+        text = f"**{md_text(s.error)}**" if s.error else md_text(s.message)
         self._set("status", self.status, "content", text)
-        self._set("n_points", self.n_points, "value", s.n_points)
-        self._set("seed", self.seed, "value", s.seed)
         if s.source is not None:
             opts = tuple(p.stem for p in demo_objects())
             if s.source.name not in opts:
                 opts = (*opts, s.source.name)
             self._set("demo.options", self.demo, "options", opts)
-            self._set("demo", self.demo, "value", s.source.name)
-        for (sec, name), h in self.params.items():
-            v = getattr(getattr(s.params, sec), name)
-            self._set(f"param.{sec}.{name}", h, "value", v.value if isinstance(v, enum.Enum) else v)
         tree = s.tree
         if tree is not None:
             n = n_splits(tree)
             self._set("level.max", self.level, "max", max(n, 1))
             self._set("level.disabled", self.level, "disabled", n == 0)
-            self._set("level", self.level, "value", s.shown_level)
-        self._set("boxes", self.boxes, "content", f"boxes: {self.scene.n_boxes}")
-        self._set("node_info", self.node_info, "content", node_info(s))
-        self._sync_pool(s)
-        self._sync_grasps(s)
-
-    def _sync_pool(self, s: AppState) -> None:
         pool = getattr(s.result, "pool", None)
-        self._set("show_masks", self.show_masks, "value", s.view.show_face_masks)
-        self._set("show_ghosts", self.show_ghosts, "value", s.view.show_ghosts)
-        self._set("ghost_type", self.ghost_type, "value", s.view.ghost_type)
         nodes = sorted({int(i) for i in np.asarray(pool.node)}) if pool is not None else []
         self._set(
             "ghost_node.options", self.ghost_node, "options", (ALL, *(f"node {i}" for i in nodes))
         )
-        gn = ALL if s.view.ghost_node is None else f"node {s.view.ghost_node}"
-        self._set("ghost_node", self.ghost_node, "value", gn)
+        self._sync_grasp_options(s)
+        with self._timers_lock:  # a control whose edit waits for its debounce keeps the edit
+            waiting = {id(self.params[k]) for k in self._timers if k in self.params}
+            waiting |= {
+                id(h)
+                for k, h in (("n_points", self.n_points), ("seed", self.seed))
+                if k in self._timers
+            }
+        for key, h, v in self._input_values(s):
+            if id(h) not in waiting:
+                self._set(key, h, "value", v)
+        self._set("boxes", self.boxes, "content", f"boxes: {self.scene.n_boxes}")
+        self._set("node_info", self.node_info, "content", node_info(s))
+        self._sync_pool(s)
+        self._set("table", self.table, "content", grasp_table(s))
+
+    def _sync_pool(self, s: AppState) -> None:
+        pool = getattr(s.result, "pool", None)
         if pool is None:
             return
         kept = int(ghost_selection(pool, s.view.ghost_type, s.view.ghost_node).sum())
         dropped = getattr(pool, "dropped", {}) or {}
-        drops = ", ".join(f"{k}: {v}" for k, v in dropped.items()) or "none"
+        drops = ", ".join(f"{md_text(k)}: {md_text(v)}" for k, v in dropped.items()) or "none"
         self._set(
             "pool_info",
             self.pool_info,
@@ -278,21 +417,15 @@ class Gui:
             f"{self.scene.n_ghosts_shown} ghosts drawn; dropped: {drops}",
         )
 
-    def _sync_grasps(self, s: AppState) -> None:
+    def _sync_grasp_options(self, s: AppState) -> None:
         ranked = ranked_grasps(s.result) if s.planned else []
         if ranked:
             opts = tuple(grasp_label(k, g) for k, g in enumerate(ranked[:TABLE_ROWS]))
             self._set("grasp.options", self.grasp, "options", opts)
-            k = s.view.selected_grasp
-            if k is not None and k < len(opts):
-                self._set("grasp", self.grasp, "value", opts[k])
             self._set("grasp.disabled", self.grasp, "disabled", False)
         else:
             self._set("grasp.options", self.grasp, "options", ("(plan first)",))
             self._set("grasp.disabled", self.grasp, "disabled", True)
-        self._set("table", self.table, "content", grasp_table(s))
-        self._set("phase", self.phase, "value", round(float(min(s.view.anim_t, 1.0)), 2))
-        self._set("speed", self.speed, "value", float(s.view.speed))
 
 
 PARAM_DEBOUNCE_S = 0.3
@@ -303,16 +436,25 @@ TABLE_ROWS = 20
 """Rows of the ranked grasp table and options of the grasp chooser."""
 
 
-def _upload(handle: Any) -> tuple[str, bytes]:
-    return handle.value.name, handle.value.content
+def _node(value: Any) -> int | None:
+    """Node id of a node-filter option (``"node 3"``), ``None`` for :data:`ALL`."""
+    if value == ALL:
+        return None
+    parts = str(value).split()
+    if len(parts) != 2 or parts[0] != "node" or not parts[1].isdigit():
+        raise ValueError(f"node filter must be {ALL!r} or 'node N', got {value!r}")
+    return int(parts[1])
 
 
-def _node(value: str) -> int | None:
-    return None if value == ALL else int(value.split()[-1])
-
-
-def _rank(value: str) -> int | None:
-    return int(value.split()[0].lstrip("#")) - 1 if value.startswith("#") else None
+def _rank(value: Any) -> int | None:
+    """Rank (0 = best) of a grasp-chooser option (``"#2 ..."``), ``None`` for no grasp."""
+    text = str(value)
+    if not text.startswith("#"):
+        return None
+    head = text.split()[0][1:]
+    if not head.isdigit() or int(head) < 1:
+        raise ValueError(f"grasp choice must start with '#N', got {value!r}")
+    return int(head) - 1
 
 
 def grasp_label(k: int, g: Any) -> str:
@@ -342,7 +484,7 @@ def grasp_table(s: AppState) -> str:
     for k, g in enumerate(ranked[:TABLE_ROWS]):
         node = "" if pool is None else int(np.asarray(pool.node)[int(g.pregrasp)])
         rows.append(
-            f"| {k + 1} | {_type_of(g)} | {node} | {len(contact_arrays(g)[0])} | "
+            f"| {k + 1} | {md_text(_type_of(g))} | {node} | {len(contact_arrays(g)[0])} | "
             f"{float(g.epsilon):.4f} | {float(getattr(g, 'volume', 0.0)):.2e} |"
         )
     return "\n".join(rows)
@@ -360,17 +502,15 @@ def node_info(s: AppState) -> str:
         f"**node {i}** (depth {node.depth}, parent {node.parent}, "
         f"children {list(node.children) or 'none'})",
         "",
-        f"- class: {sh.shape_class.value if sh is not None else '?'}",
-        f"- grasp type: {sh.grasp_type.value if sh is not None else '?'}",
+        f"- class: {md_text(sh.shape_class.value) if sh is not None else '?'}",
+        f"- grasp type: {md_text(sh.grasp_type.value) if sh is not None else '?'}",
         f"- volume: {node.box.volume * 1e6:.1f} cm^3",
         f"- extents: {', '.join(f'{e * 1000:.1f}' for e in node.box.extents)} mm",
         f"- points: {len(node.indices)}",
     ]
     masks = getattr(s.result, "masks", None)
     if masks is not None:
-        from .scene import _mask_matrix
-
-        table = _fmt_mask(_mask_matrix(masks, i), _blocked_by(masks, i))
+        table = _fmt_mask(mask_matrix(masks, i), _blocked_by(masks, i))
         lines += ["", "face mask (0 free, 1 blocked):", "", table]
     return "\n".join(lines)
 

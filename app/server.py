@@ -18,6 +18,7 @@ from typing import Any
 
 from pregrasp_core.paths import DEFAULT_OBJECT
 
+from . import viser_hooks
 from .controller import DEFAULT_MAX_UPLOAD_BYTES, Controller
 from .gui import Gui
 from .scene import SceneRenderer
@@ -70,12 +71,20 @@ class App:
     """A running app: its controller, scene and GUI, plus the animation thread."""
 
     def __init__(
-        self, server: Any, controller: Controller, scene: SceneRenderer, gui: Gui, animate_hz: float
+        self,
+        server: Any,
+        controller: Controller,
+        scene: SceneRenderer,
+        gui: Gui,
+        animate_hz: float,
+        uploads: viser_hooks.UploadGuard,
     ) -> None:
         self.server = server
         self.controller = controller
         self.scene = scene
         self.gui = gui
+        self.uploads = uploads
+        """The guard in front of viser's upload handlers (see :mod:`app.viser_hooks`)."""
         self._stop = threading.Event()
         self._period = 1.0 / float(animate_hz)
         self._thread = threading.Thread(target=self._animate, name="pregrasp-animator", daemon=True)
@@ -96,12 +105,24 @@ class App:
         self._thread.join(timeout=2.0)
 
 
+def protect(server: Any, host: str) -> None:
+    """Refuse requests from other origins on ``server`` (see :mod:`app.viser_hooks`): only
+    pages served by this server, under a loopback name or (bound beyond loopback) this
+    machine's names, may talk to it. Raises ``ViserHookError`` when viser cannot be hooked."""
+    viser_hooks.install_origin_check(server, viser_hooks.allowed_host_names(host))
+
+
 def run(config: ViewerConfig, server: Any) -> App:
     """Build the app on ``server`` and load ``config.input`` (or the default object).
 
-    Raises the loader's ``PregraspError`` when the input cannot be read (the CLI prints it).
+    Installs the server's defences first (:func:`protect`, the upload and GUI-update guards of
+    :mod:`app.viser_hooks`, ``docs/security.md``). Raises the loader's ``PregraspError`` when
+    the input cannot be read (the CLI prints it), ``ViserHookError`` when viser's internals
+    cannot be hooked (the app never runs unprotected).
     """
     from pregrasp_core.hand import Hand
+
+    protect(server, config.host)
 
     hand = Hand.load()
     scene = SceneRenderer(server, hand=hand, max_ghosts=config.max_ghosts)
@@ -117,8 +138,10 @@ def run(config: ViewerConfig, server: Any) -> App:
     )
     scene.on_box_click = lambda node, client: controller.act(client, controller.select_node, node)
     gui = Gui(server, controller, scene)
+    uploads = viser_hooks.install_upload_guard(server, lambda: controller.max_upload_bytes)
+    viser_hooks.install_update_guard(server, gui.on_bad_value)
     controller.load_path(config.input if config.input is not None else DEFAULT_OBJECT)
-    return App(server, controller, scene, gui, config.animate_hz)
+    return App(server, controller, scene, gui, config.animate_hz, uploads)
 
 
 def access_lines(host: str, port: int) -> list[str]:
@@ -135,6 +158,19 @@ def access_lines(host: str, port: int) -> list[str]:
     ]
 
 
+def exposure_warning(host: str) -> list[str]:
+    """The warning ``pregrasp view`` prints when ``host`` is not a loopback address."""
+    if viser_hooks.host_name(host) in viser_hooks.LOOPBACK_NAMES or host.startswith("127."):
+        return []
+    return [
+        f"WARNING: --host {host} makes the viewer reachable from the network, with no password "
+        "and no encryption: anyone who can reach this port can load files into it and use its "
+        "CPU and memory.",
+        "  Safer: keep the default --host 127.0.0.1 and reach it over SSH with the port-forward "
+        "below (see docs/security.md).",
+    ]
+
+
 def serve(config: ViewerConfig) -> None:
     """Create the server, build the app, print how to reach it and serve until Ctrl-C."""
     import viser
@@ -142,7 +178,8 @@ def serve(config: ViewerConfig) -> None:
     server = viser.ViserServer(host=config.host, port=config.port, verbose=False)
     try:
         app = run(config, server)
-        for line in access_lines(config.host, server.get_port()):
+        lines = exposure_warning(config.host) + access_lines(config.host, server.get_port())
+        for line in lines:
             print(line, flush=True)  # noqa: T201 - the CLI's output
         try:
             while True:

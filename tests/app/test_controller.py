@@ -12,8 +12,8 @@ import pytest
 from viser._gui_handles import GuiEvent, UploadedFile
 
 from app import cli
-from app.scene import (
-    NAMES,
+from app.scene import NAMES
+from app.scene_data import (
     animation_pose,
     box_edge_segments,
     face_quads,

@@ -7,15 +7,23 @@ from the app."""
 from __future__ import annotations
 
 import dataclasses
+import html
+import re
 import time
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from app.scene import NAMES, ghost_selection, node_color
+from app.scene import NAMES
+from app.scene_data import ghost_selection, node_color
 from app.state import ALL
 from pregrasp_core.decomposition import decompose
+
+
+def shown_text(markdown: str) -> str:
+    """The text a markdown source shows (backslash escapes and entities resolved)."""
+    return html.unescape(re.sub(r"\\(.)", r"\1", markdown))
 
 
 def _box_handles(app) -> dict[int, object]:
@@ -102,7 +110,7 @@ def test_click_on_box_selects_node_and_shows_its_card(app):
         entry.callback(SimpleNamespace(client=None, target=box, event="click"))
     s = app.controller.state
     assert s.view.selected_node == leaf
-    text = app.gui.node_info.content
+    text = shown_text(app.gui.node_info.content)
     shape = s.result.shapes[leaf]
     assert f"node {leaf}" in text
     assert f"class: {shape.shape_class.value}" in text

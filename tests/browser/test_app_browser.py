@@ -14,7 +14,8 @@ import re
 
 import pytest
 
-from app.scene import NAMES, ranked_grasps
+from app.scene import NAMES
+from app.scene_data import ranked_grasps
 from pregrasp_core.decomposition import decompose
 
 LOAD_TIMEOUT_MS = 90_000

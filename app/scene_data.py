@@ -1,0 +1,302 @@
+"""Pure helpers of the scene: colours, box edges, face quads, ghost filters, contact cones and the
+animation pose, computed from the core's results as plain numpy arrays.
+
+Nothing here touches viser's scene or holds state, so each helper is tested on its own (see
+``tests/app/test_controller.py``); :mod:`app.scene` draws what these return.
+"""
+
+from __future__ import annotations
+
+import colorsys
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import viser.transforms as vtf
+
+from .state import ALL, AppState
+
+FACE_OFFSET = 1e-3
+"""Face-mask quads float this far (metres) outside their face so they do not z-fight."""
+CONE_HEIGHT = 0.015
+"""Drawn length (metres) of a friction cone's axis."""
+
+
+def node_color(i: int) -> tuple[int, int, int]:
+    """A distinct, stable RGB colour (0-255) for node ``i`` (golden-ratio hues)."""
+    h = (0.13 + 0.618033988749895 * int(i)) % 1.0
+    r, g, b = colorsys.hsv_to_rgb(h, 0.65, 0.95)
+    return (int(r * 255), int(g * 255), int(b * 255))
+
+
+def node_colors(ids: np.ndarray) -> np.ndarray:
+    """(K, 3) uint8 colours of node ids ``ids`` (K,); id -1 gives grey."""
+    ids = np.asarray(ids, dtype=np.int64)
+    out = np.full((len(ids), 3), 150, dtype=np.uint8)
+    for k, i in enumerate(ids.tolist()):  # loop over nodes only (small set)
+        if i >= 0:
+            out[k] = node_color(i)
+    return out
+
+
+def wxyz_from_matrices(R: np.ndarray) -> np.ndarray:
+    """(B, 4) wxyz quaternions of rotation matrices ``R`` (B, 3, 3)."""
+    R = np.asarray(R, dtype=np.float64)
+    if R.ndim != 3 or R.shape[1:] != (3, 3):
+        raise ValueError(f"R must have shape (B, 3, 3), got {R.shape}")
+    if len(R) == 0:
+        return np.zeros((0, 4))
+    return np.asarray(vtf.SO3.from_matrix(R).wxyz, dtype=np.float64).reshape(-1, 4)
+
+
+def box_edge_segments(boxes: list[Any]) -> np.ndarray:
+    """(12 K, 2, 3) world segments of the 12 edges of each ``OrientedBox`` in ``boxes``."""
+    if not boxes:
+        return np.zeros((0, 2, 3))
+    corners = np.stack([b.corners() for b in boxes])  # (K, 8, 3); bit k of corner = axis k sign
+    pairs = np.array(
+        [(a, a | (1 << ax)) for ax in range(3) for a in range(8) if not a & (1 << ax)]
+    )  # (12, 2): corner pairs differing in one axis bit
+    return corners[:, pairs].reshape(-1, 2, 3)
+
+
+def face_quads(boxes: list[Any], offset: float = FACE_OFFSET) -> tuple[np.ndarray, ...]:
+    """Pose and size of the 6 face quads of each box, in the face numbering of ``facemask``.
+
+    Returns ``(positions (6K, 3), R (6K, 3, 3), sizes (6K, 3))`` for a unit quad lying in its
+    local xy plane with +z along the face's outward normal; face ``f`` of box ``k`` is row
+    ``6 k + f``. Face ``f`` has outward normal ``sign * axis`` with axis ``f // 2`` and sign
+    ``+`` for even ``f`` (faces 0..5 = +x, -x, +y, -y, +z, -z of the box frame).
+    """
+    pos, rots, sizes = [], [], []
+    for b in boxes:  # loop over boxes (small set)
+        R, he = b.rotation, b.half_extents
+        for f in range(6):
+            ax, sign = f // 2, (1.0 if f % 2 == 0 else -1.0)
+            u, v = [a for a in range(3) if a != ax]
+            n = sign * R[:, ax]
+            x = R[:, u]
+            y = np.cross(n, x)
+            pos.append(b.center + n * (he[ax] + offset))
+            rots.append(np.stack([x, y, n], axis=1))
+            sizes.append((2 * he[u], 2 * he[v], 1.0))
+    if not pos:
+        return np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3))
+    return np.array(pos), np.array(rots), np.array(sizes)
+
+
+@dataclass(frozen=True)
+class FaceLayers:
+    """What the face-mask layer draws for the shown boxes (computed from the core's masks)."""
+
+    free: np.ndarray
+    """(F, 4, 4) poses of unit quads of free faces, scaled by ``free_sizes``."""
+    free_sizes: np.ndarray
+    """(F, 3) per-axis scale of the free quads."""
+    blocked: np.ndarray
+    """(B, 4, 4) poses of the blocked faces."""
+    blocked_sizes: np.ndarray
+    """(B, 3) per-axis scale of the blocked quads."""
+    subface_segments: np.ndarray
+    """(S, 2, 3) outline segments of the usable sub-faces."""
+
+
+GHOST_RGB = {
+    "cylindrical": (80, 160, 255),
+    "spherical": (255, 140, 60),
+    "three_finger_tip": (170, 110, 255),
+    "two_finger_tip": (60, 220, 200),
+}
+"""Ghost colour per grasp type."""
+
+
+FACE_SHADE = np.array([1.0, 0.55, 0.85, 0.4, 0.7, 0.25])
+"""Brightness factor of the ghosts sampled from face 0..5 (+x, -x, +y, -y, +z, -z)."""
+
+
+def ghost_colors(grasp_type: str, faces: np.ndarray) -> np.ndarray:
+    """(K, 3) uint8 ghost colours: the grasp type's hue, shaded by the face of origin, so that
+    neighbouring hands from different faces stay apart in a dense pool."""
+    base = np.asarray(GHOST_RGB.get(grasp_type, (200, 200, 200)), dtype=np.float64)
+    shade = FACE_SHADE[np.clip(np.asarray(faces, dtype=np.int64), 0, 5)]  # (K,)
+    return np.clip(base[None] * (0.45 + 0.55 * shade[:, None]), 0, 255).astype(np.uint8)
+
+
+def attr_or_none(obj: Any, name: str) -> Any:
+    return None if obj is None else getattr(obj, name, None)
+
+
+def friction_coefficient(params: Any, default: float = 0.5) -> float:
+    """The friction coefficient of the quality measure (``params.planner.quality.mu``)."""
+    q = getattr(getattr(params, "planner", None), "quality", None)
+    return float(getattr(q, "mu", default))
+
+
+def pool_types(pool: Any) -> np.ndarray:
+    """(P,) str array of the pool's grasp types (``PreGraspPool.grasp_type`` is one)."""
+    return np.asarray(pool.grasp_type).astype(str)
+
+
+def ghost_selection(pool: Any, grasp_type: str, node: int | None) -> np.ndarray:
+    """(P,) bool: the pre-grasps of ``pool`` passing the grasp-type and node filters."""
+    types = pool_types(pool)
+    keep = np.ones(len(types), dtype=bool)
+    if grasp_type != ALL:
+        keep &= types == str(grasp_type)
+    if node is not None:
+        keep &= np.asarray(pool.node) == int(node)
+    return keep
+
+
+def ranked_grasps(result: Any) -> list[Any]:
+    """The successful grasps of a pipeline result, best first (empty when not planned)."""
+    grasps = attr_or_none(result, "grasps")
+    if grasps is None:
+        return []
+    ranked = getattr(grasps, "ranked", None)
+    if ranked is not None:
+        return list(ranked() if callable(ranked) else ranked)
+    ok = [g for g in grasps if getattr(g, "rank", None) is not None]
+    return sorted(ok, key=lambda g: g.rank)
+
+
+def selected_grasp(state: AppState) -> Any:
+    """The grasp chosen in the ranked table, or ``None``."""
+    k = state.view.selected_grasp
+    if k is None or state.result is None:
+        return None
+    ranked = ranked_grasps(state.result)
+    return ranked[k] if 0 <= k < len(ranked) else None
+
+
+def contact_arrays(grasp: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(C, 3) contact points and (C, 3) unit normals of a grasp (world frame)."""
+    cs = list(getattr(grasp, "contacts", ()) or ())
+    if not cs:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    pts = np.array([np.asarray(c.point, dtype=np.float64) for c in cs])
+    nrm = np.array([np.asarray(c.normal, dtype=np.float64) for c in cs])
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+    return pts, nrm
+
+
+def friction_cone_segments(
+    points: np.ndarray, normals: np.ndarray, mu: float, m: int = 8, height: float = CONE_HEIGHT
+) -> np.ndarray:
+    """(C (m + 1), 2, 3) line segments drawing a friction cone of half-angle atan(mu) per contact.
+
+    Each cone has its apex at the contact and opens along the contact normal; its ``m`` edges
+    are ``n + mu (cos t a + sin t b)`` (the linearised cone of the quality measure), plus the axis.
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    n = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])  # (C, 3)
+    a = np.cross(n, helper)
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b = np.cross(n, a)
+    t = 2 * np.pi * np.arange(m) / m  # (m,)
+    edges = n[:, None] + mu * (
+        np.cos(t)[None, :, None] * a[:, None] + np.sin(t)[None, :, None] * b[:, None]
+    )
+    edges = np.concatenate([edges, n[:, None]], axis=1)  # (C, m + 1, 3)
+    edges *= height / np.linalg.norm(edges, axis=2, keepdims=True)
+    starts = np.broadcast_to(p[:, None], edges.shape)
+    # the cone is drawn outside the object: the normal points into it, so draw along -n
+    return np.stack([starts, starts - edges], axis=2).reshape(-1, 2, 3)
+
+
+def pregrasp_of(state: AppState, grasp: Any) -> Any:
+    pool = attr_or_none(state.result, "pool")
+    i = getattr(grasp, "pregrasp", None)
+    if i is None:
+        i = getattr(grasp, "pregrasp_index", None)
+    if pool is None or i is None:
+        return None
+    return pool[int(i)]
+
+
+def animation_pose(grasp: Any, pregrasp: Any, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """Hand pose ``T_world_hand`` (4, 4) and joints ``q`` (J,) at animation phase ``t`` in [0, 1].
+
+    [0, 0.5]: the open hand (preshape) moves along its approach from the pre-grasp pose to the
+    grasp pose; [0.5, 1]: the joints go linearly from the preshape to the closed configuration.
+    """
+    t = float(np.clip(t, 0.0, 1.0))
+    T_end = np.asarray(grasp.T_world_hand, dtype=np.float64)
+    q_end = np.asarray(grasp.q, dtype=np.float64)
+    if pregrasp is None:
+        return T_end, q_end
+    T_start = np.asarray(pregrasp.T_world_hand, dtype=np.float64)
+    q_start = np.asarray(pregrasp.q, dtype=np.float64)
+    if t <= 0.5:
+        s = t / 0.5
+        T = T_end.copy()
+        T[:3, 3] = (1 - s) * T_start[:3, 3] + s * T_end[:3, 3]
+        T[:3, :3] = T_start[:3, :3] if s < 0.5 else T_end[:3, :3]
+        return T, q_start
+    s = (t - 0.5) / 0.5
+    return T_end, (1 - s) * q_start + s * q_end
+
+
+def face_layers(state: AppState) -> FaceLayers | None:
+    """The face quads (free/blocked) and usable sub-face outlines of the shown boxes."""
+    masks = attr_or_none(state.result, "masks")
+    if masks is None:
+        return None
+    tree = state.tree
+    shown = state.shown_nodes()
+    boxes = [tree.node(i).box for i in shown]
+    pos, R, size = face_quads(boxes)
+    T = np.zeros((len(pos), 4, 4))
+    T[:, :3, :3], T[:, :3, 3], T[:, 3, 3] = R, pos, 1.0
+    blocked = (
+        np.concatenate([blocked_faces(masks, i) for i in shown])
+        if shown
+        else np.zeros(0, dtype=bool)
+    )
+    return FaceLayers(
+        free=T[~blocked],
+        free_sizes=size[~blocked],
+        blocked=T[blocked],
+        blocked_sizes=size[blocked],
+        subface_segments=subface_segments(state, shown),
+    )
+
+
+def blocked_faces(masks: Any, node: int) -> np.ndarray:
+    """(6,) bool: which faces of ``node`` are blocked (``FaceMasks.blocked[node]``)."""
+    return np.asarray(masks.blocked[node], dtype=bool).reshape(6)
+
+
+def mask_matrix(masks: Any, node: int) -> np.ndarray:
+    """(6, 5) int face mask of ``node`` (row f = [f, l, d, r, u], 1 = blocked)."""
+    return np.asarray(masks.mask(node)).reshape(6, 5)
+
+
+def subface_segments(state: AppState, shown: list[int], shrink: float = 0.85) -> np.ndarray:
+    """(S, 2, 3) outlines of the usable sub-faces of the shown nodes for their grasp types.
+
+    Each usable cell is drawn shrunk by ``shrink`` about its centre (so neighbouring cells stay
+    apart) and lifted off its face by twice :data:`FACE_OFFSET`.
+    """
+    from pregrasp_core.facemask import subface_rectangles, usable_subfaces
+
+    res = state.result
+    shapes = attr_or_none(res, "shapes")
+    if shapes is None:
+        return np.zeros((0, 2, 3))
+    rects = []
+    for i in shown:  # loop over the shown nodes (small set)
+        node = state.tree.node(i)
+        gt = shapes[i].grasp_type
+        usable = usable_subfaces(blocked_faces(res.masks, i), gt)
+        for f, r in enumerate(subface_rectangles(node.box, gt)):  # 6 faces
+            r = r[usable[f]]  # (S, 4, 3) corners of the usable cells
+            if len(r):
+                n = node.box.rotation @ np.eye(3)[f // 2] * (1.0 if f % 2 == 0 else -1.0)
+                c = r.mean(axis=1, keepdims=True)
+                rects.append(c + shrink * (r - c) + 2 * FACE_OFFSET * n)
+    if not rects:
+        return np.zeros((0, 2, 3))
+    r = np.concatenate(rects)  # (S, 4, 3)
+    return np.stack([r, np.roll(r, -1, axis=1)], axis=2).reshape(-1, 2, 3)
