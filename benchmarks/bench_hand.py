@@ -157,13 +157,14 @@ def bench_self_collision(hand: Hand, n_points: int, repeats: int) -> None:
     set does not depend on the other sections)."""
     import fcl
 
-    import pregrasp_core.hand as hand_module
+    import pregrasp_core.hand.collision as collision_module
     from pregrasp_core.hand import GRASP_TYPES
     from pregrasp_core.io import load_point_cloud
     from pregrasp_core.pipeline import PipelineParams, run_pipeline
     from pregrasp_core.planner import PlannerParams
 
-    ia, ib, reach = hand._self_pair_spheres
+    checker = hand.self_collision_checker
+    ia, ib, reach = checker.a, checker.b, checker.reach
     pairs = hand.self_collision_pairs_checked
 
     def before(Tb: np.ndarray) -> list[tuple[str, str]]:  # one hand's box poses (L, 4, 4)
@@ -172,7 +173,7 @@ def bench_self_collision(hand: Hand, n_points: int, repeats: int) -> None:
             return []
         objs = {
             int(li): fcl.CollisionObject(
-                hand._link_fcl_boxes[li], fcl.Transform(Tb[li, :3, :3], Tb[li, :3, 3])
+                checker.boxes[li], fcl.Transform(Tb[li, :3, :3], Tb[li, :3, 3])
             )
             for li in np.unique(np.concatenate([ia[near], ib[near]]))
         }
@@ -222,7 +223,7 @@ def bench_self_collision(hand: Hand, n_points: int, repeats: int) -> None:
             c = Tb[:, :, :3, 3]
             bb, kk = np.nonzero(np.linalg.norm(c[:, ia] - c[:, ib], axis=2) - reach <= 1e-6)
             Tt, la, lb = Tb.transpose(2, 3, 0, 1), ia[kk], ib[kk]
-            apart = hand_module._obb_apart(
+            apart = collision_module.obb_apart(
                 Tt[:3, :3, bb, la], Tt[:3, 3, bb, la], half[:, la],
                 Tt[:3, :3, bb, lb], Tt[:3, 3, bb, lb], half[:, lb],
             )  # fmt: skip
@@ -233,7 +234,7 @@ def bench_self_collision(hand: Hand, n_points: int, repeats: int) -> None:
                 f"{t_ref / t_many:.1f}x | {same} |"
             )
     # one hand: the filter forced on (threshold 0) against off, by ball-candidate count; this
-    # is what ``_SAT_MIN_PAIRS`` is set from
+    # is what ``SAT_MIN_PAIRS`` is set from
     Q = rng.uniform(hand.lower, hand.upper, size=(3000, hand.n_joints))
     Tb = hand.box_poses(Q)
     c = Tb[:, :, :3, 3]
@@ -241,18 +242,18 @@ def bench_self_collision(hand: Hand, n_points: int, repeats: int) -> None:
     print("\nOne hand (`self_collisions`, random configurations), separating-axis filter on/off:\n")
     print("| ball candidates | hands | filter on | filter off (ball + fcl) |")
     print("|---|---:|---:|---:|")
-    default = hand_module._SAT_MIN_PAIRS
+    default = collision_module.SAT_MIN_PAIRS
     for lo, hi in ((0, 6), (6, 12), (12, 18), (18, 24), (24, 37)):
         sel = np.flatnonzero((n_cand >= lo) & (n_cand < hi))[:100]
         times = []
         for threshold in (0, 10**9):  # filter on every call / never
-            hand_module._SAT_MIN_PAIRS = threshold
+            collision_module.SAT_MIN_PAIRS = threshold
             times.append(
                 median_time(
                     lambda sel=sel: [hand.self_collisions(Q[b], Tb[b]) for b in sel], repeats
                 )
             )
-        hand_module._SAT_MIN_PAIRS = default
+        collision_module.SAT_MIN_PAIRS = default
         on, off = (fmt(t / len(sel)) for t in times)
         print(f"| {lo}-{hi - 1} | {len(sel)} | {on} | {off} |")
 

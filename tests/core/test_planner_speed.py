@@ -13,7 +13,7 @@ import fcl
 import numpy as np
 import pytest
 
-import pregrasp_core.hand as hand_module
+import pregrasp_core.hand.closing as closing_module
 from pregrasp_core.hand import load_hand
 
 
@@ -47,9 +47,9 @@ def test_chunked_closing_sweep_equals_the_full_sweep(hand, monkeypatch, seed):
             pts = centre + rng.normal(scale=0.15 * reach, size=(m, 2))
             q0 = rng.uniform(f.lower, 0.5 * (f.lower + f.upper))
             margin = float(rng.choice([0.0, 0.001]))
-            monkeypatch.setattr(hand_module, "_SWEEP_CHUNK", 8)
+            monkeypatch.setattr(closing_module, "SWEEP_CHUNK", 8)
             fast = hand.close_finger(f, pts, q0, margin=margin)
-            monkeypatch.setattr(hand_module, "_SWEEP_CHUNK", 10_000)  # one chunk: every sample
+            monkeypatch.setattr(closing_module, "SWEEP_CHUNK", 10_000)  # one chunk: every sample
             full = hand.close_finger(f, pts, q0, margin=margin)
             _same_closing(fast, full)
             n_touch += fast.contact_link is not None
@@ -82,16 +82,16 @@ def test_self_collision_ball_pretest_equals_fcl_on_every_pair(hand):
 def test_refinement_point_filter_equals_refining_with_every_point(hand, monkeypatch, seed):
     rng = np.random.default_rng(100 + seed)
     everything = lambda geo, P, Q, links: np.ones(len(P), dtype=bool)  # noqa: E731
-    real = hand_module._may_touch
+    real = closing_module.may_touch
     n_touch = 0
     for f in hand.fingers:  # loop over the 3 fingers
         reach = f.middle_length + f.distal_length
         for _ in range(6):
             pts = rng.uniform(-0.2, 1.0, size=(int(rng.integers(20, 600)), 2)) * reach
             q0 = rng.uniform(f.lower, 0.5 * (f.lower + f.upper))
-            monkeypatch.setattr(hand_module, "_may_touch", real)
+            monkeypatch.setattr(closing_module, "may_touch", real)
             fast = hand.close_finger(f, pts, q0, margin=0.001)
-            monkeypatch.setattr(hand_module, "_may_touch", everything)
+            monkeypatch.setattr(closing_module, "may_touch", everything)
             full = hand.close_finger(f, pts, q0, margin=0.001)
             _same_closing(fast, full)
             n_touch += fast.contact_link is not None
@@ -103,14 +103,14 @@ def test_may_touch_keeps_every_point_touched_inside_the_bracket(hand):
     filter does drop points (else it would be pointless)."""
     rng = np.random.default_rng(5)
     f = hand.fingers[0]
-    geo = hand_module._FingerGeometry(f, 0.001, palm=True)
+    geo = closing_module.FingerGeometry(f, 0.001, palm=True)
     reach = f.middle_length + f.distal_length
     n_dropped = n_touched = 0
     for _ in range(40):  # random brackets and point sets
         P = rng.uniform(-0.3, 1.0, size=(500, 2)) * reach
         qa = rng.uniform(f.lower, f.upper)
         qb = np.minimum(qa + rng.uniform(0.0, 0.1, size=2), f.upper)
-        keep = hand_module._may_touch(geo, P, np.stack([qa, qb]), (True, True))
+        keep = closing_module.may_touch(geo, P, np.stack([qa, qb]), (True, True))
         Q = qa + np.linspace(0.0, 1.0, 201)[:, None] * (qb - qa)  # (201, 2) dense samples
         mid, dis, _, _ = geo.hits(Q, P, (True, True))
         touched = (mid | dis).any(axis=0)

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-import pregrasp_core.hand as hand_module
+import pregrasp_core.hand.collision as collision_module
 from pregrasp_core.hand import GRASP_TYPES, load_hand
 
 
@@ -58,7 +58,7 @@ def _check_all_ways(hand, Q: np.ndarray, monkeypatch) -> list[list[tuple[str, st
     """many == [single] == brute force, with the separating-axis filter forced on and off."""
     expected = [_brute_force(hand, q) for q in Q]
     for min_pairs in (0, 10**9):  # filter on every batch / never (python-fcl on every candidate)
-        monkeypatch.setattr(hand_module, "_SAT_MIN_PAIRS", min_pairs)
+        monkeypatch.setattr(collision_module, "SAT_MIN_PAIRS", min_pairs)
         assert hand.self_collisions_many(Q) == expected
         assert hand.self_collisions_many(Q, hand.box_poses(Q)) == expected
         assert [hand.self_collisions(q) for q in Q] == expected
@@ -132,7 +132,7 @@ def test_many_equals_brute_force_near_the_first_contact(hand, monkeypatch):
 
 
 def _random_box_pairs(rng: np.random.Generator, n: int):
-    """n box pairs with pair index last (as ``_obb_apart`` takes them), in kinds that stress
+    """n box pairs with pair index last (as ``obb_apart`` takes them), in kinds that stress
     the test: random, parallel, perpendicular (exact 90 degree turns), nearly parallel
     (1e-12..1e-3 rad), each placed so that their extents along a direction u just meet, then
     moved by a signed gap from -1 mm to 1 mm (including 0 and +-1e-12..1e-9 m) along a face
@@ -173,7 +173,7 @@ def _random_box_pairs(rng: np.random.Generator, n: int):
 def test_separating_axis_filter_agrees_with_python_fcl_on_random_box_pairs():
     rng = np.random.default_rng(3)
     Ra, ca, ha, Rb, cb, hb, gap, on_face = _random_box_pairs(rng, 3000)
-    apart = hand_module._obb_apart(
+    apart = collision_module.obb_apart(
         Ra.transpose(1, 2, 0), ca.T, ha.T, Rb.transpose(1, 2, 0), cb.T, hb.T
     )
     hit = np.array(
@@ -230,7 +230,7 @@ def test_separating_axis_filter_on_hand_made_pairs():
     cb = np.array([r[2] for r in rows])
     expected = np.array([r[3] for r in rows])
     ca, half = np.zeros_like(cb), np.full_like(cb, h)
-    got = hand_module._obb_apart(
+    got = collision_module.obb_apart(
         Ra.transpose(1, 2, 0), ca.T, half.T, Rb.transpose(1, 2, 0), cb.T, half.T
     )
     np.testing.assert_array_equal(got, expected)

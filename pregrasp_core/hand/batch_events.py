@@ -1,0 +1,279 @@
+"""The batched closing model's first events: for one closing phase of many slices, the first
+touching coarse sample of each (a sweep by conservative advancement), the bracket around it
+refined level by level for all slices together, and the touching points at its end (see
+``docs/hand.md``, "Many slices at once")."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..tolerances import HAND_CLOSING_ANGLE_TOL
+from .batch_hits import (
+    Configs,
+    SliceBatch,
+    any_hit_ragged,
+    batch_distance,
+    pair_eval,
+    pair_hits,
+    paths,
+    points_of,
+)
+from .closing import REFINE_BUDGET, REFINE_SAMPLES, FingerGeometry
+
+
+def _coarse_sweep(
+    B: SliceBatch,
+    sl: np.ndarray,
+    qb: np.ndarray,
+    A: np.ndarray,
+    upper: np.ndarray,
+    t: np.ndarray,
+    n_t: np.ndarray,
+    step: np.ndarray,
+    pts: np.ndarray,
+    rows: np.ndarray,
+    links: tuple[bool, bool],
+) -> tuple[np.ndarray, np.ndarray]:
+    """The first touching coarse sample of every slice (``k`` (R,), -1 if none) without testing
+    every (sample, point) pair: the samples go in order, and each point is tested at a sample
+    only when its last test leaves it possibly touching there (conservative advancement: a point
+    at Euclidean distance d from a link's rectangle stays off it while the rectangle moves less
+    than d), and not after its slice's first touch. Also ``free`` per point (as ``pts``): the
+    point is off both links for every path parameter in ``[0, free)``."""
+    R, C1 = t.shape
+    Q = paths(qb, A, upper, t)  # (R, C1, 2) every coarse sample
+    cfg = Configs.of(B, sl, Q, links)
+    am = abs(B.margin)
+    Lm, h = B.Lm[sl], B.h[sl]
+    speed_mid = A[0] * np.hypot(Lm + am, h + am)  # (R,) joint 1 turns at most A[0] per unit t
+    speed_dis = (A[0] + A[1]) * np.hypot(B.Ld[sl] + am, h + am) + A[0] * Lm
+    flat = {f: getattr(cfg, f).reshape(-1) for f in ("d1x", "d1y", "d2x", "d2y", "cs", "cr")}
+    flat["hm"] = np.repeat(h + B.margin, C1)  # (R * C1,) per configuration
+    flat["top0"] = np.repeat(Lm + B.margin, C1)
+    flat["top1"] = np.repeat(B.Ld[sl] + B.margin, C1)
+    flat["sp0"] = np.repeat(speed_mid, C1)
+    flat["sp1"] = np.repeat(speed_dis, C1)
+    valid = np.arange(C1)[None, :] < n_t[:, None]
+    palm = (cfg.palm_mid | cfg.palm_dis) & valid
+    best = np.where(palm.any(axis=1), np.argmax(palm, axis=1), C1)  # (R,) first touch so far
+    t_flat = t.reshape(-1)
+    inv_step = np.divide(1.0, step, out=np.full(R, np.inf), where=step > 0)
+    free = np.zeros(len(pts))  # each point is off the links for all t in [0, free)
+    px, py = B.x[pts], B.y[pts]
+    lim = np.minimum(n_t, best)  # (R,) samples beyond this need no test
+    # buckets[k]: the points (positions in pts, increasing in each part) to test at coarse
+    # sample k; every point starts at sample 0 and, untouched, moves on to the first sample its
+    # clearance does not cover
+    buckets: list[list[np.ndarray]] = [[] for _ in range(C1)]
+    buckets[0].append(np.arange(len(pts)))
+    for k in range(C1):  # loop over closing steps, in order: a slice stops at its first touch
+        if not buckets[k]:
+            continue
+        parts, buckets[k] = buckets[k], []
+        if k == 0 and np.all(lim > 0):  # every point (no gathers)
+            pos, rw, ppx, ppy, f = parts[0], rows, px, py, free
+        else:
+            pos = parts[0] if len(parts) == 1 else np.concatenate(parts)
+            pos = pos[lim[rows[pos]] > k]
+            if len(pos) == 0:
+                continue
+            rw, ppx, ppy, f = rows[pos], px[pos], py[pos], free[pos]
+        ci = rw * C1 + k
+        hit, clear = pair_eval(flat, ci, ppx, ppy, B.margin, links)
+        tk = np.take(t_flat, ci)
+        # the certified intervals (tk - clear, tk + clear) of a point chain up from t = 0 (its
+        # next test is at or before tk + clear, unless it is pushed to the next sample)
+        free[pos] = np.where(tk - clear < f, np.maximum(f, tk + clear), f)
+        if hit.any():
+            best[rw[hit]] = k  # the first touch of these slices (the samples go in order)
+            lim = np.minimum(n_t, best)
+        # next sample that the point may touch at (never beyond the first sample after tk + clear)
+        with np.errstate(invalid="ignore", over="ignore"):
+            nxt = np.floor((tk + clear) * inv_step[rw])
+        nxt = np.where(np.isfinite(nxt), np.minimum(nxt, C1), C1).astype(np.int64)
+        nxt = np.maximum(nxt, k + 1)
+        keep = np.flatnonzero(~hit & (nxt < lim[rw]))
+        if len(keep) == 0:
+            continue
+        nk = nxt[keep]
+        # stable (a radix sort for 16-bit keys): positions stay increasing within each part
+        order = keep[np.argsort(nk.astype(np.int16) if C1 < 2**15 else nk, kind="stable")]
+        pos, nxt = pos[order], nxt[order]
+        cut = np.flatnonzero(np.diff(nxt)) + 1
+        starts = np.concatenate([[0], cut])
+        ends = np.concatenate([cut, [len(nxt)]])
+        for a, b in zip(starts, ends, strict=True):  # loop over distinct next samples (< C1)
+            buckets[int(nxt[a])].append(pos[a:b])
+    k_first = np.where(best < n_t, best, -1)
+    return k_first, free
+
+
+@dataclass
+class BatchEvents:
+    """First events of one phase for R slices (arrays (R,) unless noted)."""
+
+    t: np.ndarray
+    """(R, n_steps + 1) coarse samples of the path parameter (only the first ``n_t`` used)."""
+    n_t: np.ndarray
+    """Number of coarse samples (n_steps + 1, or 1 when t_end <= 0)."""
+    k: np.ndarray
+    """First touching coarse sample, -1 if none."""
+    t_free: np.ndarray
+    """The last contact-free path parameter."""
+    distal_hit: np.ndarray
+    """bool: the distal link touched (a point or the palm)."""
+    palm: np.ndarray
+    """bool: a link touched the palm."""
+    middle_idx: np.ndarray
+    """The point the middle link touched (index into ``B.P``), -1 if none."""
+    distal_idx: np.ndarray
+    """The point the distal link touched, -1 if none."""
+
+
+def batch_first_events(
+    B: SliceBatch,
+    sl: np.ndarray,
+    qb: np.ndarray,
+    A: np.ndarray,
+    t_end: np.ndarray,
+    n_steps: int,
+    links: tuple[bool, bool],
+    may_touch: np.ndarray | None = None,
+) -> BatchEvents:
+    """The first event of a closing phase (as ``closing``'s single-slice version) for the
+    slices ``sl`` (R,) (distinct, increasing) with paths ``min(qb + A t, upper)`` (qb (R, 2))
+    and parameter ranges ``t_end`` (R,), level by level for all slices together.
+    ``may_touch`` (N,) bool: only these points can touch a link along the paths (an exact
+    superset; None: all points)."""
+    R = len(sl)
+    upper = B.upper[sl]
+    m = B.margin
+    # coarse samples: np.linspace(0, t_end, n_steps + 1) (arange * step + 0, last = t_end)
+    n_t = np.where(t_end > 0, n_steps + 1, 1)
+    step = np.where(t_end > 0, t_end, 0.0) / n_steps
+    t = np.arange(n_steps + 1, dtype=np.float64)[None, :] * step[:, None]
+    t += 0.0
+    t[:, -1] = np.where(t_end > 0, t_end, 0.0)
+    pts_all, rows_all = points_of(B, sl)
+    if may_touch is not None:
+        sel = may_touch[pts_all]
+        pts_all, rows_all = pts_all[sel], rows_all[sel]
+    k, free = _coarse_sweep(B, sl, qb, A, upper, t, n_t, step, pts_all, rows_all, links)
+    has = k >= 0
+    lo = np.zeros(R)
+    hi = np.zeros(R)
+    pos = has & (k > 0)
+    lo[pos] = t[pos, k[pos] - 1]
+    hi[pos] = t[pos, k[pos]]
+    # the points that may touch a link in [lo, hi]: those that the sweep did not certify off the
+    # links over [0, hi] (an exact superset)
+    r_all = rows_all
+    near = has[r_all] & ~(hi[r_all] < free)
+    p_near, r_near = pts_all[near], r_all[near]
+    # of those, the ones that may touch a link between the bracket's ends along the path
+    # (closing.may_touch: the same exact superset, from the distances at hi)
+    Qb = paths(qb, A, upper, np.stack([lo, hi], axis=1))  # (R, 2, 2)
+    qa, qz = Qb[r_near, 0], Qb[r_near, 1]
+    d1 = np.abs(qz[:, 0] - qa[:, 0])
+    d2 = np.abs((qz[:, 0] + qz[:, 1]) - (qa[:, 0] + qa[:, 1]))
+    P_near = B.P[p_near]
+    rho = np.sqrt(np.einsum("ij,ij->i", P_near, P_near))
+    lm = B.Lm[B.seg[p_near]]
+    keep = np.zeros(len(p_near), dtype=bool)
+    if links[0]:
+        keep |= batch_distance(B, qz, p_near, 0) <= m + rho * d1 + 1e-9
+    if links[1]:
+        keep |= batch_distance(B, qz, p_near, 1) <= m + (rho + lm) * d2 + lm * d1 + 1e-9
+    p_near, r_near = p_near[keep], r_near[keep]
+    # refinement of [last free, first touching], all slices level by level, each with its own
+    # number of samples per level (as for one slice: REFINE_BUDGET // points within reach)
+    ref = np.flatnonzero(pos)
+    if len(ref):
+        cnt = B.count[sl[ref]]
+        n_ref = np.maximum(1, np.minimum(REFINE_SAMPLES, REFINE_BUDGET // np.maximum(cnt, 1)))
+        row_of = np.full(R, -1, dtype=np.int64)
+        row_of[ref] = np.arange(len(ref))
+        sel = row_of[r_near] >= 0
+        p_ref, r_ref = p_near[sel], row_of[r_near[sel]]
+        f_lo, f_hi = lo[ref], hi[ref]
+        n_max = int(n_ref.max())
+        j_all = np.arange(1, n_max + 1, dtype=np.float64)[None, :]
+        while True:
+            live = np.flatnonzero(f_hi - f_lo > HAND_CLOSING_ANGLE_TOL)
+            if len(live) == 0:
+                break
+            # np.linspace(lo, hi, n_ref + 2)[1:-1] per slice, padded to n_max samples
+            stp = (f_hi[live] - f_lo[live]) / (n_ref[live] + 1)
+            ts = j_all * stp[:, None]
+            ts += f_lo[live][:, None]
+            valid = j_all <= n_ref[live][:, None]
+            ts = np.where(valid, ts, f_hi[live][:, None])
+            Q = paths(qb[ref[live]], A, upper[ref[live]], ts)
+            cfg = Configs.of(B, sl[ref[live]], Q, links)
+            row_of = np.full(len(ref), -1, dtype=np.int64)
+            row_of[live] = np.arange(len(live))
+            sel = row_of[r_ref] >= 0
+            hit = any_hit_ragged(B, cfg, p_ref[sel], row_of[r_ref[sel]], n_ref[live], links)
+            found = hit.any(axis=1)
+            j = np.argmax(hit, axis=1)
+            rows = np.arange(len(live))
+            prev = np.where(j > 0, ts[rows, np.maximum(j - 1, 0)], f_lo[live])
+            f_lo[live] = np.where(found, prev, ts[rows, n_ref[live] - 1])
+            f_hi[live] = np.where(found, ts[rows, j], f_hi[live])
+        lo[ref], hi[ref] = f_lo, f_hi
+    # the event at hi (tested on the points that may touch there, a superset of those that do):
+    # the touching point of least distance per link
+    ev = np.flatnonzero(has)
+    mid_idx = np.full(R, -1, dtype=np.int64)
+    dis_idx = np.full(R, -1, dtype=np.int64)
+    distal_hit = np.zeros(R, dtype=bool)
+    palm = np.zeros(R, dtype=bool)
+    if len(ev):
+        Qh = paths(qb[ev], A, upper[ev], hi[ev][:, None])  # (E, 1, 2)
+        cfg = Configs.of(B, sl[ev], Qh, links)
+        row_of = np.full(R, -1, dtype=np.int64)
+        row_of[ev] = np.arange(len(ev))
+        p_ev, r_ev = p_near, row_of[r_near]
+        a, b = pair_hits(B, cfg, r_ev, p_ev, links)
+        q_free = paths(qb[ev], A, upper[ev], lo[ev][:, None])[:, 0]  # (E, 2)
+        for link, hits, out in ((0, a[:, 0], mid_idx), (1, b[:, 0], dis_idx)):
+            if not hits.any():
+                continue
+            cand, crow = p_ev[hits], r_ev[hits]
+            dist = batch_distance(B, q_free[crow], cand, link)
+            order = np.lexsort((cand, dist, crow))  # per row: least distance, then lowest index
+            cand, crow, dist = cand[order], crow[order], dist[order]
+            first = np.flatnonzero(np.concatenate([[True], crow[1:] != crow[:-1]]))
+            best = cand[first]
+            # a near-tie of two distances (the single version's matrix product may round the
+            # last bit otherwise): decide it with FingerGeometry.distance itself
+            nxt = first + 1
+            ok = nxt < len(crow)
+            tie = np.zeros(len(first), dtype=bool)
+            tie[ok] = (crow[nxt[ok]] == crow[first[ok]]) & (
+                dist[nxt[ok]] - dist[first[ok]] <= 1e-15
+            )
+            for i in np.flatnonzero(tie):  # rare
+                e = crow[first[i]]
+                c = p_ev[hits][r_ev[hits] == e]
+                s = sl[ev[e]]
+                geo = FingerGeometry(B.fingers[s], m, B.palm)
+                best[i] = c[np.argmin(geo.distance(q_free[e], B.P[c], link))]
+            out[ev[crow[first]]] = best
+        bm = np.zeros(len(ev), dtype=bool)
+        bm[r_ev[b[:, 0]]] = True
+        distal_hit[ev] = bm | cfg.palm_dis[:, 0]
+        palm[ev] = cfg.palm_mid[:, 0] | cfg.palm_dis[:, 0]
+    t_free = np.where(has, lo, t[np.arange(R), n_t - 1])
+    return BatchEvents(
+        t=t,
+        n_t=n_t,
+        k=k,
+        t_free=t_free,
+        distal_hit=distal_hit,
+        palm=palm,
+        middle_idx=mid_idx,
+        distal_idx=dis_idx,
+    )

@@ -1,0 +1,262 @@
+"""The batched closing model's slices and hit tests: every (slice, sample, point) pair is tested
+with the point's own slice's configuration, each 2-term dot product written out (see
+``docs/hand.md``, "Many slices at once")."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .model import Finger
+
+BATCH_PAIRS: int = 2_000_000
+"""Batched closing: most (point, sample) pairs evaluated at once (memory: a few arrays of this
+many entries)."""
+
+
+@dataclass(frozen=True)
+class SliceBatch:
+    """The slices of one :meth:`Hand.close_fingers` call: per-slice finger geometry and the
+    points within reach of every slice, concatenated in slice order."""
+
+    fingers: tuple[Finger, ...]
+    """(S,) the finger of each slice."""
+    Lk: np.ndarray
+    """(S,) knuckle lengths."""
+    Lm: np.ndarray
+    """(S,) middle link lengths."""
+    Ld: np.ndarray
+    """(S,) distal link lengths."""
+    h: np.ndarray
+    """(S,) half thicknesses of the links."""
+    upper: np.ndarray
+    """(S, 2) upper flexion limits."""
+    P: np.ndarray
+    """(N, 2) the points within reach of all slices (``Pr`` of ``closing.close_finger``), slice
+    by slice."""
+    x: np.ndarray
+    """(N,) ``P[:, 0]``, contiguous."""
+    y: np.ndarray
+    """(N,) ``P[:, 1]``, contiguous."""
+    seg: np.ndarray
+    """(N,) int64 slice of each point (non-decreasing)."""
+    start: np.ndarray
+    """(S + 1,) int64: the points of slice ``s`` are ``P[start[s]:start[s + 1]]``."""
+    source: np.ndarray
+    """(N,) int64 index of each point in its slice's ``points_2d``."""
+    margin: float
+    """Contact margin (metres)."""
+    palm: bool
+    """Whether the palm's inner face stops a link."""
+
+    @property
+    def count(self) -> np.ndarray:
+        """(S,) number of points within reach per slice."""
+        return np.diff(self.start)
+
+
+@dataclass(frozen=True)
+class Configs:
+    """Link directions of configurations ``Q (R, C, 2)`` (one row of C samples per slice), as
+    ``FingerGeometry.hits`` computes them."""
+
+    d1x: np.ndarray
+    """(R, C) cos q1: the middle link's direction d1, x."""
+    d1y: np.ndarray
+    """(R, C) sin q1: d1, y."""
+    d2x: np.ndarray
+    """(R, C) cos(q1 + q2): the distal link's direction d2, x."""
+    d2y: np.ndarray
+    """(R, C) sin(q1 + q2): d2, y."""
+    cs: np.ndarray
+    """(R, C) ``d2 . o2`` (o2 = the distal joint)."""
+    cr: np.ndarray
+    """(R, C) ``n2 . o2`` (n2 = d2 turned by +90 degrees)."""
+    palm_mid: np.ndarray
+    """(R, C) bool: the middle link reaches the palm."""
+    palm_dis: np.ndarray
+    """(R, C) bool: the distal link reaches the palm."""
+
+    @classmethod
+    def of(cls, B: SliceBatch, sl: np.ndarray, Q: np.ndarray, links: tuple[bool, bool]) -> Configs:
+        """The configurations ``Q`` (R, C, 2) of the slices ``sl`` (R,) of ``B`` (the palm
+        tests only for the links in ``links``: middle, distal)."""
+        a1 = Q[..., 0]
+        a2 = Q[..., 0] + Q[..., 1]
+        d1x, d1y, d2x, d2y = np.cos(a1), np.sin(a1), np.cos(a2), np.sin(a2)
+        Lm = B.Lm[sl][:, None]
+        o2x, o2y = Lm * d1x, Lm * d1y
+        cs = d2x * o2x + d2y * o2y
+        cr = -d2y * o2x + d2x * o2y
+        palm_mid = np.zeros(Q.shape[:2], dtype=bool)
+        palm_dis = np.zeros(Q.shape[:2], dtype=bool)
+        if B.palm:
+            h = B.h[sl][:, None]
+            floor = -B.Lk[sl][:, None] + B.margin
+            if links[0]:
+                low_mid = np.minimum(0.0, Lm * d1x) - h * np.abs(d1y)
+                palm_mid = low_mid < floor
+            if links[1]:
+                low_dis = o2x + np.minimum(0.0, B.Ld[sl][:, None] * d2x) - h * np.abs(d2y)
+                palm_dis = low_dis < floor
+        return cls(d1x, d1y, d2x, d2y, cs, cr, palm_mid, palm_dis)
+
+
+def pair_hits(
+    B: SliceBatch, cfg: Configs, rows: np.ndarray, pts: np.ndarray, links: tuple[bool, bool]
+) -> tuple[np.ndarray, np.ndarray]:
+    """(middle, distal) (Np, C) bool: does point ``pts[i]`` touch the link at the C
+    configurations of row ``rows[i]`` of ``cfg``. The same tests as ``FingerGeometry.hits``,
+    with each 2-term dot product written out (the single-slice version uses a matrix product,
+    which may round the last bit differently)."""
+    m = B.margin
+    px = B.x[pts][:, None]
+    py = B.y[pts][:, None]
+    sl = B.seg[pts]
+    C = cfg.d1x.shape[1]
+    mid = dis = None
+    hm = (B.h[sl] + m)[:, None]
+    if links[0]:
+        dx, dy = cfg.d1x[rows], cfg.d1y[rows]  # (Np, C)
+        s = dx * px + dy * py
+        r = -dy * px + dx * py
+        mid = s >= -m
+        mid &= s <= (B.Lm[sl] + m)[:, None]
+        mid &= np.abs(r, out=r) <= hm
+    if links[1]:
+        dx, dy = cfg.d2x[rows], cfg.d2y[rows]
+        s = dx * px + dy * py
+        s -= cfg.cs[rows]
+        r = -dy * px + dx * py
+        r -= cfg.cr[rows]
+        dis = s >= -m
+        dis &= s <= (B.Ld[sl] + m)[:, None]
+        dis &= np.abs(r, out=r) <= hm
+    if mid is None:
+        mid = np.zeros((len(pts), C), dtype=bool)
+    if dis is None:
+        dis = np.zeros((len(pts), C), dtype=bool)
+    return mid, dis
+
+
+def any_hit_ragged(
+    B: SliceBatch,
+    cfg: Configs,
+    pts: np.ndarray,
+    rows: np.ndarray,
+    n_row: np.ndarray,
+    links: tuple[bool, bool],
+) -> np.ndarray:
+    """(R, C) bool: some point (``pts``, with their rows ``rows``) or the palm touches a link
+    at the configurations of ``cfg``; row ``i`` uses only its first ``n_row[i]``
+    configurations (the others are False): each point is paired with its row's samples only."""
+    R, C = cfg.d1x.shape
+    out = cfg.palm_mid | cfg.palm_dis
+    out &= np.arange(C)[None, :] < n_row[:, None]
+    flat = Configs(*(getattr(cfg, k).reshape(-1, 1) for k in Configs.__dataclass_fields__))
+    reps = n_row[rows]  # (Np,) samples per point
+    ends = np.cumsum(reps)
+    step = BATCH_PAIRS
+    b0 = 0
+    while b0 < len(pts):  # chunks of points (memory)
+        b1 = int(np.searchsorted(ends, ends[b0 - 1] + step if b0 else step, side="right"))
+        b1 = max(b1, b0 + 1)
+        p, rw, rp = pts[b0:b1], rows[b0:b1], reps[b0:b1]
+        T = int(rp.sum())
+        pair_pt = np.repeat(p, rp)  # (T,)
+        j = np.arange(T) - np.repeat(np.cumsum(rp) - rp, rp)  # sample of each pair
+        cfg_i = np.repeat(rw, rp) * C + j  # (T,) configuration of each pair
+        mid, dis = pair_hits(B, flat, cfg_i, pair_pt, links)
+        mid |= dis
+        np.put(out, cfg_i[mid[:, 0]], True)  # flat indices into the (R, C) result
+        b0 = b1
+    return out
+
+
+def points_of(B: SliceBatch, sl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The points of the slices ``sl`` (R,) (distinct, increasing) and the row of each in
+    ``sl``: ``(pts (Np,), rows (Np,))``."""
+    row_of = np.full(len(B.start) - 1, -1, dtype=np.int64)
+    row_of[sl] = np.arange(len(sl))
+    pts = np.flatnonzero(row_of[B.seg] >= 0)
+    return pts, row_of[B.seg[pts]]
+
+
+def paths(qb: np.ndarray, A: np.ndarray, upper: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(R, C, 2) ``min(qb + A t, upper)`` for parameters t (R, C): phase 1 is A = (1, coupling),
+    phase 2 is A = (0, 1) (the proximal joint stays at ``qb[:, 0]``, which is within limits)."""
+    out = np.empty(t.shape + (2,))
+    np.minimum(qb[:, None, 0] + A[0] * t, upper[:, None, 0], out=out[..., 0])
+    np.minimum(qb[:, None, 1] + A[1] * t, upper[:, None, 1], out=out[..., 1])
+    return out
+
+
+def batch_distance(B: SliceBatch, q: np.ndarray, pts: np.ndarray, link: int) -> np.ndarray:
+    """(Np,) ``FingerGeometry.distance`` of points ``pts`` to link 0 (middle) or 1 (distal) at
+    their own configuration ``q`` (Np, 2), 2-term dot products written out."""
+    sl = B.seg[pts]
+    a = q[:, 0] if link == 0 else q[:, 0] + q[:, 1]
+    dx, dy = np.cos(a), np.sin(a)
+    px, py = B.x[pts], B.y[pts]
+    if link == 1:
+        px = px - B.Lm[sl] * np.cos(q[:, 0])
+        py = py - B.Lm[sl] * np.sin(q[:, 0])
+    length = B.Lm[sl] if link == 0 else B.Ld[sl]
+    s = px * dx + py * dy
+    r = px * -dy + py * dx
+    return np.maximum(np.abs(s - 0.5 * length) - 0.5 * length, np.abs(r) - B.h[sl])
+
+
+def pair_eval(
+    flat: dict[str, np.ndarray],
+    ci: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    m: float,
+    links: tuple[bool, bool],
+) -> tuple[np.ndarray, np.ndarray]:
+    """For pairs (point ``(px[i], py[i])``, configuration ``ci[i]`` of ``flat``: 1D arrays per
+    configuration, built by the coarse sweep of ``batch_events``): ``(hit (T,) bool, clear
+    (T,))``. ``hit``: a link touches the point (the tests of ``pair_hits``, same arithmetic);
+    ``clear``: how long (in path parameter) the point surely stays off both links before and
+    after, its Euclidean distance to each link's rectangle grown by the margin over the largest
+    speed of that rectangle's points (0 when it touches)."""
+    hm = np.take(flat["hm"], ci)  # (T,) half thickness + margin
+    hit = np.zeros(len(ci), dtype=bool)
+    clear = np.full(len(ci), np.inf)
+    for link in (0, 1):  # middle, distal
+        if not links[link]:
+            continue
+        dx = np.take(flat["d1x" if link == 0 else "d2x"], ci)
+        dy = np.take(flat["d1y" if link == 0 else "d2y"], ci)
+        s = dx * px
+        s += dy * py
+        r = dx * py
+        r -= dy * px  # = -dy px + dx py exactly (IEEE sums commute)
+        if link == 1:
+            s -= np.take(flat["cs"], ci)
+            r -= np.take(flat["cr"], ci)
+        top = np.take(flat["top0" if link == 0 else "top1"], ci)
+        np.abs(r, out=r)
+        # distance to the grown rectangle: (max(-m - s, s - top, 0), max(|r| - hm, 0)); a
+        # rounded difference has the sign of the exact one (gradual underflow), so both are 0
+        # exactly when s >= -m, s <= top and |r| <= hm: the tests of FingerGeometry.hits
+        np.subtract(s, top, out=top)
+        np.negative(s, out=s)
+        s -= m
+        np.maximum(s, top, out=s)
+        np.maximum(s, 0.0, out=s)
+        r -= hm
+        np.maximum(r, 0.0, out=r)
+        hit |= np.maximum(s, r, out=top) == 0.0  # (before squaring, which may underflow)
+        s *= s
+        r *= r
+        s += r
+        np.sqrt(s, out=s)
+        s -= 1e-9  # metres; the slack covers the rounding of both ways of computing
+        np.maximum(s, 0.0, out=s)
+        s /= np.take(flat["sp0" if link == 0 else "sp1"], ci)
+        np.minimum(clear, s, out=clear)
+    clear[hit] = 0.0
+    return hit, clear
