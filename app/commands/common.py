@@ -1,123 +1,94 @@
-"""Options shared by the subcommands: the input cloud, the decomposition and the shape classes.
+"""What the subcommands share: the input file's options and the pipeline's options by stage.
 
-Each ``add_*_args(parser)`` registers a group of options whose defaults come from the core's
-parameter dataclasses; the matching builder turns the parsed ``args`` back into that dataclass,
-re-raising invalid values as :class:`PregraspError` so the CLI prints a one-line error (exit 2).
+Every option is generated from a dataclass and its field docstrings (:mod:`app.commands.options`):
+the input from :class:`InputOptions`, the pipeline from the core's parameter dataclasses, one
+``--help`` group per stage (:data:`STAGE_OPTIONS`). ``decompose``, ``pregrasps``, ``plan`` and
+``view`` take the options of their stages from this one definition (:func:`pipeline_options`).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 from pregrasp_core.decomposition import DecompositionParams
-from pregrasp_core.errors import PregraspError
-from pregrasp_core.io import DEFAULT_N_POINTS, PointCloud, load_point_cloud
+from pregrasp_core.facemask import FaceMaskParams
+from pregrasp_core.io import (
+    DEFAULT_N_POINTS,
+    MAX_POINTS,
+    MIN_POINTS,
+    SUPPORTED_EXTENSIONS,
+    PointCloud,
+    load_point_cloud,
+)
+from pregrasp_core.normals import ORIENT_MODES, NormalParams
 from pregrasp_core.paths import DEFAULT_OBJECT
+from pregrasp_core.pipeline import PipelineParams
+from pregrasp_core.planner import PlannerParams
+from pregrasp_core.pregrasps import SamplingParams
+from pregrasp_core.quality import QualityParams
 from pregrasp_core.shape import ShapeParams
 
-_DP = DecompositionParams()
-_SP = ShapeParams()
+from .options import Flag, Options
+
+# ---------------------------------------------------------------------------------- input
 
 
-def add_input_args(p: argparse.ArgumentParser, required: bool = True) -> None:
+@dataclass(frozen=True)
+class InputOptions:
+    """How the input file becomes a cloud (the options of ``load_point_cloud``)."""
+
+    points: int = DEFAULT_N_POINTS
+    """Points sampled on a mesh / kept of a cloud."""
+    seed: int = 0
+    """Sampling seed (>= 0); the same seed gives the same cloud."""
+    scale: float | None = None
+    """Multiply the coordinates by this, e.g. 0.001 for a file in millimetres."""
+
+    def __post_init__(self) -> None:
+        if not MIN_POINTS <= self.points <= MAX_POINTS:
+            raise ValueError(f"points must be in [{MIN_POINTS}, {MAX_POINTS}], got {self.points}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        if self.scale is not None and not (math.isfinite(self.scale) and self.scale > 0.0):
+            raise ValueError(f"scale must be a positive finite number, got {self.scale}")
+
+    def load(self, path: str | Path) -> PointCloud:
+        """The cloud of the file at ``path`` (``PregraspError`` naming the file if unreadable)."""
+        return load_point_cloud(path, n_points=self.points, seed=self.seed, scale=self.scale)
+
+
+INPUT_OPTIONS: Options[InputOptions] = Options(
+    InputOptions,
+    "input",
+    "input",
+    flags={"points": Flag(metavar="N"), "seed": Flag(metavar="S"), "scale": Flag(metavar="F")},
+)
+"""``--points``, ``--seed``, ``--scale`` (after the positional INPUT of :func:`add_input_args`)."""
+
+FORMATS = ", ".join(e.lstrip(".").upper() for e in SUPPORTED_EXTENSIONS)
+
+
+def add_input_args(
+    p: argparse.ArgumentParser, required: bool = True, what: str = "point cloud or mesh file"
+) -> None:
     """INPUT (a point-cloud or mesh file; optional when ``required`` is False, then the default
-    object), --points, --seed, --scale."""
+    object) and the options of :class:`InputOptions`, in one group."""
     g = p.add_argument_group("input")
     if required:
-        g.add_argument(
-            "input",
-            metavar="INPUT",
-            help="point cloud or mesh file (PLY, PCD, XYZ, "
-            "TXT, CSV, NPY, NPZ, OBJ, STL, OFF, GLB, GLTF)",
-        )
+        g.add_argument("input", metavar="INPUT", help=f"{what} ({FORMATS})")
     else:
         g.add_argument(
             "input",
             metavar="INPUT",
             nargs="?",
             default=None,
-            help=f"point cloud or mesh file (default: {DEFAULT_OBJECT.name})",
+            help=f"{what} (default: {DEFAULT_OBJECT.name})",
         )
-    g.add_argument(
-        "--points",
-        type=int,
-        default=DEFAULT_N_POINTS,
-        metavar="N",
-        help="points sampled on a mesh / kept of a cloud (default %(default)s)",
-    )
-    g.add_argument(
-        "--seed", type=int, default=0, metavar="S", help="sampling seed (default %(default)s)"
-    )
-    g.add_argument(
-        "--scale",
-        type=float,
-        default=None,
-        metavar="F",
-        help="multiply coordinates by F, e.g. 0.001 for millimetres",
-    )
-
-
-def add_decomposition_args(p: argparse.ArgumentParser) -> None:
-    """--volume-ratio, --min-points, --max-depth (defaults of ``DecompositionParams``)."""
-    g = p.add_argument_group("decomposition")
-    g.add_argument(
-        "--volume-ratio",
-        type=float,
-        default=_DP.volume_ratio,
-        metavar="R",
-        help="accept a split when V(children)/V(parent) < R (default %(default)s)",
-    )
-    g.add_argument(
-        "--min-points",
-        type=int,
-        default=_DP.min_points,
-        metavar="M",
-        help="points each child keeps at least (default %(default)s)",
-    )
-    g.add_argument(
-        "--max-depth",
-        type=int,
-        default=_DP.max_depth,
-        metavar="D",
-        help="maximal tree depth (default %(default)s)",
-    )
-
-
-def add_shape_args(p: argparse.ArgumentParser) -> None:
-    """--ratio-1d, --ratio-2d, --small-size (defaults of ``ShapeParams``)."""
-    g = p.add_argument_group("shape classes (PCA)")
-    g.add_argument(
-        "--ratio-1d",
-        type=float,
-        default=_SP.max_ratio_1d,
-        metavar="A",
-        help="1D when sqrt(l2/l1) < A (default %(default)s)",
-    )
-    g.add_argument(
-        "--ratio-2d",
-        type=float,
-        default=_SP.max_ratio_2d,
-        metavar="B",
-        help="2D when sqrt(l3/l2) < B (default %(default)s)",
-    )
-    g.add_argument(
-        "--small-size",
-        type=float,
-        default=_SP.small_size,
-        metavar="METRES",
-        help="3D parts up to this largest side are 3D-small (default %(default)s)",
-    )
-
-
-def add_output_arg(p: argparse.ArgumentParser) -> None:
-    """``-o/--output OUT.json``: where the pregrasp/1 result goes (``-`` for stdout)."""
-    p.add_argument(
-        "-o",
-        "--output",
-        metavar="OUT.json",
-        default=None,
-        help="write the result JSON here ('-' for stdout)",
-    )
+    INPUT_OPTIONS.add_to(p)
 
 
 def input_path(args: argparse.Namespace) -> str:
@@ -125,47 +96,84 @@ def input_path(args: argparse.Namespace) -> str:
     return str(DEFAULT_OBJECT if args.input is None else args.input)
 
 
-def load_cloud(args: argparse.Namespace) -> PointCloud:
-    """Load the cloud named by ``args`` (see :func:`add_input_args`)."""
-    return load_point_cloud(
-        input_path(args), n_points=args.points, seed=args.seed, scale=args.scale
-    )
+# ------------------------------------------------------------------------------ pipeline
 
-
-def decomposition_params(args: argparse.Namespace) -> DecompositionParams:
-    """``DecompositionParams`` from ``args``; invalid values raise ``PregraspError``."""
-    try:
-        return DecompositionParams(
-            volume_ratio=args.volume_ratio, min_points=args.min_points, max_depth=args.max_depth
-        )
-    except ValueError as exc:
-        raise PregraspError(f"invalid decomposition option: {_option_names(exc)}") from None
-
-
-def shape_params(args: argparse.Namespace) -> ShapeParams:
-    """``ShapeParams`` from ``args``; invalid values raise ``PregraspError``."""
-    try:
-        return ShapeParams(
-            max_ratio_1d=args.ratio_1d, max_ratio_2d=args.ratio_2d, small_size=args.small_size
-        )
-    except ValueError as exc:
-        raise PregraspError(f"invalid shape option: {_option_names(exc)}") from None
-
-
-_OPTION_OF_FIELD = {
-    "volume_ratio": "--volume-ratio",
-    "min_points": "--min-points",
-    "max_depth": "--max-depth",
-    "max_ratio_1d": "--ratio-1d",
-    "max_ratio_2d": "--ratio-2d",
-    "small_size": "--small-size",
+STAGE_OPTIONS: dict[str, Options[Any]] = {
+    "decomposition": Options(
+        DecompositionParams,
+        "decomposition",
+        "decomposition",
+        flags={
+            "volume_ratio": Flag(metavar="R"),
+            "min_points": Flag(metavar="M"),
+            "max_depth": Flag(metavar="D"),
+        },
+    ),
+    "shape": Options(
+        ShapeParams,
+        "shape classes (PCA)",
+        "shape",
+        flags={
+            "max_ratio_1d": Flag("--ratio-1d", "A"),
+            "max_ratio_2d": Flag("--ratio-2d", "B"),
+            "small_size": Flag(metavar="METRES"),
+        },
+    ),
+    "facemask": Options(
+        FaceMaskParams,
+        "face masks and support plane",
+        "facemask",
+        flags={"clearance": Flag("--face-clearance"), "support_height": Flag(metavar="Z")},
+    ),
+    "sampling": Options(SamplingParams, "traversal and sampling", "sampling"),
+    "planner": Options(
+        PlannerParams,
+        "planner",
+        "planner",
+        flags={
+            "approach_clearance": Flag("--clearance", "D"),
+            "max_approach": Flag(metavar="D"),
+            "max_lift": Flag(metavar="D"),
+            "closing_margin": Flag(metavar="D"),
+            "slice_resolution": Flag(metavar="D"),
+            "contact_distance": Flag(metavar="D"),
+            "penetration_tol": Flag(metavar="D"),
+            "threads": Flag(metavar="T"),
+        },
+        nested={
+            "quality": Options(
+                QualityParams,
+                "grasp quality (Ferrari-Canny epsilon)",
+                "planner.quality",
+                flags={
+                    "mu": Flag(metavar="MU"),
+                    "n_edges": Flag("--cone-edges", "M"),
+                    "torque_scale": Flag(metavar="RHO"),
+                },
+            ),
+            "normals": Options(
+                NormalParams,
+                "cloud normals",
+                "planner.normals",
+                flags={
+                    "k": Flag("--normals-k", "K"),
+                    "orient": Flag("--normals-orient", choices=ORIENT_MODES),
+                },
+            ),
+        },
+    ),
 }
+"""The options of each stage's parameters, keyed by the ``PipelineParams`` field."""
+
+POOL_STAGES: tuple[str, ...] = ("decomposition", "shape", "facemask", "sampling")
+"""The stages up to the pre-grasp pool (``pregrasp pregrasps``)."""
+
+ALL_STAGES: tuple[str, ...] = (*POOL_STAGES, "planner")
+"""Every stage (``pregrasp plan`` and ``pregrasp view``)."""
 
 
-def _option_names(exc: ValueError) -> str:
-    """The dataclass's message with field names replaced by the CLI option names."""
-    msg = str(exc)
-    for field, option in _OPTION_OF_FIELD.items():
-        if msg.startswith(field):
-            return option + msg[len(field) :]
-    return msg
+def pipeline_options(stages: tuple[str, ...]) -> Options[PipelineParams]:
+    """The options of ``PipelineParams`` for ``stages`` (the others keep their defaults)."""
+    return Options(
+        PipelineParams, None, "pipeline", fields=(), nested={s: STAGE_OPTIONS[s] for s in stages}
+    )

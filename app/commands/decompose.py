@@ -10,20 +10,40 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
-from app.commands.common import (
-    add_decomposition_args,
-    add_input_args,
-    add_output_arg,
-    add_shape_args,
-    decomposition_params,
-    load_cloud,
-    shape_params,
-)
 from pregrasp_core.decomposition import BoxTree, decompose
 from pregrasp_core.result import result_document, to_jsonable, write_result
 from pregrasp_core.shape import NodeShape, classify_tree
+
+from .common import INPUT_OPTIONS, add_input_args, input_path, pipeline_options
+from .options import Flag, Options
+
+
+@dataclass(frozen=True)
+class DecomposeOutput:
+    """Where ``pregrasp decompose`` writes its result."""
+
+    output: str | None = None
+    """Write the pregrasp/1 result JSON here ('-' for stdout); without it, print a summary."""
+    include_indices: bool = False
+    """Store each node's point indices in the JSON."""
+
+
+PIPELINE_OPTIONS = pipeline_options(("decomposition", "shape"))
+"""The decomposition and shape-class options."""
+
+OUTPUT_OPTIONS: Options[DecomposeOutput] = Options(
+    DecomposeOutput,
+    "output",
+    "output",
+    flags={
+        "output": Flag(("-o", "--output"), "OUT.json"),
+        "include_indices": Flag(store_true=True),
+    },
+)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -34,49 +54,46 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "grasp type per node. Writes the pregrasp/1 JSON with -o, else prints a summary.",
     )
     add_input_args(p)
-    add_decomposition_args(p)
-    add_shape_args(p)
-    p.add_argument(
-        "--include-indices", action="store_true", help="store each node's point indices in the JSON"
-    )
-    add_output_arg(p)
+    PIPELINE_OPTIONS.add_to(p)
+    OUTPUT_OPTIONS.add_to(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    # parameters first: a bad option fails before any slow work
-    dp = decomposition_params(args)
-    sp = shape_params(args)
+    # options first: a bad value fails before any slow work
+    params = PIPELINE_OPTIONS.build(args)
+    inp = INPUT_OPTIONS.build(args)
+    out = OUTPUT_OPTIONS.build(args)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    cloud = load_cloud(args)
+    cloud = inp.load(input_path(args))
     t1 = time.perf_counter()
-    tree = decompose(cloud.points, dp)
+    tree = decompose(cloud.points, params.decomposition)
     t2 = time.perf_counter()
-    shapes = classify_tree(tree, cloud.points, sp)
+    shapes = classify_tree(tree, cloud.points, params.shape)
     t3 = time.perf_counter()
     timings.update(load=t1 - t0, decompose=t2 - t1, classify=t3 - t2)
     doc = result_document(
         cloud,
-        {"decomposition": dp, "shape": sp},
+        {"decomposition": params.decomposition, "shape": params.shape},
         timings,
         tree,
         shapes,
-        include_indices=args.include_indices,
-        seed=args.seed,
+        include_indices=out.include_indices,
+        seed=inp.seed,
     )
-    if args.output == "-":
+    if out.output == "-":
         json.dump(to_jsonable(doc), sys.stdout, indent=1, allow_nan=False)
         sys.stdout.write("\n")
-    elif args.output is not None:
-        out = write_result(doc, args.output)
-        print(f"wrote {out}: {len(tree.leaves())} parts, {len(tree.nodes)} nodes")
+    elif out.output is not None:
+        written = write_result(doc, out.output)
+        print(f"wrote {written}: {len(tree.leaves())} parts, {len(tree.nodes)} nodes")
     else:
         print(summary(doc, tree, shapes))
     return 0
 
 
-def summary(doc: dict, tree: BoxTree, shapes: tuple[NodeShape, ...]) -> str:
+def summary(doc: dict[str, Any], tree: BoxTree, shapes: tuple[NodeShape, ...]) -> str:
     """A short readable report: object, points, parts, the tree, times."""
     inp, par = doc["input"], doc["parameters"]["decomposition"]
     kind = f"{inp['kind']}, {inp['format']}" if inp.get("kind") else str(inp.get("format"))

@@ -26,19 +26,21 @@ import multiprocessing
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
 from pregrasp_core.errors import InputError, PregraspError
-from pregrasp_core.io import SUPPORTED_EXTENSIONS, load_point_cloud
-from pregrasp_core.planner import PlannerParams
-from pregrasp_core.quality import QualityParams
+from pregrasp_core.hand import Hand, load_hand
+from pregrasp_core.io import SUPPORTED_EXTENSIONS, PointCloud
+from pregrasp_core.pipeline import PipelineParams, PipelineResult, result_document, run_pipeline
+from pregrasp_core.planner import Grasp, GraspSet, PlannerParams
 from pregrasp_core.result import to_jsonable, write_result
 
-from . import common, pregrasps
-
-_PP = PlannerParams()
-_QP = QualityParams()
+from .common import ALL_STAGES, INPUT_OPTIONS, InputOptions, add_input_args, pipeline_options
+from .common import input_path as _input_path
+from .options import Flag, Options
+from .pregrasps import pool_stages
 
 REPORT_COLUMNS: tuple[str, ...] = (
     "object",
@@ -57,6 +59,59 @@ REPORT_COLUMNS: tuple[str, ...] = (
 """Columns of the batch report (CSV)."""
 
 
+@dataclass(frozen=True)
+class PlanOutput:
+    """What ``pregrasp plan`` writes, and how it runs a folder."""
+
+    top: int = 5
+    """Grasps listed in the summary (>= 0)."""
+    output: str | None = None
+    """Result JSON file ('-' = stdout); for a folder INPUT, a directory for one JSON per
+    object."""
+    report: str | None = None
+    """Folder INPUT: write the per-object CSV report here (default: stdout)."""
+    include_indices: bool = False
+    """Store each node's point indices in the JSON."""
+    jobs: int = 1
+    """For a folder INPUT: plan this many objects at a time in worker processes (>= 1; with
+    more than one, each planner runs on one thread unless --threads is given)."""
+
+    def __post_init__(self) -> None:
+        if self.top < 0:
+            raise ValueError(f"top must be >= 0, got {self.top}")
+        if self.jobs < 1:
+            raise ValueError(f"jobs must be >= 1, got {self.jobs}")
+
+
+@dataclass(frozen=True)
+class PlanRun:
+    """Everything one planning run needs, as plain data (it goes to the worker processes)."""
+
+    input: InputOptions
+    """How a file becomes a cloud."""
+    params: PipelineParams
+    """The parameters of every stage."""
+    output: PlanOutput
+    """What is written."""
+
+
+PIPELINE_OPTIONS = pipeline_options(ALL_STAGES)
+"""The options of every stage of the pipeline (``pregrasp view`` takes the same)."""
+
+OUTPUT_OPTIONS: Options[PlanOutput] = Options(
+    PlanOutput,
+    "output and folders",
+    "output",
+    flags={
+        "top": Flag(metavar="K"),
+        "output": Flag(("-o", "--output"), "OUT"),
+        "report": Flag(metavar="CSV"),
+        "include_indices": Flag(store_true=True),
+        "jobs": Flag(metavar="J"),
+    },
+)
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "plan",
@@ -65,177 +120,87 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "the grasps by Ferrari-Canny epsilon (L1), then wrench-hull volume. Writes the "
         "pregrasp/1 JSON with -o, else prints a summary; on a folder writes a CSV report.",
     )
-    common.add_input_args(p)
-    common.add_decomposition_args(p)
-    common.add_shape_args(p)
-    pregrasps.add_pool_args(p)
-    add_planner_args(p)
-    g = p.add_argument_group("output")
-    g.add_argument(
-        "--top", type=int, default=5, metavar="K", help="grasps listed in the summary (default 5)"
-    )
-    g.add_argument(
-        "-o",
-        "--output",
-        metavar="OUT",
-        default=None,
-        help="result JSON file ('-' = stdout); for a folder INPUT, a directory for one JSON "
-        "per object",
-    )
-    g.add_argument(
-        "--report",
-        metavar="CSV",
-        default=None,
-        help="folder INPUT: write the per-object CSV report here (default: stdout)",
-    )
-    g.add_argument("--include-indices", action="store_true", help="store each node's point indices")
+    add_input_args(p, what="point cloud or mesh file, or a folder of them")
+    PIPELINE_OPTIONS.add_to(p)
+    OUTPUT_OPTIONS.add_to(p)
     p.set_defaults(func=run)
 
 
-def add_planner_args(p: argparse.ArgumentParser) -> None:
-    """Options of the planner and the quality measure (defaults of ``PlannerParams``)."""
-    g = p.add_argument_group("planner and quality")
-    g.add_argument(
-        "--mu",
-        type=float,
-        default=_QP.mu,
-        metavar="MU",
-        help="friction coefficient (default %(default)s)",
-    )
-    g.add_argument(
-        "--cone-edges",
-        type=int,
-        default=_QP.n_edges,
-        metavar="M",
-        help="edges of each linearised friction cone (default %(default)s)",
-    )
-    g.add_argument(
-        "--clearance",
-        type=float,
-        default=_PP.approach_clearance,
-        metavar="D",
-        help="the approach stops this far from the cloud, metres (default %(default)s)",
-    )
-    g.add_argument(
-        "--contact-distance",
-        type=float,
-        default=_PP.contact_distance,
-        metavar="D",
-        help="a link within D metres of the cloud makes a contact (default %(default)s)",
-    )
-    g.add_argument(
-        "--penetration-tol",
-        type=float,
-        default=_PP.penetration_tol,
-        metavar="D",
-        help="largest depth of a cloud point inside the final hand, metres (default %(default)s)",
-    )
-    g.add_argument(
-        "--threads",
-        type=int,
-        default=_PP.threads,
-        metavar="T",
-        help="planner threads; 0 = one per CPU, 1 = none (default %(default)s; results never "
-        "depend on it)",
-    )
-    g.add_argument(
-        "--jobs",
-        type=int,
-        default=1,
-        metavar="J",
-        help="for a folder INPUT: plan J objects at a time in worker processes (default "
-        "%(default)s; with J > 1 each planner runs on one thread unless --threads is given)",
+def plan_run(args: argparse.Namespace) -> PlanRun:
+    """The options of ``args`` as a :class:`PlanRun`; a bad value raises ``OptionError``."""
+    return PlanRun(
+        input=INPUT_OPTIONS.build(args),
+        params=PIPELINE_OPTIONS.build(args),
+        output=OUTPUT_OPTIONS.build(args),
     )
 
 
-def planner_params(args: argparse.Namespace) -> PlannerParams:
-    """The ``PlannerParams`` of the parsed options; bad values become a ``PregraspError``."""
-    try:
-        return PlannerParams(
-            approach_clearance=args.clearance,
-            contact_distance=args.contact_distance,
-            penetration_tol=args.penetration_tol,
-            quality=QualityParams(mu=args.mu, n_edges=args.cone_edges),
-            threads=args.threads,
-        )
-    except ValueError as exc:
-        raise PregraspError(f"invalid planner option: {exc}") from exc
-
-
-def pipeline_params(args: argparse.Namespace) -> Any:
-    """``PipelineParams`` with every stage's options from ``args``."""
-    return dataclasses.replace(pregrasps.pipeline_params(args), planner=planner_params(args))
-
-
-def plan_one(path: str | Path, args: argparse.Namespace, hand: Any) -> tuple[Any, dict]:
-    """Load and plan one object: (PipelineResult, timings with ``load`` first)."""
-    t0 = time.perf_counter()
-    cloud = load_point_cloud(path, n_points=args.points, seed=args.seed, scale=args.scale)
-    return plan_loaded(cloud, time.perf_counter() - t0, args, hand)
-
-
-def plan_loaded(cloud: Any, t_load: float, args: argparse.Namespace, hand: Any) -> tuple:
+def plan_loaded(
+    cloud: PointCloud, t_load: float, params: PipelineParams, hand: Hand
+) -> tuple[PipelineResult, dict[str, float]]:
     """Plan a loaded cloud: (PipelineResult, timings with ``load`` first)."""
-    from pregrasp_core.pipeline import run_pipeline
-
-    result = run_pipeline(cloud, pipeline_params(args), hand, until="grasps")
+    result = run_pipeline(cloud, params, hand, until="grasps")
     return result, {"load": t_load, **result.timings}
 
 
-def result_doc(result: Any, timings: dict, args: argparse.Namespace) -> dict:
+def result_doc(
+    result: PipelineResult, timings: dict[str, float], include_indices: bool
+) -> dict[str, Any]:
     """The ``pregrasp/1`` document of a planned result."""
-    from pregrasp_core.pipeline import result_document
-
     return result_document(
-        result,
-        include_indices=args.include_indices,
-        extra_timings={"load": timings["load"]},
+        result, include_indices=include_indices, extra_timings={"load": timings["load"]}
     )
 
 
 def run(args: argparse.Namespace) -> int:
-    from pregrasp_core.hand import load_hand
-
-    if args.top < 0:
-        raise PregraspError(f"--top must be >= 0, got {args.top}")
-    if args.jobs < 1:
-        raise PregraspError(f"--jobs must be >= 1, got {args.jobs}")
-    path = Path(common.input_path(args))
-    pipeline_params(args)  # validate every option before any work
+    job = plan_run(args)  # every option checked before any work
+    out = job.output
+    path = Path(_input_path(args))
     hand = load_hand()
     if path.is_dir():
-        return run_batch(path, args, hand)
-    if args.jobs != 1:
+        return run_batch(path, job, hand)
+    if out.jobs != 1:
         raise PregraspError("--jobs is for a folder INPUT")
-    if args.report is not None:
+    if out.report is not None:
         raise PregraspError("--report is for a folder INPUT; use -o OUT.json for one object")
-    result, timings = plan_one(path, args, hand)
-    if args.output is None:
-        print(summary(result, timings, args.top))
+    t0 = time.perf_counter()
+    cloud = job.input.load(path)
+    result, timings = plan_loaded(cloud, time.perf_counter() - t0, job.params, hand)
+    if out.output is None:
+        print(summary(result, timings, out.top))
         return 0
-    doc = result_doc(result, timings, args)
-    if args.output == "-":
+    doc = result_doc(result, timings, out.include_indices)
+    if out.output == "-":
         json.dump(to_jsonable(doc), sys.stdout, indent=1)
         sys.stdout.write("\n")
         return 0
-    out = write_result(doc, args.output)
-    gs = result.grasps
+    written = write_result(doc, out.output)
+    gs = _grasps(result)
     best = gs.best
     tail = (
         f", best {gs.grasps[best].grasp_type} epsilon {gs.grasps[best].epsilon:.4f}"
         if best is not None
         else ", no grasp kept"
     )
-    print(f"wrote {out}: {len(result.pool)} pre-grasps, {len(gs.ranking)} grasps kept{tail}")
+    print(
+        f"wrote {written}: {len(result.pool or ())} pre-grasps, {len(gs.ranking)} grasps kept{tail}"
+    )
     return 0
+
+
+def _grasps(result: PipelineResult) -> GraspSet:
+    if result.grasps is None:
+        raise ValueError("the result has no grasps: run the pipeline to 'grasps'")
+    return result.grasps
 
 
 # ------------------------------------------------------------------------------ summary
 
 
-def summary(result: Any, timings: dict, top: int) -> str:
+def summary(result: PipelineResult, timings: dict[str, float], top: int) -> str:
     """A readable summary of a planned result."""
-    cloud, tree, pool, gs = result.cloud, result.tree, result.pool, result.grasps
+    tree, _, _, _, pool = pool_stages(result)
+    cloud, gs = result.cloud, _grasps(result)
     lines = [
         f"object: {cloud.source} ({len(cloud.points)} points)",
         f"parts: {len(tree.leaves())} (tree of {len(tree.nodes)} nodes)",
@@ -253,8 +218,9 @@ def summary(result: Any, timings: dict, top: int) -> str:
         )
         for g in best:
             links = ",".join(c.link for c in g.contacts)
+            rank = -1 if g.rank is None else g.rank  # kept grasps all have a rank
             lines.append(
-                f"  {g.rank + 1:>4}  {g.grasp_type:<17} {int(pool.node[g.pregrasp]):>4} "
+                f"  {rank + 1:>4}  {g.grasp_type:<17} {int(pool.node[g.pregrasp]):>4} "
                 f"{g.pregrasp:>5} {g.n_contacts:>8} {g.epsilon:>8.4f} {g.volume:>10.3e}  {links}"
             )
         lines.append("by grasp type (why the best has its type):")
@@ -269,11 +235,12 @@ def summary(result: Any, timings: dict, top: int) -> str:
     return "\n".join(lines)
 
 
-def type_lines(result: Any) -> list[str]:
+def type_lines(result: PipelineResult) -> list[str]:
     """One line per grasp type of the pool, best epsilon first: pre-grasps, kept, force
     closure, and its best grasp's epsilon, contacts and node (shape class)."""
-    gs, pool, shapes = result.grasps, result.pool, result.shapes
-    best_of: dict[str, Any] = {}
+    _, shapes, _, _, pool = pool_stages(result)
+    gs = _grasps(result)
+    best_of: dict[str, Grasp] = {}
     count: dict[str, list[int]] = {}
     for g in gs.grasps:  # loop over grasps for a summary of a few lines
         c = count.setdefault(g.grasp_type, [0, 0, 0])
@@ -289,7 +256,7 @@ def type_lines(result: Any) -> list[str]:
         b = best_of.get(t)
         if b is not None:
             node = int(pool.node[b.pregrasp])
-            cls = shapes[node].shape_class.value if shapes is not None else "?"
+            cls = shapes[node].shape_class.value
             text += (
                 f"; best epsilon {b.epsilon:.4f} with {b.n_contacts} contacts (node {node}, {cls})"
             )
@@ -297,11 +264,14 @@ def type_lines(result: Any) -> list[str]:
     return out
 
 
-def _counts(d: dict) -> str:
+def _counts(d: dict[str, int]) -> str:
     return ", ".join(f"{k} {v}" for k, v in d.items() if v)
 
 
 # ------------------------------------------------------------------------------ batch
+
+Row = dict[str, object]
+"""One row of the batch report: :data:`REPORT_COLUMNS` -> value."""
 
 
 def objects_in(folder: Path) -> list[Path]:
@@ -317,14 +287,15 @@ def objects_in(folder: Path) -> list[Path]:
     return files
 
 
-def report_row(name: str, result: Any, seconds: float) -> dict[str, Any]:
+def report_row(name: str, result: PipelineResult, seconds: float) -> Row:
     """One CSV row of the batch report for a planned result."""
-    gs = result.grasps
-    row: dict[str, Any] = {
+    tree, _, _, _, pool = pool_stages(result)
+    gs = _grasps(result)
+    row: Row = {
         "object": name,
         "points": len(result.cloud.points),
-        "parts": len(result.tree.leaves()),
-        "pool": len(result.pool),
+        "parts": len(tree.leaves()),
+        "pool": len(pool),
         "kept": len(gs.ranking),
         "force_closure": gs.n_force_closure,
         "best_type": "",
@@ -342,6 +313,13 @@ def report_row(name: str, result: Any, seconds: float) -> dict[str, Any]:
             best_epsilon=round(g.epsilon, 6),
             best_volume=float(f"{g.volume:.6g}"),
         )
+    return row
+
+
+def error_row(name: str, error: str, seconds: float) -> Row:
+    """The report row of an object that was skipped or failed: only its name, time and error."""
+    row: Row = {c: "" for c in REPORT_COLUMNS}
+    row.update(object=name, seconds=round(seconds, 4), error=error)
     return row
 
 
@@ -367,88 +345,118 @@ class ProgressBar:
             self.stream.write(text + "\n")
         self.stream.flush()
 
+    def note(self, text: str) -> None:
+        """A line of its own (an object's error); on a terminal it replaces the bar, which the
+        next update draws again below it."""
+        if self.tty:
+            self.stream.write("\r" + text.ljust(self.width + 40) + "\n")
+        else:
+            self.stream.write(text + "\n")
+        self.stream.flush()
 
-def _batch_item(f: Path, args: argparse.Namespace, hand: Any, out_dir: Path | None) -> tuple:
-    """Plan one file of a batch: ``(report row, failed)``. A file that does not read as a
-    cloud or mesh gives a row with ``skipped: <reason>``; a later failure a row with the error."""
+
+def _error_text(f: Path, exc: BaseException) -> str:
+    """The report's error for ``exc``: the core's own message (it names the file and what to
+    do), else the exception's type and message, so that an unexpected failure is still told."""
+    text = str(exc) if isinstance(exc, PregraspError) else f"{type(exc).__name__}: {exc}"
+    return text if f.name in text else f"{f}: {text}"
+
+
+def _batch_item(f: Path, job: PlanRun, hand: Hand, out_dir: Path | None) -> tuple[Row, bool]:
+    """Plan one file of a batch: ``(report row, failed)``. A file that does not read as a cloud
+    or mesh gives a row with ``skipped: <reason>``; any other failure, while reading the file or
+    planning it, a row with the error (``failed``); neither stops the batch."""
     t0 = time.perf_counter()
-    error, failed = "", False
     try:
-        cloud = load_point_cloud(f, n_points=args.points, seed=args.seed, scale=args.scale)
+        cloud = job.input.load(f)
     except InputError as exc:  # not an object (a manifest, notes...): listed, skipped
-        error = f"skipped: {exc}"
-    else:
-        try:
-            result, timings = plan_loaded(cloud, time.perf_counter() - t0, args, hand)
-            row = report_row(f.name, result, time.perf_counter() - t0)
-            if out_dir is not None:
-                write_result(result_doc(result, timings, args), out_dir / f"{f.stem}.json")
-            return row, False
-        except PregraspError as exc:  # a failed object does not stop the batch
-            error, failed = str(exc), True
-    row = {c: "" for c in REPORT_COLUMNS}
-    row.update(object=f.name, seconds=round(time.perf_counter() - t0, 4), error=error)
-    return row, failed
+        return error_row(f.name, f"skipped: {exc}", time.perf_counter() - t0), False
+    except Exception as exc:  # a reader failing on a malformed file: told, the batch goes on
+        return error_row(f.name, _error_text(f, exc), time.perf_counter() - t0), True
+    try:
+        result, timings = plan_loaded(cloud, time.perf_counter() - t0, job.params, hand)
+        row = report_row(f.name, result, time.perf_counter() - t0)
+        if out_dir is not None:
+            doc = result_doc(result, timings, job.output.include_indices)
+            write_result(doc, out_dir / f"{f.stem}.json")
+        return row, False
+    except Exception as exc:  # a failed object does not stop the batch
+        return error_row(f.name, _error_text(f, exc), time.perf_counter() - t0), True
 
 
 @functools.cache
-def _worker_hand() -> Any:
+def _worker_hand() -> Hand:
     """The hand of a worker process (loaded once per process)."""
-    from pregrasp_core.hand import load_hand
-
     return load_hand()
 
 
-def _worker_item(f: Path, args: argparse.Namespace, out_dir: Path | None) -> tuple:
+def _worker_item(f: Path, job: PlanRun, out_dir: Path | None) -> tuple[Row, bool]:
     """:func:`_batch_item` in a worker process."""
-    return _batch_item(f, args, _worker_hand(), out_dir)
+    return _batch_item(f, job, _worker_hand(), out_dir)
 
 
-def run_batch(folder: Path, args: argparse.Namespace, hand: Any) -> int:
+def run_batch(folder: Path, job: PlanRun, hand: Hand) -> int:
     """Plan every object of ``folder``; write the CSV report. Files that do not read as a cloud
-    or mesh (a manifest, notes) are listed with ``skipped: <reason>``; the exit status is 1 when
-    an object that loaded failed later, or when nothing could be planned."""
+    or mesh (a manifest, notes) are listed with ``skipped: <reason>``; an object that fails is
+    listed with its error (and told on stderr) and the others go on. The exit status is 1 when
+    an object failed, or when nothing could be planned."""
+    out = job.output
     files = objects_in(folder)
     out_dir = None
-    if args.output is not None:
-        if args.output == "-":
+    if out.output is not None:
+        if out.output == "-":
             raise PregraspError("-o - is for one object; for a folder give a directory")
-        out_dir = Path(args.output)
+        out_dir = Path(out.output)
         out_dir.mkdir(parents=True, exist_ok=True)
     bar = ProgressBar(len(files))
-    results: list[tuple | None] = [None] * len(files)
+    results: list[tuple[Row, bool] | None] = [None] * len(files)
     bar.update(0, "")
-    jobs = min(int(args.jobs), len(files))
+
+    def done(k: int, item: tuple[Row, bool], n_done: int) -> None:
+        results[k] = item
+        if item[0]["error"]:
+            bar.note(f"pregrasp plan: {'error: ' if item[1] else ''}{item[0]['error']}")
+        bar.update(n_done, files[k].name)
+
+    jobs = min(out.jobs, len(files))
     if jobs <= 1:
         for k, f in enumerate(files):  # loop over objects
-            results[k] = _batch_item(f, args, hand, out_dir)
-            bar.update(k + 1, f.name)
+            done(k, _batch_item(f, job, hand, out_dir), k + 1)
     else:  # worker processes (spawned: no state shared with this one)
-        if args.threads == _PP.threads:  # the default: one planner thread per process
-            args = argparse.Namespace(**{**vars(args), "threads": 1})
+        planner = job.params.planner
+        if planner.threads == PlannerParams().threads:  # the default: one thread per process
+            params = dataclasses.replace(
+                job.params, planner=dataclasses.replace(planner, threads=1)
+            )
+            job = dataclasses.replace(job, params=params)
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(jobs, mp_context=ctx) as ex:
-            futures = {ex.submit(_worker_item, f, args, out_dir): k for k, f in enumerate(files)}
-            for done, fut in enumerate(as_completed(futures), start=1):  # as they finish
+            futures = {ex.submit(_worker_item, f, job, out_dir): k for k, f in enumerate(files)}
+            for n_done, fut in enumerate(as_completed(futures), start=1):  # as they finish
                 k = futures[fut]
-                results[k] = fut.result()
-                bar.update(done, files[k].name)
+                try:
+                    item = fut.result()
+                except Exception as exc:  # the worker itself died (killed, out of memory)
+                    why = f"{files[k]}: worker process failed: {type(exc).__name__}: {exc}"
+                    item = error_row(files[k].name, why, 0.0), True
+                done(k, item, n_done)
     rows = [r[0] for r in results if r is not None]
     failed = sum(1 for r in results if r is not None and r[1])
     text = io.StringIO()
     writer = csv.DictWriter(text, fieldnames=list(REPORT_COLUMNS), lineterminator="\n")
     writer.writeheader()
     writer.writerows(rows)
-    if args.report is None:
+    if out.report is None:
         sys.stdout.write(text.getvalue())
     else:
-        Path(args.report).write_text(text.getvalue())
+        Path(out.report).write_text(text.getvalue())
         n_fc = sum(1 for r in rows if r["best_epsilon"] not in ("", 0.0))
         n_ok = sum(1 for r in rows if not r["error"])
         skipped = sum(1 for r in rows if str(r["error"]).startswith("skipped:"))
         print(
-            f"wrote {args.report}: {n_ok} objects planned"
+            f"wrote {out.report}: {n_ok} objects planned"
             + (f" ({skipped} file{'s' if skipped > 1 else ''} skipped)" if skipped else "")
+            + (f", {failed} failed" if failed else "")
             + f", best grasp force closure on {n_fc}"
         )
     planned = sum(1 for r in rows if not r["error"])

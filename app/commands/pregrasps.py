@@ -5,8 +5,8 @@ Decomposition, shape classes, face masks with the support plane, traversal and t
 ``-o -`` prints the JSON; without ``-o`` prints a readable summary (candidates, pool per node
 and grasp type, drops per reason, times).
 
-The face-mask and sampling options are shared with ``pregrasp plan``: :func:`add_pool_args`
-registers them and :func:`pipeline_params` builds the whole ``PipelineParams`` from ``args``.
+The options of the stages come from :mod:`app.commands.common` (generated from the core's
+parameter dataclasses), the same definition ``pregrasp plan`` and ``pregrasp view`` use.
 """
 
 from __future__ import annotations
@@ -15,151 +15,36 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from app.commands.common import (
-    add_decomposition_args,
-    add_input_args,
-    add_output_arg,
-    add_shape_args,
-    decomposition_params,
-    load_cloud,
-    shape_params,
-)
-from pregrasp_core.errors import PregraspError
-from pregrasp_core.facemask import FaceMaskParams
-from pregrasp_core.pipeline import PipelineParams, PipelineResult, result_document, run_pipeline
-from pregrasp_core.pregrasps import SamplingParams, TraversalPolicy
+from pregrasp_core.decomposition import BoxTree
+from pregrasp_core.facemask import FaceMasks
+from pregrasp_core.pipeline import PipelineResult, result_document, run_pipeline
+from pregrasp_core.pregrasps import PreGraspPool, Traversal
 from pregrasp_core.result import to_jsonable, write_result
+from pregrasp_core.shape import NodeShape
 
-_FP = FaceMaskParams()
-_SA = SamplingParams()
-
-
-def add_pool_args(p: argparse.ArgumentParser) -> None:
-    """Face-mask, support-plane and sampling options (defaults of the core's dataclasses)."""
-    g = p.add_argument_group("face masks and support plane")
-    g.add_argument(
-        "--face-clearance",
-        type=float,
-        default=_FP.clearance,
-        metavar="M",
-        help="depth in front of a face that must be empty for it to be free (default %(default)s)",
-    )
-    g.add_argument(
-        "--no-support",
-        action="store_true",
-        help="no support plane (a free-floating object); default: a table under the object",
-    )
-    g.add_argument(
-        "--support-height",
-        type=float,
-        default=None,
-        metavar="Z",
-        help="height of the support plane along the up axis (default: the lowest cloud point)",
-    )
-    g.add_argument(
-        "--up",
-        type=float,
-        nargs=3,
-        default=list(_FP.up),
-        metavar=("X", "Y", "Z"),
-        help="world up direction, the support plane's normal (default 0 0 1)",
-    )
-    g = p.add_argument_group("traversal and sampling")
-    g.add_argument(
-        "--interval",
-        type=float,
-        default=_SA.interval,
-        metavar="M",
-        help="distance between samples on the enclosing surface (default %(default)s)",
-    )
-    g.add_argument(
-        "--policy",
-        choices=[t.value for t in TraversalPolicy],
-        default=_SA.policy.value,
-        help="which nodes get pre-grasps: the paper's two conditions, the leaves that fit, or "
-        "all nodes (default %(default)s)",
-    )
-    g.add_argument(
-        "--aperture-scale",
-        type=float,
-        default=_SA.aperture_scale,
-        metavar="F",
-        help="multiply the hand's aperture in the fit test (default %(default)s)",
-    )
-    g.add_argument(
-        "--max-backoff",
-        type=float,
-        default=_SA.max_backoff,
-        metavar="M",
-        help="how far a pre-grasp may back off along its approach to clear the table and the "
-        "cloud (default %(default)s)",
-    )
-    g.add_argument(
-        "--no-fallback",
-        action="store_true",
-        help="only the grasp type of each part's shape class (the paper's fixed mapping)",
-    )
+from .common import INPUT_OPTIONS, POOL_STAGES, add_input_args, input_path, pipeline_options
+from .options import Flag, Options
 
 
-_OPTION_OF_FIELD = {
-    "clearance": "--face-clearance",
-    "support_height": "--support-height",
-    "up": "--up",
-    "interval": "--interval",
-    "aperture_scale": "--aperture-scale",
-    "max_backoff": "--max-backoff",
-    "policy": "--policy",
-}
+@dataclass(frozen=True)
+class PregraspsOutput:
+    """Where ``pregrasp pregrasps`` writes its result."""
+
+    output: str | None = None
+    """Write the pregrasp/1 result JSON here ('-' for stdout); without it, print a summary."""
 
 
-def _option_error(what: str, exc: ValueError) -> PregraspError:
-    msg = str(exc)
-    for field, option in _OPTION_OF_FIELD.items():
-        if msg.startswith(field):
-            msg = option + msg[len(field) :]
-            break
-    return PregraspError(f"invalid {what} option: {msg}")
+PIPELINE_OPTIONS = pipeline_options(POOL_STAGES)
+"""The options of every stage up to the pool."""
 
-
-def facemask_params(args: argparse.Namespace) -> FaceMaskParams:
-    """``FaceMaskParams`` from ``args``; invalid values raise ``PregraspError``."""
-    try:
-        return FaceMaskParams(
-            clearance=args.face_clearance,
-            support=not args.no_support,
-            up=tuple(args.up),
-            support_height=args.support_height,
-        )
-    except ValueError as exc:
-        raise _option_error("face-mask", exc) from None
-
-
-def sampling_params(args: argparse.Namespace) -> SamplingParams:
-    """``SamplingParams`` from ``args``; invalid values raise ``PregraspError``."""
-    try:
-        return SamplingParams(
-            interval=args.interval,
-            policy=args.policy,
-            aperture_scale=args.aperture_scale,
-            max_backoff=args.max_backoff,
-            fallback=not args.no_fallback,
-        )
-    except ValueError as exc:
-        raise _option_error("sampling", exc) from None
-
-
-def pipeline_params(args: argparse.Namespace) -> PipelineParams:
-    """The whole ``PipelineParams`` from the input/decomposition/shape/pool options."""
-    return PipelineParams(
-        decomposition=decomposition_params(args),
-        shape=shape_params(args),
-        facemask=facemask_params(args),
-        sampling=sampling_params(args),
-    )
+OUTPUT_OPTIONS: Options[PregraspsOutput] = Options(
+    PregraspsOutput, "output", "output", flags={"output": Flag(("-o", "--output"), "OUT.json")}
+)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -171,35 +56,47 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "enclosing surfaces. Writes the pregrasp/1 JSON with -o, else prints a summary.",
     )
     add_input_args(p)
-    add_decomposition_args(p)
-    add_shape_args(p)
-    add_pool_args(p)
-    add_output_arg(p)
+    PIPELINE_OPTIONS.add_to(p)
+    OUTPUT_OPTIONS.add_to(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    params = pipeline_params(args)  # a bad option fails before any slow work
+    # options first: a bad value fails before any slow work
+    params = PIPELINE_OPTIONS.build(args)
+    inp = INPUT_OPTIONS.build(args)
+    out = OUTPUT_OPTIONS.build(args)
     t0 = time.perf_counter()
-    cloud = load_cloud(args)
+    cloud = inp.load(input_path(args))
     t_load = time.perf_counter() - t0
     result = run_pipeline(cloud, params, until="pool")
     doc = result_document(result, params, extra_timings={"load": t_load})
-    if args.output == "-":
+    if out.output == "-":
         json.dump(to_jsonable(doc), sys.stdout, indent=1, allow_nan=False)
         sys.stdout.write("\n")
-    elif args.output is not None:
-        out = write_result(doc, args.output)
-        print(f"wrote {out}: {len(result.tree.leaves())} parts, {len(result.pool)} pre-grasps")
+    elif out.output is not None:
+        written = write_result(doc, out.output)
+        tree, _, _, _, pool = pool_stages(result)
+        print(f"wrote {written}: {len(tree.leaves())} parts, {len(pool)} pre-grasps")
     else:
         print(summary(result, {"load": t_load, **result.timings}))
     return 0
 
 
+def pool_stages(
+    result: PipelineResult,
+) -> tuple[BoxTree, tuple[NodeShape, ...], FaceMasks, Traversal, PreGraspPool]:
+    """(tree, shapes, masks, traversal, pool) of a result run at least to the ``pool`` stage."""
+    tree, shapes, masks = result.tree, result.shapes, result.masks
+    trav, pool = result.traversal, result.pool
+    if tree is None or shapes is None or masks is None or trav is None or pool is None:
+        raise ValueError("the result has no pool: run the pipeline at least to 'pool'")
+    return tree, shapes, masks, trav, pool
+
+
 def summary(result: PipelineResult, timings: dict[str, float]) -> str:
     """A readable report: object, parts, candidates with reasons, pool per node and type."""
-    tree, shapes, pool, trav = result.tree, result.shapes, result.pool, result.traversal
-    masks = result.masks
+    tree, shapes, masks, trav, pool = pool_stages(result)
     support = masks.support
     lines = [
         f"object:   {Path(result.cloud.source).name}, {len(result.cloud.points)} points",
