@@ -196,11 +196,13 @@ class Controller:
                 logger.debug("could not notify client", exc_info=True)
 
     # ------------------------------------------------------------------ loading
-    def load_path(self, path: str | Path) -> AppState:
-        """Load a point cloud or mesh file and run the pipeline up to the pool."""
+    def load_path(self, path: str | Path, scale: float | None = None) -> AppState:
+        """Load a point cloud or mesh file (coordinates times ``scale`` if given) and run the
+        pipeline up to the pool."""
         p = Path(path)
         demo = p.resolve() in {d.resolve() for d in demo_objects()}
-        return self._load(ObjectSource(name=p.stem if demo else p.name, path=str(p)))
+        name = p.stem if demo else p.name
+        return self._load(ObjectSource(name=name, path=str(p), scale=scale))
 
     def load_demo(self, name: str) -> AppState:
         """Load the demo object ``name`` (file stem or file name in ``assets/objects/``).
@@ -301,7 +303,7 @@ class Controller:
             )
         if source.path is None:
             raise InputError(f"{source.name}: nothing to load (no file and no data)")
-        return pio.load_point_cloud(source.path, n_points=n_points, seed=seed)
+        return pio.load_point_cloud(source.path, n_points=n_points, seed=seed, scale=source.scale)
 
     def _load(self, source: ObjectSource, gen: int | None = None) -> AppState:
         if gen is None:

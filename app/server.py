@@ -42,6 +42,9 @@ class ViewerConfig:
     """Points sampled on a mesh."""
     seed: int = 0
     """Seed of the mesh sampling."""
+    scale: float | None = None
+    """Multiplies the coordinates of the object opened at start (0.001 for a file in
+    millimetres); ``None`` = as stored."""
     max_upload_bytes: int = DEFAULT_MAX_UPLOAD_BYTES
     """Largest accepted upload in bytes."""
     max_ghosts: int = 3000
@@ -140,7 +143,8 @@ def run(config: ViewerConfig, server: Any) -> App:
     gui = Gui(server, controller, scene)
     uploads = viser_hooks.install_upload_guard(server, lambda: controller.max_upload_bytes)
     viser_hooks.install_update_guard(server, gui.on_bad_value)
-    controller.load_path(config.input if config.input is not None else DEFAULT_OBJECT)
+    path = config.input if config.input is not None else DEFAULT_OBJECT
+    controller.load_path(path, scale=config.scale)
     return App(server, controller, scene, gui, config.animate_hz, uploads)
 
 

@@ -27,6 +27,8 @@ class ObjectSource:
     """File path of a demo object or of the ``INPUT`` given on the command line, else ``None``."""
     data: bytes | None = field(default=None, repr=False)
     """Raw bytes of an uploaded file (parsed by ``pregrasp_core.io`` only, never executed)."""
+    scale: float | None = None
+    """Multiplies the coordinates when read (``pregrasp view --scale``); ``None`` = as stored."""
 
 
 @dataclass(frozen=True)

@@ -88,7 +88,7 @@ def add_input_args(
             default=None,
             help=f"{what} (default: {DEFAULT_OBJECT.name})",
         )
-    INPUT_OPTIONS.add_to(p)
+    INPUT_OPTIONS.add_to(p, g)
 
 
 def input_path(args: argparse.Namespace) -> str:
@@ -157,7 +157,15 @@ STAGE_OPTIONS: dict[str, Options[Any]] = {
                 "planner.normals",
                 flags={
                     "k": Flag("--normals-k", "K"),
-                    "orient": Flag("--normals-orient", choices=ORIENT_MODES),
+                    "orient": Flag(
+                        "--normals-orient",
+                        choices=ORIENT_MODES,
+                        help="How the normals are turned outwards: reference = agree with the "
+                        "normals the file carries (a mesh's faces), propagate = along a minimum "
+                        "spanning tree over the neighbours (concave shapes), centroid = away "
+                        "from the centroid, auto = reference when the cloud has normals, else "
+                        "propagate.",
+                    ),
                 },
             ),
         },

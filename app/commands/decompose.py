@@ -19,7 +19,7 @@ from pregrasp_core.result import result_document, to_jsonable, write_result
 from pregrasp_core.shape import NodeShape, classify_tree
 
 from .common import INPUT_OPTIONS, add_input_args, input_path, pipeline_options
-from .options import Flag, Options
+from .options import Flag, HelpFormatter, Options
 
 
 @dataclass(frozen=True)
@@ -49,6 +49,7 @@ OUTPUT_OPTIONS: Options[DecomposeOutput] = Options(
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "decompose",
+        formatter_class=HelpFormatter,
         help="split a cloud into a tree of oriented boxes and classify the parts",
         description="Fit-and-split decomposition into minimum-volume boxes, PCA shape class and "
         "grasp type per node. Writes the pregrasp/1 JSON with -o, else prints a summary.",

@@ -64,32 +64,50 @@ class Flag:
     store_true: bool = False
     """A ``bool`` field that defaults to ``False`` and is set by the flag alone (no ``--no-``
     form), such as ``--include-indices``."""
+    help: str | None = None
+    """Help text instead of the docstring, where the docstring speaks of code rather than of
+    the command line (a module docstring, a Python constant)."""
 
 
 def field_docs(cls: type[Any]) -> dict[str, str]:
-    """Field name -> docstring (the string literal right below the field) of dataclass ``cls``."""
+    """Name -> docstring (the string literal right below it) of the fields of dataclass ``cls``,
+    or of the members of enum ``cls``."""
     tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
     body = next(n for n in tree.body if isinstance(n, ast.ClassDef)).body
     docs: dict[str, str] = {}
     for stmt, nxt in zip(body, body[1:], strict=False):
+        if isinstance(stmt, ast.AnnAssign):
+            target = stmt.target
+        elif isinstance(stmt, ast.Assign) and len(stmt.targets) == 1:
+            target = stmt.targets[0]
+        else:
+            continue
         if (
-            isinstance(stmt, ast.AnnAssign)
-            and isinstance(stmt.target, ast.Name)
+            isinstance(target, ast.Name)
             and isinstance(nxt, ast.Expr)
             and isinstance(nxt.value, ast.Constant)
             and isinstance(nxt.value.value, str)
         ):
-            docs[stmt.target.id] = inspect.cleandoc(nxt.value.value)
+            docs[target.id] = inspect.cleandoc(nxt.value.value)
     return docs
 
 
-def _plain(doc: str, flag_of: Mapping[str, str]) -> str:
-    """A docstring as one line of plain help text (for argparse, ``%`` escaped)."""
+class HelpFormatter(argparse.HelpFormatter):
+    """argparse's formatter without breaking lines inside a hyphenated word (a flag such as
+    ``--closing-margin`` in a help text stays whole)."""
+
+    def _split_lines(self, text: str, width: int) -> list[str]:
+        text = " ".join(text.split())
+        return textwrap.wrap(text, width, break_on_hyphens=False)
+
+
+def _plain(doc: str, words: Mapping[str, str]) -> str:
+    """A docstring as one line of plain help text: reST roles and literals as plain words, a
+    literal in ``words`` (another field's name, ``None``...) replaced by its value there."""
     text = " ".join(doc.split())
     # :class:`~pkg.Name` -> Name; ``field`` -> its flag; ``literal`` -> literal
     text = re.sub(r":\w+:`~?([^`]+)`", lambda m: m.group(1).rsplit(".", 1)[-1], text)
-    text = re.sub(r"``([^`]+)``", lambda m: flag_of.get(m.group(1), m.group(1)), text)
-    return text.replace("%", "%%")
+    return re.sub(r"``([^`]+)``", lambda m: words.get(m.group(1), m.group(1)), text)
 
 
 def _shown(value: object) -> str:
@@ -130,14 +148,12 @@ class Options(Generic[T]):
         flags: Mapping[str, Flag] | None = None,
         fields: tuple[str, ...] | None = None,
         nested: Mapping[str, Options[Any]] | None = None,
-        description: str | None = None,
     ) -> None:
         if not dataclasses.is_dataclass(cls):
             raise TypeError(f"{cls!r} is not a dataclass")
         self.cls = cls
         self.title = title
         self.dest = dest
-        self.description = description
         self.nested: dict[str, Options[Any]] = dict(nested or {})
         names = [f.name for f in dataclasses.fields(cls)]
         flags = dict(flags or {})
@@ -179,20 +195,45 @@ class Options(Generic[T]):
         return f"{self.dest}.{name}"
 
     # ---------------------------------------------------------------- argparse
-    def add_to(self, parser: argparse.ArgumentParser) -> None:
-        """Register the options (one group per dataclass, titled as given)."""
+    def add_to(
+        self, parser: argparse.ArgumentParser, group: argparse._ArgumentGroup | None = None
+    ) -> None:
+        """Register the options: in ``group`` if given, else in a group of their own titled as
+        given; the nested dataclasses' after them, each in its own group."""
         if self.fields:
-            g = parser.add_argument_group(self.title, self.description)
-            flag_of = self.flag_of_field()
+            g = group if group is not None else parser.add_argument_group(self.title)
             for name in self.fields:
-                self._add(g, name, _plain(self._docs.get(name, ""), flag_of))
+                self._add(g, name)
         for sub in self.nested.values():
             sub.add_to(parser)
 
-    def _add(self, g: argparse._ArgumentGroup, name: str, help_text: str) -> None:
+    def help_text(self, name: str) -> str:
+        """The ``--help`` text of field ``name`` (without its default)."""
+        spec = self.flags[name]
+        if spec.help is not None:
+            return spec.help
+        tp, _ = _unwrap_optional(self._hints[name])
+        words = self.flag_of_field()
+        if tp is bool:
+            words.update({"True": self.flag(name), "False": "--no-" + self.flag(name)[2:]})
+        if getattr(self._defaults, name) is None:
+            words["None"] = "not given"
+        doc = self._docs.get(name, "")
+        if isinstance(tp, type) and issubclass(tp, enum.Enum):
+            # "(:class:`Policy` or its string value)" speaks of Python: the members instead
+            doc = re.sub(rf"\s*\(:class:`~?[\w.]*{tp.__name__}`[^)]*\)", "", doc)
+            members = field_docs(tp)
+            doc += "".join(f" {m.value}: {members.get(m.name, '')}" for m in tp)
+        text = _plain(doc, words)
+        if getattr(self._defaults, name) is None:
+            text = re.sub(r"\bNone\b", "not given", text)
+        return text
+
+    def _add(self, g: argparse._ArgumentGroup, name: str) -> None:
         spec = self.flags[name]
         tp, _ = _unwrap_optional(self._hints[name])  # None only as the default: never typed
         default = getattr(self._defaults, name)
+        help_text = self.help_text(name)
         kw: dict[str, Any] = {"dest": self._key(name), "default": default}
         if tp is bool:
             if spec.store_true:
@@ -200,11 +241,14 @@ class Options(Generic[T]):
                     raise ValueError(f"{self.cls.__name__}.{name}: store_true needs default False")
                 kw["action"] = "store_true"
             else:
-                kw["action"] = argparse.BooleanOptionalAction  # adds "(default: ...)" itself
-            g.add_argument(*self.option_strings(name), help=help_text, **kw)
+                kw["action"] = argparse.BooleanOptionalAction
+                on = self.flag(name)
+                help_text += f" (default: {on if default else '--no-' + on[2:]})"
+            g.add_argument(*self.option_strings(name), help=help_text.replace("%", "%%"), **kw)
             return
         if default is not None:
-            help_text += f" (default: {_shown(default)})".replace("%", "%%")
+            help_text += f" (default: {_shown(default)})"
+        help_text = help_text.replace("%", "%%")
         if isinstance(tp, type) and issubclass(tp, enum.Enum):
             kw.update(choices=[str(m.value) for m in tp], default=str(default.value))
         elif typing.get_origin(tp) is tuple:

@@ -39,7 +39,7 @@ from pregrasp_core.result import to_jsonable, write_result
 
 from .common import ALL_STAGES, INPUT_OPTIONS, InputOptions, add_input_args, pipeline_options
 from .common import input_path as _input_path
-from .options import Flag, Options
+from .options import Flag, HelpFormatter, Options
 from .pregrasps import pool_stages
 
 REPORT_COLUMNS: tuple[str, ...] = (
@@ -115,6 +115,7 @@ OUTPUT_OPTIONS: Options[PlanOutput] = Options(
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "plan",
+        formatter_class=HelpFormatter,
         help="plan grasps: decomposition, pre-grasp pool, slicing planner, quality",
         description="Run the whole pipeline on INPUT (a file, or a folder of objects) and rank "
         "the grasps by Ferrari-Canny epsilon (L1), then wrench-hull volume. Writes the "

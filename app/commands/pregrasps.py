@@ -28,7 +28,7 @@ from pregrasp_core.result import to_jsonable, write_result
 from pregrasp_core.shape import NodeShape
 
 from .common import INPUT_OPTIONS, POOL_STAGES, add_input_args, input_path, pipeline_options
-from .options import Flag, Options
+from .options import Flag, HelpFormatter, Options
 
 
 @dataclass(frozen=True)
@@ -50,6 +50,7 @@ OUTPUT_OPTIONS: Options[PregraspsOutput] = Options(
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "pregrasps",
+        formatter_class=HelpFormatter,
         help="generate the pre-grasp pool of an object (no planning)",
         description="Decomposition, PCA grasp types, face masks (with a support plane under the "
         "object unless --no-support), tree traversal and the pre-grasp pool sampled on the "

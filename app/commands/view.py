@@ -1,50 +1,84 @@
-"""`pregrasp view [INPUT] [--host H] [--port P]`: the browser inspection app (viser)."""
+"""`pregrasp view [INPUT] [--host H] [--port P] [pipeline options]`: the browser inspection app.
+
+It takes every pipeline option ``pregrasp plan`` takes (from the same definition,
+:func:`app.commands.common.pipeline_options`): the app starts with those parameters, and its
+widgets change them from there.
+"""
 
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from pathlib import Path
 
 from pregrasp_core.errors import InputError
+
+from .common import ALL_STAGES, INPUT_OPTIONS, add_input_args, pipeline_options
+from .options import Flag, HelpFormatter, Options
+
+
+@dataclass(frozen=True)
+class ServeOptions:
+    """Where the viewer listens (``app.server.ViewerConfig``'s ``host`` and ``port``)."""
+
+    host: str = "127.0.0.1"
+    """Interface to bind; the default keeps the app private to this machine (reach it from
+    elsewhere over an SSH port-forward, see docs/usage.md)."""
+    port: int = 8080
+    """Port to listen on (the next free port is used when it is taken; 0 = any free port)."""
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.port <= 65535:
+            raise ValueError(f"port must be in [0, 65535], got {self.port}")
+
+
+PIPELINE_OPTIONS = pipeline_options(ALL_STAGES)
+"""The same pipeline options as ``pregrasp plan``."""
+
+SERVE_OPTIONS: Options[ServeOptions] = Options(
+    ServeOptions,
+    "server",
+    "serve",
+    flags={"host": Flag(metavar="HOST"), "port": Flag(metavar="PORT")},
+)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "view",
+        formatter_class=HelpFormatter,
         help="inspect decomposition, face masks, pre-grasps and grasps in the browser",
         description=(
             "Start the viser inspection app and print its URL and the SSH port-forward line. "
-            "With no INPUT it opens the default object (a mug with a handle)."
+            "With no INPUT it opens the default object (a mug with a handle). The pipeline "
+            "options set the parameters the app starts with."
         ),
     )
-    p.add_argument("input", nargs="?", type=Path, help="point cloud or mesh file to open")
-    p.add_argument(
-        "--host",
-        default="127.0.0.1",
-        help="interface to bind (default 127.0.0.1: reach it from elsewhere over an SSH "
-        "port-forward, see docs/usage.md)",
-    )
-    p.add_argument(
-        "--port",
-        type=int,
-        default=8080,
-        help="port (default 8080; the next free port is used when it is taken)",
-    )
-    p.add_argument("--points", type=int, default=20000, help="points sampled on a mesh")
-    p.add_argument("--seed", type=int, default=0, help="seed of the mesh sampling")
+    add_input_args(p, required=False)
+    SERVE_OPTIONS.add_to(p)
+    PIPELINE_OPTIONS.add_to(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from app.server import ViewerConfig, serve
+    serve_options = SERVE_OPTIONS.build(args)  # every option checked before the server starts
+    params = PIPELINE_OPTIONS.build(args)
+    inp = INPUT_OPTIONS.build(args)
+    path = None if args.input is None else Path(args.input)
+    if path is not None and not path.is_file():
+        raise InputError(f"{path}: no such file; pass a point cloud or mesh file")
 
-    if args.input is not None and not Path(args.input).is_file():
-        raise InputError(f"{args.input}: no such file; pass a point cloud or mesh file")
-    if not 0 <= args.port <= 65535:
-        raise InputError(f"--port must be in [0, 65535], got {args.port}")
+    from app.server import ViewerConfig, serve  # viser only when the viewer runs
+
     serve(
         ViewerConfig(
-            input=args.input, host=args.host, port=args.port, n_points=args.points, seed=args.seed
+            input=path,
+            host=serve_options.host,
+            port=serve_options.port,
+            n_points=inp.points,
+            seed=inp.seed,
+            scale=inp.scale,
+            params=params,
         )
     )
     return 0

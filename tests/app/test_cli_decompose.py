@@ -10,14 +10,8 @@ import pytest
 import trimesh
 
 from app.cli import main
-from app.commands.common import (
-    add_decomposition_args,
-    add_input_args,
-    add_shape_args,
-    decomposition_params,
-    input_path,
-    shape_params,
-)
+from app.commands.common import INPUT_OPTIONS, InputOptions, add_input_args, input_path
+from app.commands.decompose import PIPELINE_OPTIONS
 from pregrasp_core.decomposition import DecompositionParams
 from pregrasp_core.paths import DEFAULT_OBJECT
 from pregrasp_core.result import SCHEMA, read_result
@@ -125,18 +119,19 @@ def test_bad_file_exit_code_2(tmp_path, capsys, content, name, match):
 @pytest.mark.parametrize(
     ("option", "value", "match"),
     [
-        ("--volume-ratio", "1.5", "--volume-ratio must be in"),
-        ("--min-points", "2", "--min-points must be an integer >= 4"),
-        ("--max-depth", "-1", "--max-depth must be an integer >= 0"),
-        ("--ratio-1d", "0", "--ratio-1d must be in"),
-        ("--ratio-2d", "3", "--ratio-2d must be in"),
-        ("--small-size", "-0.1", "--small-size must be a length"),
+        ("--volume-ratio", "1.5", "--volume-ratio: must be in"),
+        ("--min-points", "2", "--min-points: must be an integer >= 4"),
+        ("--max-depth", "-1", "--max-depth: must be an integer >= 0"),
+        ("--ratio-1d", "0", "--ratio-1d: must be in"),
+        ("--ratio-2d", "3", "--ratio-2d: must be in"),
+        ("--small-size", "-0.1", "--small-size: must be a length"),
     ],
 )
 def test_bad_option_exit_code_2(l_cloud, capsys, option, value, match):
     path, _ = l_cloud
     assert main(["decompose", str(path), option, value]) == 2
-    assert match in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert err.startswith(f"pregrasp decompose: error: {match}") and "Traceback" not in err
 
 
 def test_output_folder_missing(l_cloud, tmp_path, capsys):
@@ -149,14 +144,14 @@ def test_output_folder_missing(l_cloud, tmp_path, capsys):
 def test_common_options_defaults():
     p = argparse.ArgumentParser()
     add_input_args(p, required=False)
-    add_decomposition_args(p)
-    add_shape_args(p)
+    PIPELINE_OPTIONS.add_to(p)
     args = p.parse_args([])
     assert input_path(args) == str(DEFAULT_OBJECT)
-    assert (args.points, args.seed, args.scale) == (20000, 0, None)
-    assert decomposition_params(args) == DecompositionParams()
-    assert shape_params(args) == ShapeParams()
+    assert INPUT_OPTIONS.build(args) == InputOptions(points=20000, seed=0, scale=None)
+    params = PIPELINE_OPTIONS.build(args)
+    assert params.decomposition == DecompositionParams()
+    assert params.shape == ShapeParams()
     args = p.parse_args(["x.ply", "--volume-ratio", "0.8", "--small-size", "0.04"])
     assert input_path(args) == "x.ply"
-    assert decomposition_params(args).volume_ratio == 0.8
-    assert shape_params(args).small_size == 0.04
+    assert PIPELINE_OPTIONS.build(args).decomposition.volume_ratio == 0.8
+    assert PIPELINE_OPTIONS.build(args).shape.small_size == 0.04

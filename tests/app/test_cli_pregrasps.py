@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from app.cli import main
-from app.commands.pregrasps import add_pool_args, facemask_params, sampling_params
-from pregrasp_core.errors import PregraspError
+from app.commands.options import OptionError
+from app.commands.pregrasps import PIPELINE_OPTIONS
 from pregrasp_core.facemask import FaceMaskParams
 from pregrasp_core.pregrasps import SamplingParams, TraversalPolicy
 from pregrasp_core.result import SCHEMA, read_result
@@ -77,21 +77,21 @@ def test_bad_input_and_options_exit_2(box_cloud, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "pregrasp pregrasps: error:" in err and "nope.ply" in err
     assert main(["pregrasps", str(box_cloud), "--interval", "-1"]) == 2
-    assert "--interval must be > 0" in capsys.readouterr().err
+    assert "pregrasp pregrasps: error: --interval: must be > 0" in capsys.readouterr().err
     assert main(["pregrasps", str(box_cloud), "--face-clearance", "-0.1"]) == 2
-    assert "--face-clearance must be a length >= 0" in capsys.readouterr().err
+    assert "error: --face-clearance: must be a length >= 0" in capsys.readouterr().err
 
 
-def test_arg_helpers_build_the_dataclasses():
+def test_options_build_the_dataclasses():
     p = argparse.ArgumentParser()
-    add_pool_args(p)
-    a = p.parse_args([])
-    assert facemask_params(a) == FaceMaskParams()
-    assert sampling_params(a) == SamplingParams()
+    PIPELINE_OPTIONS.add_to(p)
+    params = PIPELINE_OPTIONS.build(p.parse_args([]))
+    assert params.facemask == FaceMaskParams()
+    assert params.sampling == SamplingParams()
     a = p.parse_args(["--support-height", "0.1", "--up", "0", "1", "0", "--policy", "leaves"])
-    fp = facemask_params(a)
-    assert fp.support_height == 0.1 and fp.up == (0.0, 1.0, 0.0)
-    assert sampling_params(a).policy is TraversalPolicy.LEAVES
+    params = PIPELINE_OPTIONS.build(a)
+    assert params.facemask.support_height == 0.1 and params.facemask.up == (0.0, 1.0, 0.0)
+    assert params.sampling.policy is TraversalPolicy.LEAVES
     a = p.parse_args(["--up", "0", "0", "0"])
-    with pytest.raises(PregraspError, match="--up must be a non-zero"):
-        facemask_params(a)
+    with pytest.raises(OptionError, match="^--up: must be a non-zero"):
+        PIPELINE_OPTIONS.build(a)
