@@ -12,9 +12,9 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-from pregrasp_core.decomposition import BoxTree, decompose
+from pregrasp_core.decomposition import BoxTree, DecompositionParams, decompose
+from pregrasp_core.io import PointCloud
 from pregrasp_core.result import result_document, to_jsonable, write_result
 from pregrasp_core.shape import NodeShape, classify_tree
 
@@ -90,20 +90,26 @@ def run(args: argparse.Namespace) -> int:
         written = write_result(doc, out.output)
         print(f"wrote {written}: {len(tree.leaves())} parts, {len(tree.nodes)} nodes")
     else:
-        print(summary(doc, tree, shapes))
+        print(summary(cloud, inp.seed, params.decomposition, timings, tree, shapes))
     return 0
 
 
-def summary(doc: dict[str, Any], tree: BoxTree, shapes: tuple[NodeShape, ...]) -> str:
+def summary(
+    cloud: PointCloud,
+    seed: int,
+    par: DecompositionParams,
+    timings: dict[str, float],
+    tree: BoxTree,
+    shapes: tuple[NodeShape, ...],
+) -> str:
     """A short readable report: object, points, parts, the tree, times."""
-    inp, par = doc["input"], doc["parameters"]["decomposition"]
-    kind = f"{inp['kind']}, {inp['format']}" if inp.get("kind") else str(inp.get("format"))
+    info = cloud.info
+    kind = f"{info['kind']}, {info.get('format')}" if info.get("kind") else str(info.get("format"))
     lines = [
-        f"object:  {Path(inp['source']).name} ({kind}), {inp['n_points']} points, "
-        f"seed {inp['seed']}",
+        f"object:  {Path(cloud.source).name} ({kind}), {len(cloud.points)} points, seed {seed}",
         f"parts:   {len(tree.leaves())} ({tree.n_splits} split{'' if tree.n_splits == 1 else 's'}; "
         f"volume ratio "
-        f"{par['volume_ratio']}, min points {par['min_points']}, max depth {par['max_depth']})",
+        f"{par.volume_ratio}, min points {par.min_points}, max depth {par.max_depth})",
         "",
         f"  {'node':<14} {'class':<9} {'grasp type':<17} {'extents (mm)':>20} {'points':>8}",
     ]
@@ -120,9 +126,8 @@ def summary(doc: dict[str, Any], tree: BoxTree, shapes: tuple[NodeShape, ...]) -
             f"{nd.n_points:>8}"
         )
     lines.append("  (* = leaf, a part)")
-    t = doc["timings"]
-    times = ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in t.items())
-    lines += ["", f"times:   {times}; total {sum(t.values()) * 1000:.1f} ms"]
-    for w in inp.get("warnings", []):
+    times = ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in timings.items())
+    lines += ["", f"times:   {times}; total {sum(timings.values()) * 1000:.1f} ms"]
+    for w in info.get("warnings", []):
         lines.append(f"warning: {w}")
     return "\n".join(lines)

@@ -76,6 +76,7 @@ def field_docs(cls: type[Any]) -> dict[str, str]:
     body = next(n for n in tree.body if isinstance(n, ast.ClassDef)).body
     docs: dict[str, str] = {}
     for stmt, nxt in zip(body, body[1:], strict=False):
+        target: ast.expr
         if isinstance(stmt, ast.AnnAssign):
             target = stmt.target
         elif isinstance(stmt, ast.Assign) and len(stmt.targets) == 1:
@@ -184,13 +185,6 @@ class Options(Generic[T]):
         """Field name -> flag, of this dataclass's offered fields."""
         return {n: self.flag(n) for n in self.fields}
 
-    def all_options(self) -> list[tuple[Options[Any], str]]:
-        """(options, field) of every offered field, this dataclass's first, then the nested."""
-        out: list[tuple[Options[Any], str]] = [(self, n) for n in self.fields]
-        for sub in self.nested.values():
-            out += sub.all_options()
-        return out
-
     def _key(self, name: str) -> str:
         return f"{self.dest}.{name}"
 
@@ -289,13 +283,12 @@ class Options(Generic[T]):
                 out[name] = tuple(v) if isinstance(v, list) else v
         return out
 
-    def build(self, ns: argparse.Namespace, **given: Any) -> T:
-        """The dataclass from the parsed options (nested dataclasses first); ``given`` fields
-        override. A value the dataclass rejects raises :class:`OptionError` naming its flag."""
+    def build(self, ns: argparse.Namespace) -> T:
+        """The dataclass from the parsed options (nested dataclasses first). A value the
+        dataclass rejects raises :class:`OptionError` naming its flag."""
         kw: dict[str, Any] = {
             **{name: sub.build(ns) for name, sub in self.nested.items()},
             **self.values(ns),
-            **given,
         }
         try:
             return self.cls(**kw)

@@ -215,3 +215,85 @@ def test_report_row_numbers_match_the_grasp_set():
         assert row["best_type"] == gs.grasps[gs.best].grasp_type
     assert row["seconds"] == pytest.approx(1.2346)
     assert np.isfinite(row["best_volume"])
+
+
+def test_batch_goes_on_past_a_malformed_file(tmp_path, capsys):
+    """A folder with a good object and a malformed mesh (an OBJ vertex with 2 coordinates,
+    which once ended the whole batch in a traceback): the report lists both, the object is
+    planned, the bad file's row and a line on stderr name it and say what is wrong."""
+    folder = tmp_path / "objects"
+    folder.mkdir()
+    shutil.copy(LEMON, folder / "a_lemon.obj")
+    (folder / "b_bad.obj").write_text("v 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    report = tmp_path / "report.csv"
+    code = main(["plan", str(folder), *FAST, "--report", str(report)])
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err
+    rows = list(csv.DictReader(report.open()))
+    assert [r["object"] for r in rows] == ["a_lemon.obj", "b_bad.obj"]
+    assert rows[0]["error"] == "" and int(rows[0]["points"]) == 2500
+    assert "b_bad.obj" in rows[1]["error"] and rows[1]["points"] == ""
+    bad_lines = [ln for ln in captured.err.splitlines() if "b_bad.obj:" in ln]
+    assert len(bad_lines) == 1 and bad_lines[0].startswith("pregrasp plan: ")
+    assert rows[1]["error"] in bad_lines[0]
+    # a reader's InputError lists the file as skipped (exit 0); anything else is a failure
+    assert code == (0 if rows[1]["error"].startswith("skipped:") else 1)
+
+
+@pytest.mark.parametrize("where", ["load", "plan"])
+def test_batch_reports_any_exception_and_goes_on(tmp_path, capsys, monkeypatch, where):
+    """An unexpected exception (not a PregraspError) while reading or planning one file: that
+    row holds the exception's type and message, the other objects are planned, exit 1."""
+    import app.commands.common as common_mod
+    import app.commands.plan as plan_mod
+
+    folder = tmp_path / "objects"
+    folder.mkdir()
+    shutil.copy(LEMON, folder / "a_lemon.obj")
+    _box_obj(folder / "b_box.obj")
+    shutil.copy(LEMON, folder / "c_lemon.obj")
+    if where == "load":
+        real_load = common_mod.load_point_cloud
+
+        def load(path, **kw):
+            if "b_box" in str(path):
+                raise IndexError("index 8 is out of bounds for axis 0 with size 3")
+            return real_load(path, **kw)
+
+        monkeypatch.setattr(common_mod, "load_point_cloud", load)
+        expected = "IndexError: index 8 is out of bounds for axis 0 with size 3"
+    else:
+        real_run = plan_mod.run_pipeline
+
+        def run_pipeline(cloud, *a, **kw):
+            if "b_box" in cloud.source:
+                raise MemoryError("Unable to allocate 21.6 GiB")
+            return real_run(cloud, *a, **kw)
+
+        monkeypatch.setattr(plan_mod, "run_pipeline", run_pipeline)
+        expected = "MemoryError: Unable to allocate 21.6 GiB"
+    report = tmp_path / "report.csv"
+    assert main(["plan", str(folder), *FAST, "--report", str(report)]) == 1
+    captured = capsys.readouterr()
+    rows = list(csv.DictReader(report.open()))
+    assert [r["object"] for r in rows] == ["a_lemon.obj", "b_box.obj", "c_lemon.obj"]
+    assert rows[0]["error"] == rows[2]["error"] == ""
+    assert rows[0]["best_type"] == rows[2]["best_type"] != ""  # the same lemon, planned twice
+    assert rows[1]["error"] == f"{folder / 'b_box.obj'}: {expected}"
+    assert f"pregrasp plan: error: {rows[1]['error']}" in captured.err.splitlines()
+    assert "2 objects planned, 1 failed" in captured.out
+
+
+def test_progress_bar_note_keeps_the_bar_below_it():
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    s = Tty()
+    bar = ProgressBar(2, stream=s, width=4)
+    bar.update(1, "a")
+    bar.note("pregrasp plan: error: b: broken")
+    bar.update(2, "b")
+    lines = s.getvalue().split("\n")
+    assert lines[0].startswith("\r[##..] 1/2 a") and "\rpregrasp plan: error: b: broken" in lines[0]
+    assert lines[1].startswith("\r[####] 2/2 b")
