@@ -228,17 +228,22 @@ def test_view_passes_the_flags_to_the_viewer(monkeypatch):
     assert (config.host, config.port) == ("localhost", 0) and config.input == LEMON
 
 
-def test_view_scale_reaches_the_loaded_cloud(make_app):
-    """``ViewerConfig.scale`` multiplies the coordinates of the object the app opens."""
+def test_the_app_starts_with_the_scale_and_parameters_of_the_command_line(make_app):
+    """``ViewerConfig.scale`` multiplies the coordinates of the object the app opens, and the
+    first run of the app uses ``ViewerConfig.params`` (what `pregrasp view` passes on)."""
     import numpy as np
 
     from pregrasp_core.io import load_point_cloud
 
-    app = make_app(input=LEMON, scale=0.5, n_points=500)
+    ns = _subparser("view").parse_args(["--interval", "0.03", "--max-depth", "0", "--mu", "0.7"])
+    params = view.PIPELINE_OPTIONS.build(ns)
+    app = make_app(input=LEMON, scale=0.5, n_points=500, params=params)
+    state = app.controller.state
     ref = load_point_cloud(LEMON, n_points=500, seed=0)
-    cloud = app.controller.state.cloud
-    assert cloud is not None
-    assert np.allclose(np.asarray(cloud.points), 0.5 * np.asarray(ref.points))
+    assert state.cloud is not None
+    assert np.allclose(np.asarray(state.cloud.points), 0.5 * np.asarray(ref.points))
+    assert state.params == params and state.result.params == params
+    assert len(state.tree.nodes) == 1  # --max-depth 0: no split
 
 
 @pytest.mark.parametrize(
