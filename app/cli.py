@@ -1,7 +1,10 @@
 """The ``pregrasp`` command line: a thin layer over :mod:`pregrasp_core`.
 
 Each subcommand lives in ``app/commands/<name>.py`` and provides ``add_parser(subparsers)``,
-which registers its options and sets ``func`` to a function ``run(args) -> int``.
+which registers its options and sets ``func`` to a function ``run(args) -> int``. The options
+are generated from dataclasses (the core's parameters, the commands' own input and output
+options) by :mod:`app.commands.options`; a value a dataclass rejects is a ``PregraspError``
+naming the flag, printed here as one line (exit 2).
 """
 
 from __future__ import annotations

@@ -11,7 +11,13 @@ skipped); ``--report report.csv`` writes one row per object (object, points, par
 force closure, best type, contacts, epsilon, volume, seconds, error), else the CSV goes to
 stdout; ``-o DIR`` also writes ``DIR/<object>.json`` per object. ``--jobs J`` plans J objects
 at a time in worker processes (each with a one-thread planner unless ``--threads`` says
-otherwise); the report lists the objects in name order whatever order they finish in.
+otherwise); the report lists the objects in name order whatever order they finish in. An
+object that fails, whatever the exception (a reader failing on a malformed file, the planner
+running out of memory), gets its error in the ``error`` column and a line on stderr, and the
+batch goes on (exit 1 at the end).
+
+The options are those of :mod:`app.commands.common` for the input and the stages (generated
+from the parameter dataclasses) and :class:`PlanOutput` for what is written.
 """
 
 from __future__ import annotations
