@@ -350,3 +350,22 @@ def test_generated_options_of_a_dataclass(capsys):
     # a message that names no field: the group is named instead
     with pytest.raises(OptionError, match="^invalid made up option: the cap is negative$"):
         opts.build(p.parse_args(["--cap", "-1"]))
+
+
+@pytest.mark.parametrize(
+    ("name", "before"),
+    [
+        ("decompose", "--points --seed --scale --volume-ratio --min-points --max-depth --ratio-1d "
+         "--ratio-2d --small-size --include-indices --output"),
+        ("pregrasps", "--points --seed --scale --volume-ratio --min-points --max-depth --ratio-1d "
+         "--ratio-2d --small-size --face-clearance --no-support --support-height --up --interval "
+         "--policy --aperture-scale --max-backoff --no-fallback --output"),
+    ],
+)  # fmt: skip
+def test_decompose_and_pregrasps_keep_their_flags(name, before, capsys):
+    """The flags these commands had before the generator are all still listed in --help."""
+    with pytest.raises(SystemExit):
+        main([name, "--help"])
+    listed = set(capsys.readouterr().out.replace(",", " ").replace("[", " ").split())
+    assert set(before.split()) <= listed
+    assert "-o" in listed
