@@ -13,6 +13,7 @@ Generated, per field (the type comes from the annotation):
 field type                          option
 =================================== =====================================================
 ``int``, ``float``, ``str``         ``--name VALUE`` (``str`` may take ``Flag.choices``)
+``Literal["a", "b"]``               ``--name {a,b}``
 ``float | None`` (default ``None``) ``--name VALUE``, unset by default
 ``bool``                            ``--name`` / ``--no-name``
 ``tuple[float, float, float]``      ``--name X Y Z``
@@ -252,6 +253,9 @@ class Options(Generic[T]):
             kw.update(type=args[0], nargs=len(args))
             if default is not None:
                 kw["default"] = list(default)
+        elif typing.get_origin(tp) is typing.Literal:
+            values = typing.get_args(tp)
+            kw.update(type=type(values[0]), choices=list(values))
         elif tp in (int, float, str):
             kw["type"] = tp
             if spec.choices is not None:

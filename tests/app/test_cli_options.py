@@ -9,7 +9,7 @@ import argparse
 import dataclasses
 import enum
 import json
-from typing import Any
+from typing import Any, Literal
 
 import pytest
 
@@ -309,6 +309,8 @@ class _Params:
     """A point."""
     cap: float | None = None
     """A cap; ``None`` = none."""
+    shape: Literal["round", "square"] = "round"
+    """Its shape."""
 
     def __post_init__(self) -> None:
         if not self.step_size <= self.limit_value:
@@ -331,9 +333,9 @@ def test_generated_options_of_a_dataclass(capsys):
     p = argparse.ArgumentParser(prog="x")
     opts.add_to(p)
     assert opts.build(p.parse_args([])) == _Params()
-    argv = "--step-size 1 --n 5 --mode fast --no-on --where 2 3 --cap 4".split()
+    argv = "--step-size 1 --n 5 --mode fast --no-on --where 2 3 --cap 4 --shape square".split()
     built = opts.build(p.parse_args(argv))
-    assert built == _Params(1.0, 2.0, 5, _Mode.FAST, False, (2.0, 3.0), 4.0)
+    assert built == _Params(1.0, 2.0, 5, _Mode.FAST, False, (2.0, 3.0), 4.0, "square")
     assert opts.help_text("step_size") == "Metres: the step, at most --limit-value."
     assert opts.help_text("on") == "Whether it runs; --no-on = never."
     assert opts.help_text("cap") == "A cap; not given = none."
@@ -343,6 +345,10 @@ def test_generated_options_of_a_dataclass(capsys):
     text = capsys.readouterr().out
     assert "--step-size M" in text and "--n N" in text and "--where X Y" in text
     assert "--on, --no-on" in text and "(default: --on)" in text and "(default: 0.0 1.0)" in text
+    assert "--shape {round,square}" in text
+    with pytest.raises(SystemExit):
+        p.parse_args(["--shape", "oval"])
+    assert "argument --shape: invalid choice: 'oval'" in capsys.readouterr().err
     with pytest.raises(OptionError, match=r"^--step-size: \(3.0\) must be <= --limit-value$"):
         opts.build(p.parse_args(["--step-size", "3"]))
     with pytest.raises(OptionError, match="^--n: must be >= 1$"):
