@@ -118,6 +118,7 @@ class Gui:
         self._local = threading.local()
         self._timers: dict[Any, threading.Timer] = {}  # pending debounced edit per control
         self._timers_lock = threading.Lock()
+        self._values_lock = threading.RLock()  # a re-send and a sync of the values never mix
         c, gui = controller, server.gui
         gui.configure_theme(control_width="large", dark_mode=False, show_logo=False)
 
@@ -342,17 +343,18 @@ class Gui:
         """
         if handle is None:
             return
-        s = self.controller.state
-        for key, h, v in self._input_values(s):
-            if h is handle:
-                if key.startswith("param."):
-                    sec, name = key.split(".")[1:]
-                    v = getattr(getattr(self.controller.pending("params"), sec), name)
-                    v = v.value if isinstance(v, enum.Enum) else v
-                elif key in ("n_points", "seed"):
-                    v = self.controller.pending(key)
-                push_value(h, v)
-                return
+        with self._values_lock:
+            s = self.controller.state
+            for key, h, v in self._input_values(s):
+                if h is handle:
+                    if key.startswith("param."):
+                        sec, name = key.split(".")[1:]
+                        v = getattr(getattr(self.controller.pending("params"), sec), name)
+                        v = v.value if isinstance(v, enum.Enum) else v
+                    elif key in ("n_points", "seed"):
+                        v = self.controller.pending(key)
+                    push_value(h, v)
+                    return
 
     def sync(self, state: AppState) -> None:
         """Mirror ``state`` into the GUI (values set here do not trigger actions)."""
@@ -394,9 +396,10 @@ class Gui:
                 for k, h in (("n_points", self.n_points), ("seed", self.seed))
                 if k in self._timers
             }
-        for key, h, v in self._input_values(s):
-            if id(h) not in waiting:
-                self._set(key, h, "value", v)
+        with self._values_lock:
+            for key, h, v in self._input_values(s):
+                if id(h) not in waiting:
+                    self._set(key, h, "value", v)
         self._set("boxes", self.boxes, "content", f"boxes: {self.scene.n_boxes}")
         self._set("node_info", self.node_info, "content", node_info(s))
         self._sync_pool(s)

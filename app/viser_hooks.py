@@ -27,6 +27,7 @@ import dataclasses
 import http
 import ipaddress
 import logging
+import math
 import socket
 import threading
 import time
@@ -344,12 +345,40 @@ def install_upload_guard(server: Any, max_bytes: Callable[[], int]) -> UploadGua
 # ---------------------------------------------------------------------------------- updates
 
 
+def value_refusal(handle: Any, value: Any) -> str | None:
+    """Why ``value`` sent by a browser for control ``handle`` is refused, or ``None``.
+
+    The value must cast to the control's type as viser casts it; a number must be finite and
+    within the control's min and max (which are the parameter's bounds, see ``app.gui``); a
+    dropdown's value must be one of its options. viser would otherwise store and send on to
+    every browser whatever it got: an integer too large for msgpack broke every connection.
+    """
+    current = handle._impl.value
+    if isinstance(current, tuple) or handle._impl.is_button:
+        return None
+    try:
+        v = type(current)(value)  # the cast viser does
+    except (TypeError, ValueError, OverflowError) as exc:
+        return f"{value!r} is not a {type(current).__name__} ({exc})"
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        lo, hi = getattr(handle, "min", None), getattr(handle, "max", None)
+        if not math.isfinite(v):
+            return f"{value!r} is not a finite number"
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            return f"{value!r} is outside [{lo:g}, {hi:g}]"
+    options = getattr(handle, "options", None)
+    if isinstance(options, tuple) and v not in options:
+        return f"{str(value)[:80]!r} is not one of the options"
+    return None
+
+
 def install_update_guard(
     server: Any, on_bad_value: Callable[[int, Any, str], None]
 ) -> Callable[..., Any]:
     """Put a guard in front of viser's GUI update handler: updates of anything but a control's
-    ``value`` are dropped, and a value that viser cannot cast to the control's type calls
-    ``on_bad_value(client_id, handle, reason)`` instead of failing in viser's event loop."""
+    ``value`` are dropped, and a value that :func:`value_refusal` refuses calls
+    ``on_bad_value(client_id, handle, reason)`` instead of reaching viser (which would fail in
+    its event loop or pass the value on to every browser)."""
     from viser import _messages
 
     gui = server.gui
@@ -370,12 +399,9 @@ def install_update_guard(
         if not isinstance(updates, dict) or set(updates) != {"value"}:
             logger.warning("dropped a GUI update of %r from client %s", updates, client_id)
             return
-        try:
-            current = handle._impl.value
-            if not isinstance(current, tuple):
-                type(current)(updates["value"])  # the cast viser does; raises on junk
-        except (TypeError, ValueError, OverflowError) as exc:
-            on_bad_value(client_id, handle, f"{type(exc).__name__}: {exc}")
+        why = value_refusal(handle, updates["value"])
+        if why is not None:
+            on_bad_value(client_id, handle, why)
             return
         await inner(client_id, message)
 
@@ -413,4 +439,5 @@ __all__ = [
     "install_upload_guard",
     "push_value",
     "refusal",
+    "value_refusal",
 ]
