@@ -22,8 +22,9 @@ DEFAULT_N_POINTS: int = 20000
 DEFAULT_MAX_BYTES: int = 200 * 1024 * 1024
 """Largest input accepted (bytes): files, uploads and the decompressed arrays of an NPZ."""
 
-MIN_POINTS: int = 10
-"""Fewest finite points a usable cloud has (a box needs a handful; fewer is surely a mistake)."""
+MIN_POINTS: int = 16
+"""Fewest finite points a usable cloud has: the default normal estimation uses 16 neighbours
+(``NormalParams.k``), so a smaller cloud would fail later with no file name."""
 
 MAX_POINTS: int = 10_000_000
 """Most points ``n_points`` may ask for (memory guard)."""

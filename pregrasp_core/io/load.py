@@ -3,10 +3,11 @@ the reader from ``READERS``; size limits are checked before anything is parsed."
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import InputError, PregraspError
 from .cloud import (
     DEFAULT_MAX_BYTES,
     DEFAULT_N_POINTS,
@@ -18,21 +19,20 @@ from .cloud import (
     check_request,
     finish_cloud,
 )
-from .mesh import TriangleMesh, read_mesh, sample_mesh
+from .gltf import read_glb, read_gltf
+from .mesh import TriangleMesh, sample_mesh
 from .numpy_format import read_npy, read_npz
+from .obj import read_obj
+from .off import read_off
 from .pcd import read_pcd
 from .ply import read_ply
+from .stl import read_stl
 from .text import read_text
+
+logger = logging.getLogger(__name__)
 
 Reader = Callable[[FileData], RawCloud | TriangleMesh]
 """A reader parses one file's bytes into raw points or triangles (validated afterwards)."""
-
-
-def _mesh_reader(fmt: str) -> Reader:
-    def read(file: FileData) -> RawCloud | TriangleMesh:
-        return read_mesh(file, fmt)
-
-    return read
 
 
 READERS: dict[str, Reader] = {
@@ -43,11 +43,11 @@ READERS: dict[str, Reader] = {
     ".csv": read_text,
     ".npy": read_npy,
     ".npz": read_npz,
-    ".obj": _mesh_reader("obj"),
-    ".stl": _mesh_reader("stl"),
-    ".off": _mesh_reader("off"),
-    ".glb": _mesh_reader("glb"),
-    ".gltf": _mesh_reader("gltf"),
+    ".obj": read_obj,
+    ".stl": read_stl,
+    ".off": read_off,
+    ".glb": read_glb,
+    ".gltf": read_gltf,
 }
 """Extension (lower case, with the dot) -> reader; one entry per ``SUPPORTED_EXTENSIONS``."""
 
@@ -139,7 +139,20 @@ def _load(
 ) -> PointCloud:
     check_request(n_points, scale, file.source, seed)
     fmt = ext[1:]
-    parsed = READERS[ext](file)
+    try:
+        parsed = READERS[ext](file)
+    except PregraspError:
+        raise
+    except MemoryError:
+        raise InputError(
+            f"{file.source}: not enough memory to read the file; downsample it"
+        ) from None
+    except Exception as exc:  # noqa: BLE001 - a reader bug must still name the file
+        logger.exception("unexpected reader failure on %s", file.source)
+        raise InputError(
+            f"{file.source}: cannot read it as {fmt.upper()} ({type(exc).__name__}: {exc}); "
+            "check that the file is valid"
+        ) from exc
     if isinstance(parsed, TriangleMesh):
         return sample_mesh(parsed, file.source, fmt, n_points, seed, scale)
     info = CloudInfo(format=fmt, kind="cloud", n_read=parsed.n_read, warnings=parsed.warnings)

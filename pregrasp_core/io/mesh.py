@@ -64,11 +64,39 @@ def read_mesh(file: FileData, fmt: str) -> TriangleMesh:
             f"{source}: no triangles could be read from the {fmt.upper()} file; check that it is "
             "a valid mesh with faces, or give a point-cloud format (PLY, PCD, XYZ, NPY)"
         )
-    return TriangleMesh(
-        vertices=np.asarray(mesh.vertices, dtype=np.float64),
-        faces=np.asarray(mesh.faces, dtype=np.int64),
-        watertight=bool(getattr(mesh, "is_watertight", False)),
+    return check_triangles(
+        TriangleMesh(
+            vertices=np.asarray(mesh.vertices, dtype=np.float64),
+            faces=np.asarray(mesh.faces),
+            watertight=bool(getattr(mesh, "is_watertight", False)),
+        ),
+        source,
+        fmt,
     )
+
+
+def check_triangles(mesh: TriangleMesh, source: str, fmt: str) -> TriangleMesh:
+    """Shapes (V, 3) and (F, 3) and every face index in [0, V), else :class:`InputError`."""
+    verts, faces = mesh.vertices, mesh.faces
+    if verts.ndim != 2 or verts.shape[1] != 3 or len(verts) == 0:
+        raise InputError(
+            f"{source}: the {fmt.upper()} vertices have shape {verts.shape}, expected (V, 3): "
+            "some vertex does not have 3 coordinates; re-export the mesh"
+        )
+    if faces.ndim != 2 or faces.shape[1] != 3 or faces.dtype.kind not in "iu":
+        raise InputError(
+            f"{source}: the {fmt.upper()} faces have shape {faces.shape}, expected (F, 3) "
+            "vertex indices; re-export the mesh"
+        )
+    faces = faces.astype(np.int64)
+    lo, hi = int(faces.min()), int(faces.max())
+    if lo < 0 or hi >= len(verts):
+        bad = lo if lo < 0 else hi
+        raise InputError(
+            f"{source}: a {fmt.upper()} face uses vertex {bad}, the mesh has vertices 0 to "
+            f"{len(verts) - 1}; the file is corrupt: re-export it"
+        )
+    return TriangleMesh(vertices=verts, faces=faces, watertight=mesh.watertight)
 
 
 def sample_mesh(

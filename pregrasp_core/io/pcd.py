@@ -1,5 +1,9 @@
 """PCD point clouds (the Point Cloud Library's format): ``DATA ascii`` and ``DATA binary``;
-``binary_compressed`` is refused with a message."""
+``binary_compressed`` is refused with a message.
+
+Every header field is checked before anything is allocated: each key once, FIELDS named once,
+SIZE/TYPE/COUNT per field and in range, WIDTH x HEIGHT = POINTS, VIEWPOINT of 7 numbers, and a
+body holding exactly POINTS rows (no missing and no extra data)."""
 
 from __future__ import annotations
 
@@ -9,8 +13,12 @@ from ..errors import InputError
 from .cloud import FileData, RawCloud
 from .text import decode_text, parse_numbers
 
-_PCD_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT",
-             "POINTS", "DATA")  # fmt: skip
+PCD_KEYS: tuple[str, ...] = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT",
+                             "VIEWPOINT", "POINTS", "DATA")  # fmt: skip
+"""The header keys of a PCD file (PCL's order)."""
+
+MAX_FIELD_COUNT: int = 4096
+"""Largest COUNT of one field (PCL's widest point types, e.g. FPFH, have a few hundred)."""
 
 
 def read_pcd(file: FileData) -> RawCloud:
@@ -36,8 +44,10 @@ def read_pcd(file: FileData) -> RawCloud:
         if line and not line.startswith("#"):
             tok = line.split()
             key = tok[0].upper()
-            if key not in _PCD_KEYS:
+            if key not in PCD_KEYS:
                 raise bad(f"unexpected line {line[:60]!r}")
+            if key in header:
+                raise bad(f"{key} given twice")
             header[key] = tok[1:]
             if key == "DATA":
                 break
@@ -54,35 +64,54 @@ def read_pcd(file: FileData) -> RawCloud:
             f"FIELDS ({n_f}), SIZE ({len(header['SIZE'])}), TYPE ({len(header['TYPE'])}) and "
             f"COUNT ({len(counts_s)}) must list the same number of entries"
         )
-    try:
-        sizes = [int(s) for s in header["SIZE"]]
-        counts = [int(c) for c in counts_s]
-        width = int(header["WIDTH"][0])
-        height = int(header["HEIGHT"][0])
-        n_pts = int(header["POINTS"][0]) if "POINTS" in header else width * height
-    except (ValueError, IndexError):
-        raise bad("SIZE, COUNT, WIDTH, HEIGHT and POINTS must be integers") from None
-    types = [t.upper() for t in header["TYPE"]]
-    dtypes = []
-    for name, t, s, c in zip(fields, types, sizes, counts, strict=True):
-        if t not in ("F", "I", "U") or s not in (1, 2, 4, 8) or (t == "F" and s not in (4, 8)):
-            raise bad(f"field {name!r} has unsupported TYPE {t} SIZE {s}")
-        if c < 1:
-            raise bad(f"field {name!r} has COUNT {c}")
-        code = {"F": "f", "I": "i", "U": "u"}[t] + str(s)
-        dtypes.append((name, "<" + code, (c,)) if c > 1 else (name, "<" + code))
+    twice = sorted({f for f in fields if fields.count(f) > 1 and f != "_"})
+    if twice:
+        raise bad(f"field {twice[0]!r} named twice in FIELDS")
+    for key in ("WIDTH", "HEIGHT", "POINTS"):
+        if key in header and len(header[key]) != 1:
+            raise bad(f"{key} must be one integer, got {' '.join(header[key])!r}")
+    ints = header["SIZE"] + counts_s + header["WIDTH"] + header["HEIGHT"] + header.get("POINTS", [])
+    if not all(s.isascii() and s.lstrip("-").isdigit() for s in ints):
+        raise bad("SIZE, COUNT, WIDTH, HEIGHT and POINTS must be integers")
+    if any(len(s) > 18 for s in ints):
+        raise bad(f"a count of {max(ints, key=len)[:30]} is beyond any file's size")
+    sizes = [int(s) for s in header["SIZE"]]
+    counts = [int(c) for c in counts_s]
+    width = int(header["WIDTH"][0])
+    height = int(header["HEIGHT"][0])
+    n_pts = int(header["POINTS"][0]) if "POINTS" in header else width * height
     if n_pts < 0 or width < 0 or height < 0:
         raise bad("negative WIDTH, HEIGHT or POINTS")
+    if width * height != n_pts:
+        raise bad(f"WIDTH x HEIGHT ({width} x {height}) differs from POINTS ({n_pts})")
+    if "VIEWPOINT" in header:
+        try:
+            vp = [float(v) for v in header["VIEWPOINT"]]
+        except ValueError:
+            vp = []
+        if len(vp) != 7 or not np.isfinite(vp).all():
+            raise bad(f"VIEWPOINT must be 7 numbers, got {' '.join(header['VIEWPOINT'])[:60]!r}")
+    types = [t.upper() for t in header["TYPE"]]
+    dtypes: list[tuple[str, str] | tuple[str, str, tuple[int]]] = []
+    for i, (name, t, s, c) in enumerate(zip(fields, types, sizes, counts, strict=True)):
+        if t not in ("F", "I", "U") or s not in (1, 2, 4, 8) or (t == "F" and s not in (4, 8)):
+            raise bad(f"field {name!r} has unsupported TYPE {t} SIZE {s}")
+        if not 1 <= c <= MAX_FIELD_COUNT:
+            raise bad(f"field {name!r} has COUNT {c} (1 to {MAX_FIELD_COUNT})")
+        code = {"F": "f", "I": "i", "U": "u"}[t] + str(s)
+        key = name if name != "_" else f"_{i}"  # PCL pads with fields named '_'
+        dtypes.append((key, "<" + code, (c,)) if c > 1 else (key, "<" + code))
     for axis in ("x", "y", "z"):
         if axis not in fields:
             raise InputError(f"{source}: the PCD has fields {fields}, no {axis!r}; nothing to read")
     if n_pts == 0:
         raise InputError(f"{source}: the PCD declares 0 points; nothing to read")
-    mode = header["DATA"][0].lower() if header["DATA"] else ""
-    if mode == "ascii":
+    mode = " ".join(header["DATA"]).lower()
+    body = len(data) - pos
+    n_cols = sum(counts)
+    if mode == "ascii":  # arrays sized by the text itself, not by the header
         text = decode_text(data[pos:], source, "ascii PCD")
         arr = parse_numbers(text, source, "ascii PCD data")
-        n_cols = sum(counts)
         if arr.size == 0:
             raise InputError(f"{source}: the ascii PCD has no data rows; re-save the cloud")
         if arr.shape[1] != n_cols:
@@ -98,14 +127,19 @@ def read_pcd(file: FileData) -> RawCloud:
         starts = np.cumsum([0] + counts[:-1])
         col = {f: arr[:, st] for f, st in zip(fields, starts, strict=True)}
     elif mode == "binary":
-        dt = np.dtype(dtypes)
-        need = n_pts * dt.itemsize
-        if len(data) - pos < need:
+        row = sum(s * c for s, c in zip(sizes, counts, strict=True))
+        need = n_pts * row
+        if body < need:
             raise InputError(
                 f"{source}: truncated PCD: the header declares {n_pts} points ({need} bytes), "
-                f"the file holds {len(data) - pos} data bytes; re-save the cloud"
+                f"the file holds {body} data bytes; re-save the cloud"
             )
-        rec = np.frombuffer(data, dtype=dt, count=n_pts, offset=pos)
+        if body > need:
+            raise InputError(
+                f"{source}: {body - need} bytes after the {n_pts} points the header declares "
+                f"({need} bytes); the header is wrong or the file is corrupt: re-save the cloud"
+            )
+        rec = np.frombuffer(data, dtype=np.dtype(dtypes), count=n_pts, offset=pos)
         col = {
             f: (rec[f] if rec[f].ndim == 1 else rec[f][:, 0]).astype(np.float64)
             for f in ("x", "y", "z", "normal_x", "normal_y", "normal_z")
