@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import io
+import math
 import zipfile
+from typing import IO
 
 import numpy as np
 
@@ -23,9 +25,46 @@ def _numeric_array(arr: object, source: str, what: str) -> np.ndarray:
     return arr.astype(np.float64)
 
 
+def check_npy_header(fp: IO[bytes], n_bytes: int, source: str, what: str) -> None:
+    """The NPY header at ``fp``: a numeric dtype and a shape whose data is exactly the
+    ``n_bytes`` of the file (so a header claiming a huge shape is refused before numpy
+    allocates it)."""
+
+    def bad(problem: str) -> InputError:
+        return InputError(
+            f"{source}: not a readable NPY file ({what}: {problem}); save it with numpy.save of "
+            "a float array (object arrays are refused)"
+        )
+
+    try:
+        version = np.lib.format.read_magic(fp)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(fp)
+        elif version == (2, 0):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(fp)
+        else:
+            raise bad(f"NPY format version {version[0]}.{version[1]} is not supported")
+    except InputError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - numpy raises ValueError/EOFError/SyntaxError...
+        raise bad(f"{type(exc).__name__}: {exc}") from None
+    if dtype.hasobject:
+        raise bad("it holds Python objects")
+    need = math.prod(shape) * dtype.itemsize
+    have = n_bytes - fp.tell()
+    if need != have:
+        raise bad(
+            f"the header declares shape {shape} of {dtype} ({need} bytes), the file holds "
+            f"{have} bytes of data"
+        )
+
+
 def read_npy(file: FileData) -> RawCloud:
     """A float or integer (N, 3) or (N, 6) array saved by ``numpy.save``."""
     source = file.source
+    if file.data.startswith(b"PK\x03\x04"):
+        raise InputError(f"{source}: not an NPY array (an NPZ archive? rename it .npz)")
+    check_npy_header(io.BytesIO(file.data), len(file.data), source, "the array")
     try:
         arr = np.load(io.BytesIO(file.data), allow_pickle=False)
     except Exception as exc:  # noqa: BLE001 - numpy raises ValueError/OSError/EOFError/...
@@ -43,7 +82,14 @@ def read_npz(file: FileData) -> RawCloud:
     source, max_bytes = file.source, file.max_bytes
     try:
         with zipfile.ZipFile(io.BytesIO(file.data)) as zf:
-            unpacked = sum(i.file_size for i in zf.infolist())
+            members = zf.infolist()
+            unpacked = sum(i.file_size for i in members)
+            if unpacked <= max_bytes:
+                for info in members:  # each array's header against its size, before reading
+                    with zf.open(info) as fp:
+                        check_npy_header(fp, info.file_size, source, f"array {info.filename!r}")
+    except InputError:
+        raise
     except Exception as exc:  # noqa: BLE001 - zipfile raises BadZipFile, ValueError, ...
         raise InputError(
             f"{source}: not a readable NPZ archive ({type(exc).__name__}: {exc}); save it with "

@@ -30,7 +30,7 @@ def check_off(data: bytes, source: str) -> None:
         raise bad("the first line must be 'OFF' (or 'COFF')")
     counts = lines[0][1:] if len(lines[0]) > 1 else (lines[1] if len(lines) > 1 else [])
     body = lines[1:] if len(lines[0]) > 1 else lines[2:]
-    if len(counts) != 3 or not all(c.isascii() and c.isdigit() and len(c) < 19 for c in counts):
+    if len(counts) != 3 or not all(c.isascii() and c.isdigit() for c in counts):
         raise bad(f"the counts line must be 'vertices faces edges', got {' '.join(counts)!r}")
     n_v, n_f = int(counts[0]), int(counts[1])
     if len(body) != n_v + n_f:

@@ -14,6 +14,10 @@ from .cloud import FileData, RawCloud, add_warning, split_columns
 
 def decode_text(data: bytes, source: str, what: str) -> str:
     """``data`` as UTF-8 text (a BOM is dropped); binary bytes or bad UTF-8 -> InputError."""
+    if data[:2] in (b"\xff\xfe", b"\xfe\xff") and _is_utf16(data):
+        raise InputError(
+            f"{source}: is UTF-16 text; {what} files must be UTF-8 or ASCII: save it as UTF-8"
+        )
     if b"\x00" in data:
         raise InputError(f"{source}: contains binary data, not {what} text; check the format")
     try:
@@ -23,6 +27,14 @@ def decode_text(data: bytes, source: str, what: str) -> str:
             f"{source}: is not UTF-8/ASCII text ({exc.reason} at byte {exc.start}); "
             f"{what} files are text, check the format"
         ) from exc
+
+
+def _is_utf16(data: bytes) -> bool:
+    try:
+        data.decode("utf-16")
+    except UnicodeDecodeError:
+        return False
+    return True
 
 
 def parse_numbers(lines: list[str] | str, source: str, what: str) -> np.ndarray:
