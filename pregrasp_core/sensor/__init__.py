@@ -1,0 +1,52 @@
+"""Depth-sensor input: depth images, the table in a scene, units and single-view completion.
+
+- :mod:`.depth`: depth images (16-bit PNG in mm, float NPY in m) with pinhole
+  :class:`Intrinsics` to a camera-frame cloud (OpenCV: +z forward, +x right, +y down);
+- :mod:`.table`: the support plane by RANSAC (any orientation), the table's points, the object
+  as the largest cluster above it (or the one nearest ``pick``), statistical outlier removal;
+- :mod:`.units`: the rule that recognises millimetre clouds;
+- :mod:`.completion`: the unseen back of a single view completed by symmetry under the view's
+  visibility constraint (``docs/partial-views.md``);
+- :mod:`.synthetic`: simulated depth views of a mesh on a table (the test data).
+
+See ``docs/input.md`` ("Depth-camera input").
+"""
+
+from .completion import CompletedView, CompletionParams, complete_view
+from .depth import (
+    DepthCloud,
+    Intrinsics,
+    depth_to_points,
+    load_camera_pose,
+    load_depth_image,
+    read_depth_file,
+)
+from .table import (
+    SegmentParams,
+    TableSegmentation,
+    fit_plane_ransac,
+    remove_outliers,
+    segment_table,
+    voxel_clusters,
+)
+from .units import UnitGuess, detect_units
+
+__all__ = [
+    "CompletedView",
+    "CompletionParams",
+    "DepthCloud",
+    "Intrinsics",
+    "SegmentParams",
+    "TableSegmentation",
+    "UnitGuess",
+    "complete_view",
+    "depth_to_points",
+    "detect_units",
+    "fit_plane_ransac",
+    "load_camera_pose",
+    "load_depth_image",
+    "read_depth_file",
+    "remove_outliers",
+    "segment_table",
+    "voxel_clusters",
+]

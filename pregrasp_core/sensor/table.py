@@ -1,0 +1,351 @@
+"""The table in a scene cloud: support plane by RANSAC, the object above it, outlier removal.
+
+:func:`segment_table` runs the whole chain on a scene cloud (a depth frame, or a single view with
+the table in it) and returns a :class:`TableSegmentation`:
+
+1. **Plane search** (:func:`fit_plane_ransac`), any orientation: ``iterations`` random triplets
+   drawn with ``seed`` from a random subset of ``sample`` points, each plane scored by its inliers
+   (distance < ``ransac_threshold``) in that subset, all at once as one matrix; the best plane is
+   refined by least squares (the smallest principal axis of its inliers in the whole cloud).
+2. **Noise band**: the inliers' residual spread, ``sigma = 1.4826 * MAD``, sets the band
+   ``|distance| <= max(band_sigmas * sigma, min_band)`` that is the table; the plane is refitted
+   on the band once more. The normal is oriented toward the viewpoint (the camera is above the
+   table) or, without one, toward the side that holds more of the off-plane points.
+3. **Clusters above the table**: points farther than the band above the plane are clustered by
+   Euclidean proximity on a voxel grid of side ``cluster_radius`` (occupied voxels that touch,
+   26-neighbourhood, are one cluster: scipy's connected components on the voxel graph). The
+   object is the largest cluster, or with ``pick`` the cluster with the point nearest ``pick``.
+   Clusters smaller than ``min_cluster`` points are never chosen.
+4. **The object's foot**: the object's points inside the band (the bottom of its walls, within
+   the noise of the table) are given back to the object: band points whose projection on the
+   plane lies within ``max(band, foot_radius)`` of the projection of one of the object's points
+   in the lowest ``foot_height`` above the band (a vertical wall continues straight down).
+   Points above the band with fewer than ``min_neighbours`` others near them (the noise tail of
+   the table) and points below the band are neither table nor object.
+
+:func:`remove_outliers` is the statistical outlier removal (PCL's ``StatisticalOutlierRemoval``):
+a point whose mean distance to its ``k`` nearest neighbours exceeds the mean of that over the
+cloud by ``std_ratio`` standard deviations goes.
+
+Frames: the points' own (camera frame for a depth image, world for a PCD); the plane is returned
+as a :class:`~pregrasp_core.facemask.SupportPlane` in that frame, ready for
+``FaceMaskParams(up=tuple(plane.normal), support_height=plane.height)``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from ..errors import DegenerateGeometryError, InputError
+from ..facemask import SupportPlane
+from ..geometry import as_points
+from ..tolerances import GEOM_EPS
+
+logger = logging.getLogger(__name__)
+
+MAD_TO_SIGMA: float = 1.4826
+"""Median absolute deviation to standard deviation for Gaussian residuals."""
+
+
+@dataclass(frozen=True)
+class SegmentParams:
+    """Parameters of :func:`segment_table` (metres unless said)."""
+
+    ransac_threshold: float = 0.01
+    """Inlier distance of the RANSAC search (larger than the sensor noise along the normal)."""
+    iterations: int = 200
+    """Random planes tried."""
+    sample: int = 5000
+    """Points (a seeded random subset) the planes are scored on."""
+    band_sigmas: float = 3.0
+    """The table is the band within this many residual standard deviations of the plane."""
+    min_band: float = 0.001
+    """Smallest half-width of the table band (noise-free clouds)."""
+    cluster_radius: float = 0.01
+    """Voxel side of the Euclidean clustering: gaps wider than about this split clusters."""
+    min_cluster: int = 50
+    """Clusters with fewer points are never the object."""
+    foot_height: float = 0.003
+    """Height above the band of the object's points whose footprint claims the band points."""
+    foot_radius: float = 0.001
+    """Band points closer than ``max(band, foot_radius)`` to that footprint (along the plane)
+    are the object's."""
+    min_neighbours: int = 2
+    """A point above the band with fewer than this many others above the band within
+    ``neighbour_spacings`` median spacings is isolated noise, not part of a cluster (0: off).
+    Two, because a face seen at a grazing angle is sampled in rows of points far apart."""
+    neighbour_spacings: float = 5.0
+    """Radius of that neighbour count, in median nearest-neighbour spacings of the points above
+    the band."""
+    seed: int = 0
+    """Seed of the RANSAC sampling: same seed, same result."""
+
+    def __post_init__(self) -> None:
+        for name in ("ransac_threshold", "min_band", "cluster_radius", "foot_radius"):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and v > 0.0):
+                raise ValueError(f"{name} must be a positive length in metres, got {v!r}")
+            object.__setattr__(self, name, v)
+        for name in ("band_sigmas", "foot_height"):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and v >= 0.0):
+                raise ValueError(f"{name} must be >= 0, got {v!r}")
+            object.__setattr__(self, name, v)
+        if isinstance(self.min_neighbours, bool) or int(self.min_neighbours) != self.min_neighbours:
+            raise ValueError(f"min_neighbours must be an integer >= 0, got {self.min_neighbours!r}")
+        if self.min_neighbours < 0 or not self.neighbour_spacings > 0.0:
+            raise ValueError("min_neighbours must be >= 0 and neighbour_spacings positive")
+        for name in ("iterations", "sample", "min_cluster"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or int(v) != v or v < 1:
+                raise ValueError(f"{name} must be a positive integer, got {v!r}")
+            object.__setattr__(self, name, int(v))
+        if isinstance(self.seed, bool) or int(self.seed) != self.seed or self.seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class TableSegmentation:
+    """A scene cloud split into the table, the object and the rest."""
+
+    points: np.ndarray
+    """(N, 3) float64: the scene's points (the input), metres."""
+    plane: SupportPlane
+    """The support plane, normal toward the object side (the camera side)."""
+    table_mask: np.ndarray
+    """(N,) bool: the table's points (removed from the object)."""
+    object_mask: np.ndarray
+    """(N,) bool: the object's points (its cluster plus its foot in the table band)."""
+    cluster_labels: np.ndarray
+    """(N,) int64: cluster of every point above the band (0, 1, ... by decreasing size), -1 for
+    the others."""
+    band: float
+    """Half-width of the table band, metres."""
+    sigma: float
+    """Robust standard deviation of the table points' distances to the plane, metres."""
+    viewpoint: np.ndarray | None = None
+    """(3,) the camera position in the points' frame, or None."""
+    n_clusters: int = field(default=0)
+    """Clusters found above the table."""
+
+    @property
+    def object_points(self) -> np.ndarray:
+        """(M, 3) the object's points."""
+        return self.points[self.object_mask]
+
+
+def plane_from_points(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares plane ``(normal (3,), height)`` of ``points`` (smallest principal axis)."""
+    c = points.mean(axis=0)
+    cov = (points - c).T @ (points - c)
+    _, vec = np.linalg.eigh(cov)
+    n = vec[:, 0]
+    return n, float(n @ c)
+
+
+def fit_plane_ransac(
+    points: np.ndarray,
+    threshold: float = 0.01,
+    iterations: int = 200,
+    sample: int = 5000,
+    rng: np.random.Generator | None = None,
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """The dominant plane of ``points`` (N, 3): ``(normal (3,), height, inliers (N,) bool)``.
+
+    RANSAC over ``iterations`` seeded triplets scored on ``sample`` points, then two rounds of
+    least squares on the inliers (distance < ``threshold``) of the whole cloud. The sign of the
+    normal is arbitrary here (:func:`segment_table` orients it).
+    """
+    pts = as_points(points)
+    n_pts = len(pts)
+    if n_pts < 3:
+        raise DegenerateGeometryError(f"a plane needs at least 3 points, got {n_pts}")
+    rng = np.random.default_rng(0) if rng is None else rng
+    sub = pts[rng.choice(n_pts, size=min(sample, n_pts), replace=False)]  # (S, 3)
+    tri = sub[rng.integers(0, len(sub), size=(iterations, 3))]  # (I, 3, 3)
+    nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # (I, 3)
+    length = np.linalg.norm(nrm, axis=1)
+    good = length > GEOM_EPS * GEOM_EPS
+    if not np.any(good):
+        raise DegenerateGeometryError(
+            "every RANSAC triplet was collinear: the points are on a line"
+        )
+    nrm = nrm[good] / length[good, None]
+    h = np.einsum("ij,ij->i", nrm, tri[good, 0])  # (I,)
+    score = (np.abs(sub @ nrm.T - h) < threshold).sum(axis=0)  # (I,) inliers in the subset
+    best = int(np.argmax(score))
+    n, height = nrm[best], float(h[best])
+    inliers = np.abs(pts @ n - height) < threshold
+    for _ in range(2):
+        if inliers.sum() < 3:
+            break
+        n, height = plane_from_points(pts[inliers])
+        inliers = np.abs(pts @ n - height) < threshold
+    return n, height, inliers
+
+
+def voxel_clusters(points: np.ndarray, cell: float) -> np.ndarray:
+    """(N,) int64 cluster labels of ``points`` (N, 3): voxels of side ``cell`` that touch (26
+    neighbours) are one cluster; labels 0, 1, ... by decreasing point count."""
+    pts = as_points(points)
+    if len(pts) == 0:
+        return np.zeros(0, dtype=np.int64)
+    ijk = np.floor((pts - pts.min(axis=0)) / cell).astype(np.int64)  # (N, 3) >= 0
+    dims = ijk.max(axis=0) + 3  # room for the -1 / +1 neighbours after the +1 shift
+    ijk += 1
+    key = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+    vox, inverse = np.unique(key, return_inverse=True)  # (V,) sorted voxel keys
+    inverse = inverse.reshape(-1)
+    n_vox = len(vox)
+    offsets = np.array(
+        [
+            (a, b, c)
+            for a in (-1, 0, 1)
+            for b in (-1, 0, 1)
+            for c in (-1, 0, 1)
+            if (a, b, c) > (0, 0, 0)
+        ]
+    )  # (13, 3) half of the 26 neighbours, fmt: skip
+    off_key = (offsets[:, 0] * dims[1] + offsets[:, 1]) * dims[2] + offsets[:, 2]
+    nb = vox[:, None] + off_key[None, :]  # (V, 13) neighbour keys
+    pos = np.clip(np.searchsorted(vox, nb), 0, n_vox - 1)
+    found = vox[pos] == nb
+    rows = np.repeat(np.arange(n_vox), found.sum(axis=1))
+    cols = pos[found]
+    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vox, n_vox))
+    _, vox_label = connected_components(graph, directed=False)
+    label = vox_label[inverse]
+    counts = np.bincount(label)
+    order = np.argsort(-counts, kind="stable")  # biggest first
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return rank[label].astype(np.int64)
+
+
+def remove_outliers(points: np.ndarray, k: int = 16, std_ratio: float = 2.0) -> np.ndarray:
+    """(N,) bool, True for the points kept by statistical outlier removal (see the module)."""
+    pts = as_points(points)
+    if int(k) != k or k < 1:
+        raise ValueError(f"k must be a positive integer, got {k!r}")
+    if not (np.isfinite(std_ratio) and std_ratio > 0.0):
+        raise ValueError(f"std_ratio must be positive, got {std_ratio!r}")
+    if len(pts) <= k:
+        raise DegenerateGeometryError(
+            f"outlier removal with k={k} needs more than {k} points, got {len(pts)}"
+        )
+    dist, _ = cKDTree(pts).query(pts, k=int(k) + 1)  # (N, k + 1), the point itself first
+    mean_d = dist[:, 1:].mean(axis=1)
+    return mean_d <= mean_d.mean() + std_ratio * mean_d.std()
+
+
+def _plane_basis(n: np.ndarray) -> np.ndarray:
+    """(3, 2) two unit vectors spanning the plane perpendicular to ``n``."""
+    a = np.eye(3)[int(np.argmin(np.abs(n)))]
+    e1 = np.cross(n, a)
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, np.cross(n, e1)], axis=1)
+
+
+def segment_table(
+    points: np.ndarray,
+    viewpoint: np.ndarray | tuple[float, float, float] | None = None,
+    pick: np.ndarray | tuple[float, float, float] | None = None,
+    params: SegmentParams | None = None,
+) -> TableSegmentation:
+    """Find the table in a scene cloud and the object standing on it (see the module)."""
+    params = SegmentParams() if params is None else params
+    pts = as_points(points)
+    if not np.all(np.isfinite(pts)):
+        raise InputError("segment_table: the points hold NaN or infinite coordinates; drop them")
+    vp = None
+    if viewpoint is not None:
+        vp = np.asarray(viewpoint, dtype=np.float64)
+        if vp.shape != (3,) or not np.all(np.isfinite(vp)):
+            raise ValueError(f"viewpoint must be a finite 3-vector, got {viewpoint!r}")
+    rng = np.random.default_rng(params.seed)
+    n, h, inl = fit_plane_ransac(
+        pts, params.ransac_threshold, params.iterations, params.sample, rng
+    )
+    res = pts[inl] @ n - h
+    sigma = MAD_TO_SIGMA * float(np.median(np.abs(res - np.median(res))))
+    band = max(params.band_sigmas * sigma, params.min_band)
+    in_band = np.abs(pts @ n - h) <= band
+    if in_band.sum() >= 3:
+        n, h = plane_from_points(pts[in_band])
+    dist = pts @ n - h
+    if vp is not None:
+        flip = float(vp @ n - h) < 0.0
+    else:
+        flip = int(np.sum(dist < -band)) > int(np.sum(dist > band))
+    if flip:
+        n, h, dist = -n, -h, -dist
+    in_band = np.abs(dist) <= band
+    above = np.nonzero(dist > band)[0]
+    if len(above) and params.min_neighbours > 0:
+        # isolated points above the band (the table's noise tail) are nobody's
+        tree = cKDTree(pts[above])
+        spacing, _ = tree.query(pts[above[:: max(1, len(above) // 2000)]], k=2)
+        r = params.neighbour_spacings * float(np.median(spacing[:, 1]))
+        count = tree.query_ball_point(pts[above], r, return_length=True) - 1  # not itself
+        above = above[count >= params.min_neighbours]
+    labels = np.full(len(pts), -1, dtype=np.int64)
+    object_mask = np.zeros(len(pts), dtype=bool)
+    n_clusters = 0
+    if len(above):
+        lab = voxel_clusters(pts[above], params.cluster_radius)
+        labels[above] = lab
+        counts = np.bincount(lab)
+        n_clusters = len(counts)
+        eligible = np.nonzero(counts >= params.min_cluster)[0]
+        if len(eligible) == 0:
+            raise InputError(
+                f"no cluster of at least {params.min_cluster} points stands above the table "
+                f"(largest: {counts.max()} points); is there an object in the scene?"
+            )
+        if pick is None:
+            chosen = int(eligible[0])
+        else:
+            pk = np.asarray(pick, dtype=np.float64)
+            if pk.shape != (3,) or not np.all(np.isfinite(pk)):
+                raise ValueError(f"pick must be a finite 3-vector, got {pick!r}")
+            cand = np.isin(lab, eligible)
+            d2 = np.sum((pts[above][cand] - pk) ** 2, axis=1)
+            chosen = int(lab[cand][np.argmin(d2)])
+        object_mask[above[lab == chosen]] = True
+        # the object's foot inside the band: band points under its lowest slice
+        low = object_mask & (dist <= band + params.foot_height)
+        if np.any(low) and np.any(in_band):
+            B = _plane_basis(n)  # (3, 2)
+            radius = max(band, params.foot_radius)
+            near, _ = cKDTree(pts[low] @ B).query(pts[in_band] @ B, distance_upper_bound=radius)
+            object_mask[np.nonzero(in_band)[0][np.isfinite(near)]] = True
+    else:
+        raise InputError("nothing stands above the table: every point is on the plane or below it")
+    table_mask = in_band & ~object_mask
+    logger.info(
+        "table: normal %s height %.4f m, sigma %.2g m, %d table points, object %d points "
+        "(%d clusters)",
+        np.round(n, 4).tolist(), h, sigma, int(table_mask.sum()), int(object_mask.sum()),
+        n_clusters,
+    )  # fmt: skip
+    for arr in (labels, object_mask, table_mask):
+        arr.setflags(write=False)
+    pts_ro = pts.copy()
+    pts_ro.setflags(write=False)
+    return TableSegmentation(
+        points=pts_ro,
+        plane=SupportPlane(normal=n, height=h),
+        table_mask=table_mask,
+        object_mask=object_mask,
+        cluster_labels=labels,
+        band=float(band),
+        sigma=float(sigma),
+        viewpoint=vp,
+        n_clusters=n_clusters,
+    )
