@@ -17,15 +17,17 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..box import OrientedBox
 from ..decomposition import BoxNode, BoxTree
+from ..errors import PregraspError
 from ..facemask import FaceMasks, SupportPlane, usable_subfaces
 from ..geometry import as_points
 from ..hand import grasp_type_name
 from ..shape import GRASP_TYPES, NodeShape, ShapeParams
-from .collision import CellCache, hand_hits_points, hand_min_height
-from .params import SamplingParams
+from .collision import CellCache, collision_batch_bytes, hand_hits_points, hand_min_height
+from .params import MAX_POOL_SAMPLES, POOL_BYTES_PER_SAMPLE, SAMPLING_BOUNDS, SamplingParams
 from .pool import DROP_REASONS, PreGraspPool
-from .surfaces import sample_node
+from .surfaces import count_samples, sample_node
 from .traversal import Traversal, grip_width, traverse
 
 if TYPE_CHECKING:
@@ -56,6 +58,54 @@ def _concat_pools(pools: list[PreGraspPool], joint_names: Sequence[str]) -> PreG
     )
 
 
+def estimate_pool_bytes(n_samples: int, n_points: int = 0) -> int:
+    """Bytes of peak memory the pool stage needs for ``n_samples`` samples in one pass on a
+    cloud of ``n_points`` (an upper bound, checked against tracemalloc by the tests):
+    :data:`POOL_BYTES_PER_SAMPLE` per sample, 64 per point (the cloud's k-d tree) and the
+    collision test's bounded batch (:func:`~.collision.collision_batch_bytes`)."""
+    return int(n_samples) * POOL_BYTES_PER_SAMPLE + 64 * int(n_points) + collision_batch_bytes()
+
+
+def check_pool_size(
+    jobs: Sequence[tuple[OrientedBox, str]],
+    params: SamplingParams,
+    max_samples: int = MAX_POOL_SAMPLES,
+) -> int:
+    """The number of samples sampling every ``(box, grasp_type)`` of ``jobs`` at
+    ``params.interval`` makes (:func:`~.surfaces.count_samples`, nothing allocated); raises
+    ``PregraspError`` when it exceeds ``max_samples``, with the memory it would take and the
+    smallest interval that fits."""
+    interval = params.interval
+
+    def total(at: float) -> int:
+        return sum(sum(count_samples(box, gt, at).values()) for box, gt in jobs)
+
+    n = total(interval)
+    if n <= max_samples:
+        return n
+    hi = SAMPLING_BOUNDS["interval"][1]
+    head = (
+        f"the pre-grasp pool would make {n:,} samples on {len(jobs)} candidate node(s) at "
+        f"interval {interval:g} m (about {estimate_pool_bytes(n) / 2**30:.1f} GiB), more than "
+        f"the limit of {max_samples:,}"
+    )
+    if total(hi) > max_samples:
+        raise PregraspError(
+            f"{head}, even at the largest interval ({hi:g} m): the object is too large for its "
+            "hand; scale it down (--scale) or sample fewer nodes (policy 'leaves')"
+        )
+    lo = interval  # total(lo) > max_samples >= total(hi); the count falls as the interval grows
+    for _ in range(20):  # bisection on log(interval): 1000 x range to 0.1 %
+        mid = float(np.sqrt(lo * hi))
+        lo, hi = (mid, hi) if total(mid) > max_samples else (lo, mid)
+    digits = 1 - int(np.floor(np.log10(hi)))  # two significant digits, rounded up
+    fit = float(np.ceil(hi * 10**digits) / 10**digits)
+    raise PregraspError(
+        f"{head}: raise the sampling interval (SamplingParams.interval, --interval) to at least "
+        f"{fit:g} m, or sample fewer nodes (policy 'leaves'); see docs/limits.md"
+    )
+
+
 def build_pool(
     points: np.ndarray,
     tree: BoxTree,
@@ -65,13 +115,16 @@ def build_pool(
     params: SamplingParams | None = None,
     traversal: Traversal | None = None,
     shape_params: ShapeParams | None = None,
+    max_samples: int = MAX_POOL_SAMPLES,
 ) -> PreGraspPool:
     """The pre-grasp pool of an object.
 
     points: (N, 3) the cloud (world frame) for the collision filter; tree, shapes, masks: the
     decomposition, its shapes and face masks (``masks.support`` is the support plane or None);
     hand: the ``pregrasp_core.hand.Hand``; traversal: the candidates (computed with
-    :func:`traverse` when ``None``).
+    :func:`traverse` when ``None``); max_samples: the most samples one pass over the candidates
+    may generate (own types, then each fallback pass): past it a ``PregraspError`` says which
+    interval fits, before anything is allocated (:func:`estimate_pool_bytes`).
     """
     params = SamplingParams() if params is None else params
     pts = as_points(points)
@@ -97,11 +150,9 @@ def build_pool(
     fallback: dict[int, str] = {}
     todo = list(traversal.candidates)
     for attempt in range(len(GRASP_TYPES)):  # own type, then up to 3 fallbacks
-        pools = [
-            _node_pool(tree.nodes[i], queue[i][attempt], masks, hand, params, dropped)
-            for i in todo
-            if attempt < len(queue[i])
-        ]
+        jobs = [(tree.nodes[i], queue[i][attempt]) for i in todo if attempt < len(queue[i])]
+        check_pool_size([(nd.box, gt) for nd, gt in jobs], params, max_samples)
+        pools = [_node_pool(nd, gt, masks, hand, params, dropped, max_samples) for nd, gt in jobs]
         got = _clear_the_hand(
             _concat_pools(pools, joint_names), hand, pts, kd, masks.support, params, dropped
         )
@@ -128,9 +179,10 @@ def _node_pool(
     hand: Hand,
     params: SamplingParams,
     dropped: dict[str, int],
+    max_samples: int,
 ) -> PreGraspPool:
     """The samples of one node for one grasp type on its usable sub-faces, as a pool."""
-    every = sample_node(nd.box, gt, params)
+    every = sample_node(nd.box, gt, params, max_samples=max_samples)
     use = usable_subfaces(masks.blocked[nd.id], gt)
     table = np.zeros((6, max(len(u) for u in use) or 1), dtype=bool)  # (6, S_max) usable
     for f, u in enumerate(use):

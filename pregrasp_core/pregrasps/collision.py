@@ -23,6 +23,29 @@ CELL_SEAM: float = 1e-12
 """Metres: cells of a link box are grown by this so that round-off at their shared seams
 cannot let a point slip between two cells (:func:`hand_hits_points`)."""
 
+HAND_BATCH: int = 4096
+"""Hands tested at once by :func:`hand_hits_points`."""
+
+PAIR_BATCH: int = 1 << 18
+"""(cell, point) pairs of the exact point-in-box test handled at once by
+:func:`hand_hits_points`."""
+
+BYTES_PER_HAND: int = 10_000
+"""Peak bytes of :func:`hand_hits_points` per hand of a batch: the link cells' frames, centres
+and distances with their temporaries (measured 4,500 to 6,300 for the 37 cells of the default
+hand)."""
+
+BYTES_PER_PAIR: int = 400
+"""Peak bytes per (cell, point) pair of the exact test (the index lists and the pair arrays,
+about 300)."""
+
+
+def collision_batch_bytes() -> int:
+    """Bytes: bound on the peak memory of :func:`hand_hits_points` whatever the number of hands
+    and points (one full batch of each kind: 4096 hands and 262,144 pairs take about 140 MB)."""
+    return HAND_BATCH * BYTES_PER_HAND + PAIR_BATCH * BYTES_PER_PAIR
+
+
 CellCache = dict[tuple[bytes, float], tuple[np.ndarray, np.ndarray]]
 """:func:`link_cells` per (preshape bytes, margin), shared by calls of :func:`hand_hits_points`."""
 
@@ -94,7 +117,10 @@ def hand_hits_points(
     per cell decides most cells (no point within its circumscribed sphere: free; a point within
     its inscribed sphere: hit); the undecided cells get the exact point-in-box test on the points
     of their circumscribed sphere. Hands already hit skip their remaining cells. ``cells``: an
-    optional dict caching :func:`link_cells` per preshape across calls."""
+    optional dict caching :func:`link_cells` per preshape across calls.
+
+    Memory is bounded whatever P and N: the hands go in batches of :data:`HAND_BATCH` and the
+    exact test in batches of about :data:`PAIR_BATCH` (cell, point) pairs."""
     pts = as_points(points)
     P = len(T_world_hand)
     out = np.zeros(P, dtype=bool)
@@ -102,33 +128,50 @@ def hand_hits_points(
         return out
     kd = cKDTree(pts) if kd is None else kd
     for gt in np.unique(grasp_type):  # loop over the (at most 4) preshapes
-        sel = np.flatnonzero(grasp_type == gt)
-        key = (q[sel[0]].tobytes(), float(margin))
+        every = np.flatnonzero(grasp_type == gt)
+        key = (q[every[0]].tobytes(), float(margin))
         if cells is None or key not in cells:
-            cell = link_cells(hand, q[sel[0]], margin)
+            cell = link_cells(hand, q[every[0]], margin)
             if cells is not None:
                 cells[key] = cell
         else:
             cell = cells[key]
-        T_cell, half = cell  # (C, 4, 4), (C, 3)
-        r_out = np.linalg.norm(half, axis=1)  # (C,)
-        r_in = half.min(axis=1)
-        R = np.einsum("gij,cjk->gcik", T_world_hand[sel, :3, :3], T_cell[:, :3, :3])  # (G,C,3,3)
-        centres = np.einsum("gij,cj->gci", T_world_hand[sel, :3, :3], T_cell[:, :3, 3])
-        centres += T_world_hand[sel, None, :3, 3]  # (G, C, 3) world cell centres
-        d, _ = kd.query(centres.reshape(-1, 3), k=1, distance_upper_bound=float(r_out.max()))
-        d = d.reshape(len(sel), -1)  # (G, C); inf when nothing within the largest radius
-        hit = np.any(d < r_in, axis=1)  # (G,)
-        g, c = np.nonzero((d <= r_out) & ~(d < r_in) & ~hit[:, None])  # undecided cells
-        if len(g):
-            lists = kd.query_ball_point(centres[g, c], r_out[c], return_sorted=False)
-            lens = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(g))
-            if lens.sum():
-                ip = np.concatenate([np.asarray(x, dtype=np.int64) for x in lists if len(x)])
-                k = np.repeat(np.arange(len(g)), lens)  # (M,) undecided cell of each pair
-                local = np.einsum("mj,mjk->mk", pts[ip] - centres[g[k], c[k]], R[g[k], c[k]])
-                # + CELL_SEAM: a point on the seam of two cells may miss both by round-off
-                inside = np.all(np.abs(local) <= half[c[k]] + CELL_SEAM, axis=1)
-                hit[np.unique(g[k[inside]])] = True
-        out[sel] = hit
+        for start in range(0, len(every), HAND_BATCH):  # loop over batches of hands
+            sel = every[start : start + HAND_BATCH]
+            out[sel] = _batch_hits(T_world_hand[sel], cell, pts, kd)
     return out
+
+
+def _batch_hits(
+    T_world_hand: np.ndarray, cell: tuple[np.ndarray, np.ndarray], pts: np.ndarray, kd: cKDTree
+) -> np.ndarray:
+    """(G,) bool: :func:`hand_hits_points` for G hands of one preshape, its cells ``cell``."""
+    T_cell, half = cell  # (C, 4, 4), (C, 3)
+    r_out = np.linalg.norm(half, axis=1)  # (C,)
+    r_in = half.min(axis=1)
+    R = np.einsum("gij,cjk->gcik", T_world_hand[:, :3, :3], T_cell[:, :3, :3])  # (G, C, 3, 3)
+    centres = np.einsum("gij,cj->gci", T_world_hand[:, :3, :3], T_cell[:, :3, 3])
+    centres += T_world_hand[:, None, :3, 3]  # (G, C, 3) world cell centres
+    d, _ = kd.query(centres.reshape(-1, 3), k=1, distance_upper_bound=float(r_out.max()))
+    d = d.reshape(len(T_world_hand), -1)  # (G, C); inf when nothing within the largest radius
+    hit = np.any(d < r_in, axis=1)  # (G,)
+    g, c = np.nonzero((d <= r_out) & ~(d < r_in) & ~hit[:, None])  # (U,) undecided cells
+    if len(g) == 0:
+        return hit
+    n_in = kd.query_ball_point(centres[g, c], r_out[c], return_length=True)  # (U,) points
+    group = (np.cumsum(n_in) - n_in) // PAIR_BATCH  # (U,) batch of each cell, by its pairs
+    for j in np.unique(group[n_in > 0]):  # loop over the batches of pairs (one when few)
+        u = np.flatnonzero((group == j) & (n_in > 0))
+        u = u[~hit[g[u]]]  # hands hit by an earlier batch are done
+        if len(u) == 0:
+            continue
+        gu, cu = g[u], c[u]
+        lists = kd.query_ball_point(centres[gu, cu], r_out[cu], return_sorted=False)
+        lens = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(u))
+        ip = np.concatenate([np.asarray(x, dtype=np.int64) for x in lists if len(x)])
+        k = np.repeat(np.arange(len(u)), lens)  # (M,) undecided cell of each pair
+        local = np.einsum("mj,mjk->mk", pts[ip] - centres[gu[k], cu[k]], R[gu[k], cu[k]])
+        # + CELL_SEAM: a point on the seam of two cells may miss both by round-off
+        inside = np.all(np.abs(local) <= half[cu[k]] + CELL_SEAM, axis=1)
+        hit[np.unique(gu[k[inside]])] = True
+    return hit

@@ -15,10 +15,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..box import OrientedBox
+from ..errors import PregraspError
 from ..facemask import FACE_AXIS, FACE_NORMAL, FACE_RIGHT, FACE_UP, subface_scheme
 from ..hand import grasp_type_name
 from ..tolerances import GEOM_EPS
-from .params import SamplingParams
+from .params import MAX_POOL_SAMPLES, SamplingParams
 
 SURFACES: tuple[str, ...] = ("sphere", "cylinder_side", "cylinder_cap", "circle")
 """Names of the enclosing-surface patches a pre-grasp can come from."""
@@ -41,12 +42,49 @@ class NodeSamples:
     """(M, 3) float64, box frame: the point the approach is aimed at (box centre or axis)."""
 
 
+def _grid_m(half_range: float, step: float) -> int:
+    """The m of :func:`_grid`: its 2 m + 1 cells have width ~``step``."""
+    m = int(round(half_range / step - 0.5)) if step > 0 else 0
+    return max(m, 0)
+
+
 def _grid(half_range: float, step: float) -> np.ndarray:
     """Centres of 2 m + 1 equal cells tiling [-half_range, half_range] with width ~``step``:
     symmetric about 0 and always containing 0 (the face's centre line)."""
-    m = int(round(half_range / step - 0.5)) if step > 0 else 0
-    m = max(m, 0)
+    m = _grid_m(half_range, step)
     return np.arange(-m, m + 1) * (2.0 * half_range / (2 * m + 1))
+
+
+def count_samples(box: OrientedBox, grasp_type: str, interval: float) -> dict[str, int]:
+    """Number of samples :func:`sample_node` makes for ``box`` and ``grasp_type`` at this
+    ``interval`` on every sub-face (both rolls), per patch of :data:`SURFACES`; computed from
+    the grid sizes alone, without allocating them (the pool checks its size with it)."""
+    gt = grasp_type_name(grasp_type)
+    h = box.half_extents
+    n = dict.fromkeys(SURFACES, 0)
+
+    def size(half_range: float, step: float) -> int:
+        return 2 * _grid_m(half_range, step) + 1
+
+    if gt in ("spherical", "two_finger_tip"):
+        step = interval / max(float(np.linalg.norm(h)), GEOM_EPS)
+        for f in range(6):  # the same angle grids as sample_node
+            a = FACE_AXIS[f]
+            hr, hu = float(np.abs(FACE_RIGHT[f]) @ h), float(np.abs(FACE_UP[f]) @ h)
+            n["sphere"] += size(np.arctan2(hr, h[a]), step) * size(np.arctan2(hu, h[a]), step)
+    elif gt == "cylindrical":
+        step = interval / max(float(np.hypot(h[1], h[2])), GEOM_EPS)
+        nx = size(h[0], interval)
+        for f in range(2, 6):
+            hu = float(np.abs(FACE_UP[f]) @ h)
+            n["cylinder_side"] += nx * size(np.arctan2(hu, h[FACE_AXIS[f]]), step)
+        n["cylinder_cap"] = 4  # two closing directions (axes 1, 2) on each of the two caps
+    else:
+        step = interval / max(float(np.hypot(h[0], h[1])), GEOM_EPS)
+        for f in range(4):
+            hr = float(np.abs(FACE_RIGHT[f]) @ h)
+            n["circle"] += size(np.arctan2(hr, h[FACE_AXIS[f]]), step)
+    return {k: 2 * v for k, v in n.items()}  # both rolls
 
 
 def _frames(approach: np.ndarray, closing: np.ndarray, closing_is_x: bool) -> np.ndarray:
@@ -76,6 +114,7 @@ def sample_node(
     grasp_type: str,
     params: SamplingParams | None = None,
     usable: Sequence[np.ndarray] | None = None,
+    max_samples: int = MAX_POOL_SAMPLES,
 ) -> NodeSamples:
     """Samples of the enclosing surface of ``box`` for ``grasp_type``, in the box frame.
 
@@ -83,9 +122,18 @@ def sample_node(
     :func:`~pregrasp_core.facemask.usable_subfaces`); ``None`` = every sub-face. Every sample
     comes twice, with the hand rolled by 180 degrees about its approach (the closing axis with
     both signs), so that the set does not depend on the sign convention of the box axes.
+    Raises ``PregraspError`` before allocating when the box would get more than
+    ``max_samples`` (:func:`count_samples`).
     """
     params = SamplingParams() if params is None else params
     gt = grasp_type_name(grasp_type)
+    n = sum(count_samples(box, gt, params.interval).values())
+    if n > max_samples:
+        raise PregraspError(
+            f"sampling a box of extents {np.round(box.extents, 4).tolist()} m for {gt} at "
+            f"interval {params.interval:g} m would make {n:,} samples, more than the limit of "
+            f"{max_samples:,}: raise the interval (see docs/limits.md)"
+        )
     scheme = subface_scheme(gt)
     h = box.half_extents
     step = params.interval

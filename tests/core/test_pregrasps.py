@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import json
+import re
+import time
+import tracemalloc
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from pregrasp_core.box import OrientedBox
 from pregrasp_core.decomposition import BoxNode, BoxTree
+from pregrasp_core.errors import PregraspError
 from pregrasp_core.facemask import (
     FACE_NORMAL,
     FaceMaskParams,
@@ -19,11 +24,21 @@ from pregrasp_core.facemask import (
     usable_subfaces,
 )
 from pregrasp_core.hand import load_hand
+from pregrasp_core.io import load_point_cloud
+from pregrasp_core.paths import DEFAULT_OBJECT
+from pregrasp_core.pipeline import PipelineParams, run_pipeline
 from pregrasp_core.pregrasps import (
+    MAX_POOL_SAMPLES,
+    SAMPLING_BOUNDS,
+    SURFACES,
     PreGraspPool,
     SamplingParams,
     TraversalPolicy,
     build_pool,
+    check_pool_size,
+    collision,
+    count_samples,
+    estimate_pool_bytes,
     grip_width,
     hand_corners,
     hand_hits_points,
@@ -446,3 +461,162 @@ def test_params_validation():
         SamplingParams(max_backoff=-0.1)
     with pytest.raises(ValueError, match="unknown grasp type"):
         sample_node(BOX, "fist")
+
+
+# ----------------------------------------------------------------------------- bounded work
+
+
+@pytest.mark.parametrize("name", sorted(SAMPLING_BOUNDS))
+def test_every_field_is_bounded_and_the_bounds_themselves_are_accepted(name):
+    lo, hi = SAMPLING_BOUNDS[name]
+    assert SamplingParams(**{name: lo}) and SamplingParams(**{name: hi, "max_backoff": 0.0})
+    outside = [hi * 1.01 + 1e-9, lo - 1e-9 if lo <= 0 else lo * 0.99]
+    for v in outside:
+        with pytest.raises(ValueError, match=rf"^{name} must be"):
+            SamplingParams(**{name: v})
+    with pytest.raises(ValueError, match=rf"^{name} must be"):
+        SamplingParams(**{name: float("inf")})
+
+
+def test_bad_sampling_values_name_the_field():
+    with pytest.raises(ValueError, match=r"interval must be between 0.001 and 1, got 1e-06"):
+        SamplingParams(interval=1e-6)  # the CLI's --interval 1e-6 (25.9 GiB before the bound)
+    with pytest.raises(ValueError, match=r"interval must be between 0.001 and 1, got 0.0002"):
+        SamplingParams(interval=0.0002)  # the value sent over the viewer protocol (7.1 GB)
+    with pytest.raises(ValueError, match=r"collision_margin must be between 0 and 0.02"):
+        SamplingParams(collision_margin=0.05)  # 9.5 GB and 93 s before the batches and bound
+    with pytest.raises(ValueError, match=r"max_backoff / backoff_step must give at most 100"):
+        SamplingParams(max_backoff=0.5, backoff_step=0.001)
+    assert SamplingParams(max_backoff=0.5, backoff_step=0.005)  # exactly 100 levels
+    with pytest.raises(ValueError, match=r"fallback must be True or False, got 'no'"):
+        SamplingParams(fallback="no")
+    with pytest.raises(ValueError, match=r"interval must be a number > 0, got '0.02'"):
+        SamplingParams(interval="0.02")
+
+
+@pytest.mark.parametrize("gt", TYPES)
+def test_sample_counts_are_those_sample_node_makes(gt):
+    rng = np.random.default_rng(11)
+    for _ in range(20):
+        ext = np.sort(rng.uniform(0.002, 0.3, 3))[::-1]
+        box = OrientedBox(rng.normal(size=3), Rotation.random(random_state=rng).as_matrix(), ext)
+        interval = float(rng.uniform(0.004, 0.05))
+        s = sample_node(box, gt, SamplingParams(interval=interval))
+        made = np.bincount(s.surface, minlength=len(SURFACES))
+        assert count_samples(box, gt, interval) == dict(zip(SURFACES, made.tolist(), strict=True))
+
+
+def test_sample_node_refuses_a_box_past_the_limit_before_allocating():
+    box = OrientedBox(np.zeros(3), np.eye(3), np.array([2.0, 1.5, 1.0]))
+    n = sum(count_samples(box, "spherical", 0.001).values())
+    assert n > MAX_POOL_SAMPLES  # a 2 m box at 1 mm: about 40 million samples
+    tracemalloc.start()
+    try:
+        with pytest.raises(PregraspError, match=rf"would make {n:,} samples.*raise the interval"):
+            sample_node(box, "spherical", SamplingParams(interval=0.001))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 2**20
+
+
+@pytest.fixture(scope="module")
+def default_object(hand):
+    cloud = load_point_cloud(DEFAULT_OBJECT)
+    return run_pipeline(cloud, PipelineParams(), hand, until="facemask")
+
+
+def test_a_tiny_interval_on_the_default_object_is_a_clear_error_within_a_second(
+    hand, default_object
+):
+    r = default_object
+    params = SamplingParams(interval=0.001)  # the smallest allowed: 376,400 samples
+    tracemalloc.start()
+    t0 = time.perf_counter()
+    try:
+        with pytest.raises(PregraspError, match=r"--interval\) to at least") as err:
+            build_pool(r.cloud.points, r.tree, r.shapes, r.masks, hand, params)
+        seconds = time.perf_counter() - t0
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert seconds < 1.0 and peak < 4 * 2**20  # nothing of the 0.7 GiB was allocated
+    msg = str(err.value)
+    assert "more than the limit of 200,000" in msg and "GiB" in msg
+    # the interval it suggests fits, and one a little smaller does not
+    fit = float(re.search(r"to at least ([0-9.e-]+) m", msg).group(1))
+    trav = traverse(r.tree, r.shapes, hand, params)
+    jobs = [(r.tree.nodes[i].box, r.shapes[i].grasp_type.value) for i in trav.candidates]
+    assert check_pool_size(jobs, SamplingParams(interval=fit)) <= MAX_POOL_SAMPLES
+    with pytest.raises(PregraspError):
+        check_pool_size(jobs, SamplingParams(interval=fit / 1.2))
+    # a lower limit is honoured the same way (build_pool's max_samples)
+    with pytest.raises(PregraspError, match="more than the limit of 500"):
+        build_pool(r.cloud.points, r.tree, r.shapes, r.masks, hand, max_samples=500)
+
+
+def test_the_memory_estimate_bounds_the_measured_peak(hand, default_object, monkeypatch):
+    """Peak memory (tracemalloc) of whole pool runs against the estimate, with small collision
+    batches so that the per-sample part of the estimate is what is tested."""
+    monkeypatch.setattr(collision, "HAND_BATCH", 64)
+    monkeypatch.setattr(collision, "PAIR_BATCH", 4096)
+    r = default_object
+    for params in (SamplingParams(interval=0.012), SamplingParams(collision_margin=0.01)):
+        trav = traverse(r.tree, r.shapes, hand, params)
+        jobs = [(r.tree.nodes[i].box, r.shapes[i].grasp_type.value) for i in trav.candidates]
+        n = check_pool_size(jobs, params)
+        tracemalloc.start()
+        try:
+            pool = build_pool(r.cloud.points, r.tree, r.shapes, r.masks, hand, params, trav)
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        estimate = estimate_pool_bytes(n, len(r.cloud.points))
+        assert len(pool) > 0 and 0.3 * estimate < peak <= estimate
+
+
+def test_collision_memory_is_bounded_by_its_batches(hand, monkeypatch):
+    """Many hands at the largest margin: the peak stays under one batch's bound, far below what
+    the same hands take in one batch."""
+    rng = np.random.default_rng(8)
+    pts = rng.normal(scale=0.03, size=(20000, 3))
+    G = 2048
+    T = np.tile(np.eye(4), (G, 1, 1))
+    T[:, :3, :3] = Rotation.random(G, random_state=9).as_matrix()
+    T[:, :3, 3] = rng.uniform(-0.15, 0.15, (G, 3))
+    gts, q = np.full(G, "spherical"), np.tile(hand.preshape("spherical"), (G, 1))
+    kd = cKDTree(pts)
+    peaks, hits = [], []
+    for hb, pb in ((G, 1 << 30), (64, 4096)):  # one batch of everything, then small batches
+        monkeypatch.setattr(collision, "HAND_BATCH", hb)
+        monkeypatch.setattr(collision, "PAIR_BATCH", pb)
+        tracemalloc.start()
+        try:
+            hits.append(hand_hits_points(hand, T, gts, q, pts, kd, margin=0.02))
+            peaks.append(tracemalloc.get_traced_memory()[1])
+        finally:
+            tracemalloc.stop()
+    assert np.array_equal(hits[0], hits[1]) and 0 < hits[0].sum() < G
+    assert peaks[1] <= collision.collision_batch_bytes() < peaks[0] / 2
+
+
+@pytest.mark.parametrize("margin", [0.0, 0.004, 0.02])
+def test_collision_batches_give_the_unbatched_answer(hand, monkeypatch, margin):
+    """Tiny hand and pair batches (many of each, hands hit in an earlier pair batch skipped)
+    give the answer of the hand model's own test."""
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-0.1, 0.1, (2000, 3))
+    G = 150
+    T = np.tile(np.eye(4), (G, 1, 1))
+    T[:, :3, :3] = Rotation.random(G, random_state=4).as_matrix()
+    T[:, :3, 3] = rng.uniform(-0.25, 0.25, (G, 3))
+    gts = np.array(TYPES)[rng.integers(0, 4, G)]
+    q = np.stack([hand.preshape(g) for g in gts])
+    ref = np.zeros(G, dtype=bool)
+    for gt in TYPES:
+        sel = gts == gt
+        ref[sel] = hand.hands_hit_points(pts, T[sel], hand.preshape(gt), margin)
+    monkeypatch.setattr(collision, "HAND_BATCH", 16)
+    monkeypatch.setattr(collision, "PAIR_BATCH", 64)
+    ours = hand_hits_points(hand, T, gts, q, pts, margin=margin)
+    assert np.array_equal(ours, ref) and 10 < ours.sum() < G - 10
