@@ -430,15 +430,16 @@ class Controller:
                 return s
             return self._commit(dataclasses.replace(s, view=view))
 
-    def set_level(self, level: int | None) -> AppState:
+    def set_level(self, level: Any) -> AppState:
         """Show the boxes after ``level`` accepted splits (``None`` = the leaves)."""
         with self._lock:  # the check and the change see the same tree
             tree = self._state.tree
             if level is not None and tree is not None:
                 n = n_splits(tree)
-                if not 0 <= int(level) <= n:
+                k = int(_number(level, "level", integer=True))
+                if not 0 <= k <= n:
                     raise ValueError(f"level must be in [0, {n}], got {level}")
-                level = None if int(level) == n else int(level)
+                level = None if k == n else k
             return self._set_view(level=level)
 
     def select_node(self, node: int | None) -> AppState:
@@ -536,9 +537,9 @@ class Controller:
                 rank = int(rank)
             return self._set_view(selected_grasp=rank, anim_t=0.0, playing=rank is not None)
 
-    def set_anim_t(self, t: float) -> AppState:
+    def set_anim_t(self, t: Any) -> AppState:
         """Set the animation phase (0 pre-grasp, 0.5 approached, 1 closed); pauses it."""
-        return self._set_view(anim_t=float(np.clip(t, 0.0, 1.0)), playing=False)
+        return self._set_view(anim_t=float(np.clip(_number(t, "phase"), 0.0, 1.0)), playing=False)
 
     def play(self) -> AppState:
         """Start the animation (from the pre-grasp if it was at the end)."""
@@ -550,12 +551,11 @@ class Controller:
         """Stop the animation where it is."""
         return self._set_view(playing=False)
 
-    def set_speed(self, speed: float) -> AppState:
+    def set_speed(self, speed: Any) -> AppState:
         """Animation speed (1 = one cycle per 2 s)."""
-        speed = float(speed)
-        if not 0 < speed <= 10:
-            raise ValueError(f"speed must be in (0, 10], got {speed}")
-        return self._set_view(speed=speed)
+        v = _number(speed, "speed")
+        _in_range(v, *SPEED_RANGE, "speed")
+        return self._set_view(speed=v)
 
     def tick(self, dt: float) -> AppState:
         """Advance the animation clock by ``dt`` seconds when playing (called by the animator);

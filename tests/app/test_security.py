@@ -33,7 +33,7 @@ from app.safe_text import md_text
 from app.server import exposure_warning
 
 HOSTILE_NAMES = (
-    "<img src=x onerror=alert(1)>.xyz",
+    '<img src=x onerror="alert(1)">.xyz',
     '<iframe srcdoc="&lt;script&gt;parent.pwned=1&lt;/script&gt;">.xyz',
     "<style>body{display:none}</style>.ply",
     "[click](javascript:alert(1)) ![x](http://evil.example/t.png) **b** | a | <b>.xyz",
@@ -330,8 +330,11 @@ def test_bad_values_over_the_protocol_end_in_a_notice(app):
         b.set_value(app.gui.ghost_node, "node x")
         b.set_value(app.gui.grasp, "#zero")
         b.set_value(app.gui.speed, float("nan"))
+        interval = app.gui.params[("sampling", "interval")]
+        b.set_value(interval, 0.0002)  # took 7.1 GB and 40 s before (issue 16)
         b.send(_messages.GuiUpdateMessage(app.gui.plan._impl.uuid, {"disabled": True}))
-        _wait(lambda: len(b.notifications()) >= 7, 30, "a notice per bad value")
+        _wait(lambda: len(b.notifications()) >= 8, 30, "a notice per bad value")
+        assert any("sampling interval" in t and "outside" in t for t in b.notifications())
         assert all(t.startswith("Cannot do that") for t in b.notifications())
         assert any("min points" in t and "outside [4," in t for t in b.notifications())
         s = app.controller.state

@@ -12,6 +12,7 @@ import dataclasses
 import json
 import re
 
+import numpy as np
 import pytest
 
 from app.scene import NAMES
@@ -143,3 +144,25 @@ def test_export_downloads_result_and_screenshot(page, live_app, shots_dir):
     assert data[:8] == b"\x89PNG\r\n\x1a\n"  # a PNG rendered by the browser's own canvas
     width, height = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
     assert width >= 64 and height >= 64
+
+
+def test_html_in_an_uploaded_file_name_is_shown_as_text(page, live_app):
+    """A file whose name holds HTML is loaded; its name shows in the status as text and no
+    script of it runs (viser renders markdown as raw HTML, so the app escapes it)."""
+    page.evaluate("() => { window.__pwned = 0; }")
+    pts = np.random.default_rng(0).random((400, 3)) * [0.06, 0.05, 0.04]
+    data = "\n".join(" ".join(f"{v:.6f}" for v in p) for p in pts).encode()
+    names = (
+        '<img src=x onerror="window.__pwned=1">.xyz',
+        '<iframe srcdoc="<script>parent.__pwned=2</script>">.xyz',
+    )
+    for name in names:
+        page.locator("input[type=file]").first.set_input_files(
+            files=[{"name": name, "mimeType": "text/plain", "buffer": data}]
+        )
+        status = page.get_by_text(f"{name}: 400 points", exact=False)
+        status.first.wait_for(timeout=LOAD_TIMEOUT_MS)
+        assert live_app.controller.state.source.name == name
+    page.wait_for_timeout(500)
+    assert page.evaluate("() => window.__pwned") == 0
+    assert page.locator("img[src=x], iframe[srcdoc]").count() == 0
