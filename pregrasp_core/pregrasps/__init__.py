@@ -25,7 +25,7 @@ from .params import (
     TraversalPolicy,
 )
 from .pool import DROP_REASONS, PreGrasp, PreGraspPool
-from .surfaces import SURFACES, NodeSamples, count_samples, sample_node
+from .surfaces import SURFACES, NodeSamples, count_samples, sample_node, total_samples
 from .traversal import Traversal, grip_width, traverse
 
 __all__ = [
@@ -51,5 +51,6 @@ __all__ = [
     "hand_min_height",
     "link_cells",
     "sample_node",
+    "total_samples",
     "traverse",
 ]

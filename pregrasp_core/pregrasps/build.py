@@ -27,7 +27,7 @@ from ..shape import GRASP_TYPES, NodeShape, ShapeParams
 from .collision import CellCache, collision_batch_bytes, hand_hits_points, hand_min_height
 from .params import MAX_POOL_SAMPLES, POOL_BYTES_PER_SAMPLE, SAMPLING_BOUNDS, SamplingParams
 from .pool import DROP_REASONS, PreGraspPool
-from .surfaces import count_samples, sample_node
+from .surfaces import sample_node, total_samples
 from .traversal import Traversal, grip_width, traverse
 
 if TYPE_CHECKING:
@@ -72,37 +72,32 @@ def check_pool_size(
     max_samples: int = MAX_POOL_SAMPLES,
 ) -> int:
     """The number of samples sampling every ``(box, grasp_type)`` of ``jobs`` at
-    ``params.interval`` makes (:func:`~.surfaces.count_samples`, nothing allocated); raises
+    ``params.interval`` makes (:func:`~.surfaces.total_samples`, nothing allocated); raises
     ``PregraspError`` when it exceeds ``max_samples``, with the memory it would take and the
     smallest interval that fits."""
     interval = params.interval
-
-    def total(at: float) -> int:
-        return sum(sum(count_samples(box, gt, at).values()) for box, gt in jobs)
-
-    n = total(interval)
+    n = int(total_samples(jobs, [interval])[0])
     if n <= max_samples:
         return n
-    hi = SAMPLING_BOUNDS["interval"][1]
     head = (
         f"the pre-grasp pool would make {n:,} samples on {len(jobs)} candidate node(s) at "
         f"interval {interval:g} m (about {estimate_pool_bytes(n) / 2**30:.1f} GiB), more than "
         f"the limit of {max_samples:,}"
     )
-    if total(hi) > max_samples:
+    # the intervals of two significant digits above this one, up to the largest allowed
+    hi = SAMPLING_BOUNDS["interval"][1]
+    e0 = int(np.floor(np.log10(interval)))
+    grid = [float(f"{k}e{e - 1}") for e in range(e0, 1) for k in range(10, 100)]
+    grid = [v for v in grid if interval < v <= hi] + [hi]
+    fits = np.flatnonzero(total_samples(jobs, grid) <= max_samples)  # falls as interval grows
+    if len(fits) == 0:
         raise PregraspError(
             f"{head}, even at the largest interval ({hi:g} m): the object is too large for its "
             "hand; scale it down (--scale) or sample fewer nodes (policy 'leaves')"
         )
-    lo = interval  # total(lo) > max_samples >= total(hi); the count falls as the interval grows
-    for _ in range(20):  # bisection on log(interval): 1000 x range to 0.1 %
-        mid = float(np.sqrt(lo * hi))
-        lo, hi = (mid, hi) if total(mid) > max_samples else (lo, mid)
-    digits = 1 - int(np.floor(np.log10(hi)))  # two significant digits, rounded up
-    fit = float(np.ceil(hi * 10**digits) / 10**digits)
     raise PregraspError(
         f"{head}: raise the sampling interval (SamplingParams.interval, --interval) to at least "
-        f"{fit:g} m, or sample fewer nodes (policy 'leaves'); see docs/limits.md"
+        f"{grid[fits[0]]:g} m, or sample fewer nodes (policy 'leaves'); see docs/limits.md"
     )
 
 

@@ -55,36 +55,72 @@ def _grid(half_range: float, step: float) -> np.ndarray:
     return np.arange(-m, m + 1) * (2.0 * half_range / (2 * m + 1))
 
 
-def count_samples(box: OrientedBox, grasp_type: str, interval: float) -> dict[str, int]:
-    """Number of samples :func:`sample_node` makes for ``box`` and ``grasp_type`` at this
-    ``interval`` on every sub-face (both rolls), per patch of :data:`SURFACES`; computed from
-    the grid sizes alone, without allocating them (the pool checks its size with it)."""
+def _patch_grids(box: OrientedBox, grasp_type: str) -> list[tuple[int, int, tuple, tuple]]:
+    """The grids :func:`sample_node` lays on ``box`` for ``grasp_type``, one row per face:
+    ``(patch index into SURFACES, copies, (range_a, divisor_a), (range_b, divisor_b))``; the row
+    makes ``copies * size_a * size_b`` samples per roll, where ``size = 2 m + 1`` of
+    :func:`_grid` over ``[-range, range]`` with step ``interval / divisor``."""
     gt = grasp_type_name(grasp_type)
     h = box.half_extents
-    n = dict.fromkeys(SURFACES, 0)
-
-    def size(half_range: float, step: float) -> int:
-        return 2 * _grid_m(half_range, step) + 1
-
+    one = (0.0, 1.0)  # a single grid point
+    rows = []
     if gt in ("spherical", "two_finger_tip"):
-        step = interval / max(float(np.linalg.norm(h)), GEOM_EPS)
+        div = max(float(np.linalg.norm(h)), GEOM_EPS)
         for f in range(6):  # the same angle grids as sample_node
             a = FACE_AXIS[f]
             hr, hu = float(np.abs(FACE_RIGHT[f]) @ h), float(np.abs(FACE_UP[f]) @ h)
-            n["sphere"] += size(np.arctan2(hr, h[a]), step) * size(np.arctan2(hu, h[a]), step)
+            rows.append((0, 1, (np.arctan2(hr, h[a]), div), (np.arctan2(hu, h[a]), div)))
     elif gt == "cylindrical":
-        step = interval / max(float(np.hypot(h[1], h[2])), GEOM_EPS)
-        nx = size(h[0], interval)
-        for f in range(2, 6):
+        div = max(float(np.hypot(h[1], h[2])), GEOM_EPS)
+        for f in range(2, 6):  # along the axis at the interval itself, around it in angle
             hu = float(np.abs(FACE_UP[f]) @ h)
-            n["cylinder_side"] += nx * size(np.arctan2(hu, h[FACE_AXIS[f]]), step)
-        n["cylinder_cap"] = 4  # two closing directions (axes 1, 2) on each of the two caps
+            rows.append((1, 1, (float(h[0]), 1.0), (np.arctan2(hu, h[FACE_AXIS[f]]), div)))
+        rows.append((2, 4, one, one))  # two closing directions on each of the two caps
     else:
-        step = interval / max(float(np.hypot(h[0], h[1])), GEOM_EPS)
+        div = max(float(np.hypot(h[0], h[1])), GEOM_EPS)
         for f in range(4):
             hr = float(np.abs(FACE_RIGHT[f]) @ h)
-            n["circle"] += size(np.arctan2(hr, h[FACE_AXIS[f]]), step)
-    return {k: 2 * v for k, v in n.items()}  # both rolls
+            rows.append((3, 1, (np.arctan2(hr, h[FACE_AXIS[f]]), div), one))
+    return rows
+
+
+def _grid_sizes(half_range: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """``2 m + 1`` of :func:`_grid`, element-wise (float64, exact for the sizes that matter)."""
+    return 2.0 * np.maximum(np.round(half_range / step - 0.5), 0.0) + 1.0
+
+
+def count_samples(box: OrientedBox, grasp_type: str, interval: float) -> dict[str, int]:
+    """Number of samples :func:`sample_node` makes for ``box`` and ``grasp_type`` at this
+    ``interval`` on every sub-face (both rolls), per patch of :data:`SURFACES`; computed from
+    the grid sizes alone, without allocating them."""
+    n = dict.fromkeys(SURFACES, 0)
+    for patch, copies, (ra, da), (rb, db) in _patch_grids(box, grasp_type):
+        size_a = 2 * _grid_m(ra, interval / da) + 1
+        size_b = 2 * _grid_m(rb, interval / db) + 1
+        n[SURFACES[patch]] += 2 * copies * size_a * size_b  # both rolls
+    return n
+
+
+def total_samples(
+    jobs: Sequence[tuple[OrientedBox, str]], intervals: Sequence[float] | np.ndarray
+) -> np.ndarray:
+    """(K,) float64: the samples :func:`sample_node` makes over all ``(box, grasp_type)`` of
+    ``jobs`` at each of the K ``intervals`` (the sum of :func:`count_samples`, vectorised over
+    jobs and intervals; exact integers below 2^53)."""
+    rows = [r for box, gt in jobs for r in _patch_grids(box, gt)]
+    iv = np.atleast_1d(np.asarray(intervals, dtype=np.float64))  # (K,)
+    if not rows:
+        return np.zeros(len(iv))
+    copies = np.array([r[1] for r in rows], dtype=np.float64)[:, None]  # (T, 1)
+    g = np.array([(*r[2], *r[3]) for r in rows], dtype=np.float64)  # (T, 4) ra, da, rb, db
+    out = np.zeros(len(iv))
+    chunk = max(1, (1 << 16) // len(rows))  # intervals at once: (T, chunk) arrays stay small
+    for k in range(0, len(iv), chunk):  # one pass unless both T and K are large
+        at = iv[None, k : k + chunk]
+        size_a = _grid_sizes(g[:, 0:1], at / g[:, 1:2])  # (T, chunk)
+        size_b = _grid_sizes(g[:, 2:3], at / g[:, 3:4])
+        out[k : k + chunk] = 2.0 * (copies * size_a * size_b).sum(axis=0)
+    return out
 
 
 def _frames(approach: np.ndarray, closing: np.ndarray, closing_is_x: bool) -> np.ndarray:

@@ -43,6 +43,7 @@ from pregrasp_core.pregrasps import (
     hand_corners,
     hand_hits_points,
     sample_node,
+    total_samples,
     traverse,
 )
 from pregrasp_core.shape import GRASP_TYPE_OF_CLASS, NodeShape, ShapeClass, ShapeParams
@@ -504,6 +505,18 @@ def test_sample_counts_are_those_sample_node_makes(gt):
         s = sample_node(box, gt, SamplingParams(interval=interval))
         made = np.bincount(s.surface, minlength=len(SURFACES))
         assert count_samples(box, gt, interval) == dict(zip(SURFACES, made.tolist(), strict=True))
+
+
+def test_total_samples_over_many_jobs_and_intervals_is_the_sum_of_the_counts():
+    rng = np.random.default_rng(12)
+    jobs = []
+    for k in range(40):
+        ext = np.sort(rng.uniform(0.002, 0.5, 3))[::-1]
+        jobs.append((OrientedBox(np.zeros(3), np.eye(3), ext), TYPES[k % 4]))
+    intervals = [0.001, 0.0013, 0.004, 0.02, 0.25, 1.0]
+    want = [sum(sum(count_samples(b, gt, iv).values()) for b, gt in jobs) for iv in intervals]
+    assert total_samples(jobs, intervals).tolist() == want
+    assert total_samples([], [0.02]).tolist() == [0.0]
 
 
 def test_sample_node_refuses_a_box_past_the_limit_before_allocating():
