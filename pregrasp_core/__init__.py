@@ -10,12 +10,19 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING
 
-from .errors import DegenerateGeometryError, HandModelError, InputError, PregraspError
+from .errors import (
+    DegenerateGeometryError,
+    HandModelError,
+    InputError,
+    PregraspError,
+    WorkLimitError,
+)
 
 if TYPE_CHECKING:
     from .box import OrientedBox
     from .decomposition import BoxNode, BoxTree, DecompositionParams, decompose
     from .facemask import FaceMaskParams, FaceMasks, SupportPlane, compute_face_masks
+    from .limits import WorkLimits
     from .mvbb import MvbbParams, minimum_volume_box
     from .pipeline import PipelineParams, PipelineResult, run_pipeline
     from .result import read_result, write_result
@@ -31,6 +38,7 @@ _LAZY: dict[str, str] = {
     "FaceMasks": "facemask",
     "SupportPlane": "facemask",
     "compute_face_masks": "facemask",
+    "WorkLimits": "limits",
     "MvbbParams": "mvbb",
     "minimum_volume_box": "mvbb",
     "PipelineParams": "pipeline",
@@ -65,6 +73,8 @@ __all__ = [
     "ShapeClass",
     "ShapeParams",
     "SupportPlane",
+    "WorkLimitError",
+    "WorkLimits",
     "classify_tree",
     "compute_face_masks",
     "decompose",

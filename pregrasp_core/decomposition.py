@@ -37,15 +37,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from .box import OrientedBox, canonical_axes
-from .errors import DegenerateGeometryError
+from .errors import DegenerateGeometryError, WorkLimitError
 from .geometry import as_points
+from .limits import (
+    MAX_MIN_POINTS,
+    MAX_TREE_DEPTH,
+    MIN_BOX_POINTS,
+    WorkLimits,
+    check_int,
+    check_real,
+    decomposition_bytes,
+    format_bytes,
+)
 from .mvbb import MvbbParams, minimum_volume_box
 from .tolerances import FLAT_EXTENT
 
 logger = logging.getLogger(__name__)
-
-MIN_BOX_POINTS: int = 4
-"""The fewest points a box of the tree may hold (a non-flat box needs at least 4 points)."""
 
 QUICK_MVBB = MvbbParams(
     kernel_grid=12, n_angles=8, n_refine=3, step_min=math.radians(0.4), max_rounds=0, snap_max=0
@@ -72,25 +79,19 @@ class DecompositionParams:
     volume_ratio: float = 0.9
     """A split is accepted when (V(child1) + V(child2)) / V(parent) is below this, in (0, 1]."""
     min_points: int = 500
-    """Each child of an accepted split keeps at least this many points (>= 4)."""
+    """Each child of an accepted split keeps at least this many points, in [4, 10^9] (a box
+    that is not flat needs 4 points)."""
     max_depth: int = 8
-    """Nodes at this depth are never split (root depth 0; 0 = no split at all); >= 0."""
+    """Nodes at this depth are never split (root depth 0; 0 = no split at all); in [0, 64]."""
 
     def __post_init__(self) -> None:
-        vr = self.volume_ratio
-        if isinstance(vr, bool) or not isinstance(vr, (int, float, np.floating, np.integer)):
-            raise ValueError(f"volume_ratio must be a number in (0, 1], got {vr!r}")
-        if not (np.isfinite(vr) and 0.0 < vr <= 1.0):
-            raise ValueError(f"volume_ratio must be in (0, 1], got {vr!r}")
-        for name, lo in (("min_points", MIN_BOX_POINTS), ("max_depth", 0)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
-                raise ValueError(f"{name} must be an integer >= {lo}, got {v!r}")
-            if v < lo:
-                raise ValueError(f"{name} must be an integer >= {lo}, got {v!r}")
-        object.__setattr__(self, "volume_ratio", float(vr))
-        object.__setattr__(self, "min_points", int(self.min_points))
-        object.__setattr__(self, "max_depth", int(self.max_depth))
+        # bounds: pregrasp_core.limits and docs/limits.md ("Decomposition")
+        vr = check_real("volume_ratio", self.volume_ratio, 0.0, 1.0, lo_open=True)
+        mp = check_int("min_points", self.min_points, MIN_BOX_POINTS, MAX_MIN_POINTS)
+        md = check_int("max_depth", self.max_depth, 0, MAX_TREE_DEPTH)
+        object.__setattr__(self, "volume_ratio", vr)
+        object.__setattr__(self, "min_points", mp)
+        object.__setattr__(self, "max_depth", md)
 
 
 @dataclass(frozen=True, eq=False)
@@ -316,22 +317,37 @@ def _refit(
     return mvbb if mvbb.volume <= in_frame.volume else in_frame
 
 
-def decompose(points: np.ndarray, params: DecompositionParams | None = None) -> BoxTree:
+def decompose(
+    points: np.ndarray,
+    params: DecompositionParams | None = None,
+    limits: WorkLimits | None = None,
+) -> BoxTree:
     """Split ``points`` (N, 3) into a binary tree of oriented boxes (see the module docstring).
 
     The leaves partition the points; every node's box contains its points. Raises
     ``DegenerateGeometryError`` when the cloud has fewer than ``MIN_BOX_POINTS`` points or no box
-    can be fitted to it (all points identical or collinear).
+    can be fitted to it (all points identical or collinear), and ``WorkLimitError`` when the
+    estimated memory passes ``limits.max_decomposition_bytes`` (before any work) or the tree
+    would get more than ``limits.max_parts`` parts (as soon as a split would make one more; the
+    work done is at most ``2 max_parts - 1`` nodes).
     """
     params = DecompositionParams() if params is None else params
     if not isinstance(params, DecompositionParams):
         raise TypeError(f"params must be DecompositionParams, got {type(params).__name__}")
+    limits = WorkLimits() if limits is None else limits
     pts = as_points(points)
     n = pts.shape[0]
     if n < MIN_BOX_POINTS:
         raise DegenerateGeometryError(
             f"cannot decompose {n} points: a box needs at least {MIN_BOX_POINTS}; "
             "give a cloud with more points"
+        )
+    need = decomposition_bytes(n, params.max_depth, limits.max_parts)
+    if need > limits.max_decomposition_bytes:
+        raise WorkLimitError(
+            f"decomposing {n:,} points needs about {format_bytes(need)}, more than the limit "
+            f"{format_bytes(limits.max_decomposition_bytes)} (max_decomposition_bytes): "
+            "give fewer points (sample or thin the cloud) or a smaller max_depth"
         )
     if not np.all(np.isfinite(pts)):
         raise ValueError("points contain NaN or inf; drop those rows first")
@@ -394,6 +410,13 @@ def decompose(points: np.ndarray, params: DecompositionParams | None = None) -> 
         )
         if not ratio < params.volume_ratio:
             continue
+        if n_splits + 2 > limits.max_parts:  # leaves: n_splits + 1 now, one more after it
+            raise WorkLimitError(
+                f"the decomposition needs more than {limits.max_parts:,} parts (max_parts): "
+                f"with volume_ratio {params.volume_ratio:g}, min_points {params.min_points} and "
+                f"max_depth {params.max_depth} it keeps splitting; raise min_points, lower "
+                "max_depth or volume_ratio, or raise max_parts"
+            )
         n_splits += 1
         c1, c2 = len(parent), len(parent) + 1
         children[k] = (c1, c2)

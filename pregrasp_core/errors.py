@@ -18,3 +18,8 @@ class DegenerateGeometryError(PregraspError):
 
 class HandModelError(PregraspError):
     """The hand description (URDF) is missing or inconsistent."""
+
+
+class WorkLimitError(PregraspError):
+    """The requested work would pass one of the limits that keep memory and time finite
+    (:class:`~pregrasp_core.limits.WorkLimits`); the message names the parameters to change."""

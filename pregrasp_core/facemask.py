@@ -35,8 +35,9 @@ import numpy as np
 
 from .box import OrientedBox
 from .decomposition import BoxTree
-from .errors import InputError
+from .errors import InputError, WorkLimitError
 from .geometry import as_points
+from .limits import MAX_HEIGHT, MAX_LENGTH, WorkLimits, check_real
 from .shape import GraspType
 from .tolerances import (
     FACE_OVERLAP_TOL,
@@ -95,6 +96,17 @@ ADJACENT: np.ndarray = np.stack(
 # ----------------------------------------------------------------------------- parameters
 
 
+def _is_vector(value: object) -> bool:
+    """True for a sequence or array of real numbers (not a string, not booleans)."""
+    if isinstance(value, (str, bytes)):
+        return False
+    try:
+        a = np.asarray(value)
+    except (TypeError, ValueError):
+        return False
+    return a.dtype.kind in "iuf"
+
+
 @dataclass(frozen=True)
 class FaceMaskParams:
     """Parameters of the face masks and of the support plane."""
@@ -120,30 +132,33 @@ class FaceMaskParams:
     """Metres: a face's slab must reach deeper than this below the plane to be blocked by it."""
 
     def __post_init__(self) -> None:
+        # bounds: docs/limits.md ("Face masks"); lengths up to MAX_LENGTH (10 m)
         for name in ("clearance", "overlap_tolerance", "support_tolerance"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
-                raise ValueError(f"{name} must be a length >= 0 in metres, got {v!r}")
-            if not (np.isfinite(v) and v >= 0.0):
-                raise ValueError(f"{name} must be a length >= 0 in metres, got {v!r}")
-            object.__setattr__(self, name, float(v))
-        mc = self.min_coverage
-        if isinstance(mc, bool) or not isinstance(mc, (int, float, np.floating, np.integer)):
-            raise ValueError(f"min_coverage must be a fraction in (0, 1], got {mc!r}")
-        if not (np.isfinite(mc) and 0.0 < mc <= 1.0):
-            raise ValueError(f"min_coverage must be a fraction in (0, 1], got {mc!r}")
-        object.__setattr__(self, "min_coverage", float(mc))
-        up = np.asarray(self.up, dtype=np.float64)
-        if up.shape != (3,) or not np.all(np.isfinite(up)) or np.linalg.norm(up) < GEOM_EPS:
+            v = check_real(name, getattr(self, name), 0.0, MAX_LENGTH, what="a length", unit=" m")
+            object.__setattr__(self, name, v)
+        mc = check_real(
+            "min_coverage", self.min_coverage, 0.0, 1.0, lo_open=True, what="a fraction"
+        )
+        object.__setattr__(self, "min_coverage", mc)
+        up = np.asarray(self.up, dtype=np.float64) if _is_vector(self.up) else np.zeros(0)
+        with np.errstate(over="ignore"):  # a huge vector's norm is inf: refused below
+            norm = float(np.linalg.norm(up)) if up.shape == (3,) else 0.0
+        if not np.all(np.isfinite(up)) or not (GEOM_EPS <= norm < np.inf):
             raise ValueError(f"up must be a non-zero finite 3-vector, got {self.up!r}")
         object.__setattr__(self, "up", tuple(float(x) for x in up))
-        h = self.support_height
-        if h is not None:
-            if isinstance(h, bool) or not isinstance(h, (int, float, np.floating, np.integer)):
-                raise ValueError(f"support_height must be a number (metres) or None, got {h!r}")
-            if not np.isfinite(h):
-                raise ValueError(f"support_height must be finite, got {h!r}")
-            object.__setattr__(self, "support_height", float(h))
+        if self.support_height is not None:
+            h = check_real(
+                "support_height",
+                self.support_height,
+                -MAX_HEIGHT,
+                MAX_HEIGHT,
+                what="a height (or None)",
+                unit=" m",
+            )
+            object.__setattr__(self, "support_height", h)
+        sup = self.support
+        if not (isinstance(sup, (bool, np.bool_, int, np.integer)) and sup in (0, 1)):
+            raise ValueError(f"support must be True or False, got {self.support!r}")
         object.__setattr__(self, "support", bool(self.support))
 
 
@@ -353,61 +368,140 @@ def blocked_by_support(
     return out[0] if isinstance(box, OrientedBox) else out
 
 
+def tree_intervals(tree: BoxTree) -> tuple[np.ndarray, np.ndarray]:
+    """Entry and exit times ``(tin, tout)``, (K,) int64 each, of a depth-first walk of ``tree``
+    along its parent links: node ``a`` is ``b`` or an ancestor of ``b`` exactly when
+    ``tin[a] <= tin[b] < tout[a]`` (so ``tree.is_related`` for all pairs at once)."""
+    K = len(tree.nodes)
+    kids: list[list[int]] = [[] for _ in range(K)]
+    for nd in tree.nodes[1:]:  # loop over nodes
+        kids[nd.parent].append(nd.id)
+    order: list[int] = []  # pre-order
+    stack = [0]
+    while stack:
+        k = stack.pop()
+        order.append(k)
+        stack.extend(reversed(kids[k]))
+    if len(order) != K:
+        raise ValueError(f"the parent links reach {len(order)} of the tree's {K} nodes")
+    tin = np.empty(K, dtype=np.int64)
+    tin[order] = np.arange(K)
+    size = np.ones(K, dtype=np.int64)
+    for k in reversed(order):  # children before their parent
+        for c in kids[k]:
+            size[k] += size[c]
+    return tin, tin + size
+
+
+PAIR_CHUNK: int = 16_384
+"""(node, blocker) pairs screened at once by :func:`compute_face_masks` (about 3 MB of
+temporaries): its memory is O(nodes + chunk), not O(nodes x blockers)."""
+
+SAT_CHUNK: int = 1024
+"""(node, blocker) pairs per separating-axis batch of :func:`compute_face_masks` (six faces
+each; about 20 MB of temporaries)."""
+
+
 def compute_face_masks(
     tree: BoxTree,
     support: SupportPlane | None = None,
     params: FaceMaskParams | None = None,
     cut: Sequence[int] | None = None,
+    limits: WorkLimits | None = None,
 ) -> FaceMasks:
     """Face masks of every node of ``tree``.
 
     support: the support plane (see :func:`support_plane`) or ``None`` for a free-floating
     object. cut: ids of the boxes forming the current decomposition (the possible blockers);
     default the leaves. The blockers of node ``n`` are the boxes of ``cut`` that are neither
-    ``n`` nor an ancestor or descendant of ``n``.
+    ``n`` nor an ancestor or descendant of ``n``. limits: ``max_face_mask_pairs`` bounds
+    ``nodes x cut boxes`` (``WorkLimitError`` past it, before any work).
+
+    The pairs are screened in chunks of :data:`PAIR_CHUNK` (world-axis bounding boxes, then the
+    node's three face axes), and only the pairs that may still block get the full
+    separating-axis test: the results are those of testing every pair, in O(nodes + chunk)
+    memory.
     """
     params = FaceMaskParams() if params is None else params
+    limits = WorkLimits() if limits is None else limits
     cut_ids = tuple(tree.leaves() if cut is None else (int(c) for c in cut))
     for c in cut_ids:
         tree.node(c)  # raises IndexError for a bad id
     K = len(tree.nodes)
-    # pairs (node, blocker): Python loop over nodes x cut (small sets), SAT vectorised below
-    pair_node: list[int] = []
-    pair_blocker: list[int] = []
-    for nd in tree.nodes:
-        for c in cut_ids:
-            if not tree.is_related(nd.id, c):
-                pair_node.append(nd.id)
-                pair_blocker.append(c)
+    if K * len(cut_ids) > limits.max_face_mask_pairs:
+        raise WorkLimitError(
+            f"face masks of {K:,} nodes against {len(cut_ids):,} boxes are "
+            f"{K * len(cut_ids):,} pairs, more than the limit {limits.max_face_mask_pairs:,} "
+            "(max_face_mask_pairs): decompose into fewer parts (larger min_points, smaller "
+            "max_depth or volume_ratio) or raise max_face_mask_pairs"
+        )
     blocked = np.zeros((K, 6), dtype=bool)
     hits: list[list[list[int]]] = [[[] for _ in range(6)] for _ in range(K)]
-    if pair_node:
+    if cut_ids and K > 1:
         slab_c = np.empty((K, 6, 3))
         slab_h = np.empty((K, 6, 3))
-        for nd in tree.nodes:
+        for nd in tree.nodes:  # loop over nodes
             slab_c[nd.id], slab_h[nd.id] = face_slabs(nd.box, params.clearance)
         R = np.stack([nd.box.rotation for nd in tree.nodes])  # (K, 3, 3)
         C = np.stack([nd.box.center for nd in tree.nodes])  # (K, 3)
         H = np.stack([nd.box.half_extents for nd in tree.nodes])  # (K, 3)
-        pn = np.asarray(pair_node)
-        pb = np.asarray(pair_blocker)
-        depth = obb_penetration(  # (P, 6)
-            slab_c[pn],
-            R[pn][:, None],
-            slab_h[pn],
-            C[pb][:, None],
-            R[pb][:, None],
-            H[pb][:, None],
-        )
-        hit = depth > params.overlap_tolerance  # (P, 6) SAT: the slab is penetrated
-        # coverage of each (node, face) by its penetrating blockers, on a probe grid
-        for n, f in sorted({(int(pn[p]), int(f)) for p, f in zip(*np.nonzero(hit), strict=True)}):
-            cands = [int(pb[p]) for p in np.flatnonzero((pn == n) & hit[:, f])]
-            cov = face_coverage(
-                tree.nodes[n].box, f, [tree.nodes[c].box for c in cands], params.clearance
-            )
-            hits[n][f] = [c for c, v in zip(cands, cov[:-1], strict=True) if v > 0]
-            blocked[n, f] = cov[-1] >= params.min_coverage
+        cb = np.asarray(cut_ids, dtype=np.int64)  # (B,)
+        tin, tout = tree_intervals(tree)
+        # world-axis half extents of the slabs (K, 6, 3) and of the cut's boxes (B, 3)
+        slab_w = np.einsum("kij,kfj->kfi", np.abs(R), slab_h)
+        box_w = np.einsum("bij,bj->bi", np.abs(R[cb]), H[cb])
+        scale = float(np.abs(slab_c).max() + np.abs(slab_w).max() + np.abs(C).max() + 1.0)
+        margin = GEOM_EPS * scale  # far above the round-off of the tests, far below any overlap
+        rows = max(1, PAIR_CHUNK // len(cut_ids))
+        for start in range(0, K, rows):  # loop over chunks of nodes
+            nodes = np.arange(start, min(K, start + rows))  # (r,)
+            t_n, t_b = tin[nodes][:, None], tin[cb][None, :]
+            related = ((t_n <= t_b) & (t_b < tout[nodes][:, None])) | (
+                (t_b <= t_n) & (t_n < tout[cb][None, :])
+            )  # (r, B)
+            gap = np.abs(slab_c[nodes][:, :, None, :] - C[cb][None, None]) - (
+                slab_w[nodes][:, :, None, :] + box_w[None, None]
+            )  # (r, 6, B, 3): > 0 on some axis = the world-axis boxes are apart
+            near = np.all(gap <= margin, axis=-1).any(axis=1) & ~related  # (r, B)
+            pi, bi = np.nonzero(near)
+            pn, pb = nodes[pi], cb[bi]  # (P,) node and blocker ids, by node then cut order
+            # The separating-axis test on the node's own three axes alone: a blocker whose
+            # overlap with every slab is at most overlap_tolerance on one of them cannot block
+            # (the full test's depth is the minimum over these and 12 more axes).
+            Rn = R[pn]  # (P, 3, 3)
+            M = np.abs(np.matmul(Rn.transpose(0, 2, 1), R[pb]))  # (P, 3, 3) |R_n^T R_b|
+            rb = np.matmul(M, H[pb][:, :, None])[:, :, 0]  # (P, 3) blocker radii on node axes
+            q = np.matmul(C[pb][:, None, :] - slab_c[pn], Rn)  # (P, 6, 3) in the node frame
+            overlap = slab_h[pn] + rb[:, None, :] - np.abs(q)  # (P, 6, 3)
+            keep = np.all(overlap > params.overlap_tolerance - margin, axis=-1).any(axis=1)
+            pn, pb = pn[keep], pb[keep]
+            hit = np.zeros((len(pn), 6), dtype=bool)
+            for s in range(0, len(pn), SAT_CHUNK):  # loop over batches of pairs
+                n, b = pn[s : s + SAT_CHUNK], pb[s : s + SAT_CHUNK]
+                depth = obb_penetration(  # (p, 6)
+                    slab_c[n],
+                    R[n][:, None],
+                    slab_h[n],
+                    C[b][:, None],
+                    R[b][:, None],
+                    H[b][:, None],
+                )
+                hit[s : s + SAT_CHUNK] = depth > params.overlap_tolerance  # slab penetrated
+            # coverage of each (node, face) by its penetrating blockers, on a probe grid
+            hp, hf = np.nonzero(hit)  # ordered by pair, then face
+            key = pn[hp] * 6 + hf
+            order = np.argsort(key, kind="stable")  # by (node, face), pairs in cut order
+            hp, key = hp[order], key[order]
+            for group in np.split(np.arange(len(key)), np.flatnonzero(np.diff(key)) + 1):
+                if len(group) == 0:
+                    continue
+                n0, f0 = divmod(int(key[group[0]]), 6)
+                cands = pb[hp[group]].tolist()
+                cov = face_coverage(
+                    tree.nodes[n0].box, f0, [tree.nodes[c].box for c in cands], params.clearance
+                )
+                hits[n0][f0] = [c for c, v in zip(cands, cov[:-1], strict=True) if v > 0]
+                blocked[n0, f0] = cov[-1] >= params.min_coverage
     if support is not None:
         by_support = blocked_by_support([nd.box for nd in tree.nodes], support, params)
     else:

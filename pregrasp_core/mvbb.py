@@ -39,6 +39,21 @@ from scipy.spatial import ConvexHull, QhullError
 from .box import OrientedBox, canonical_axes
 from .errors import DegenerateGeometryError, InputError
 from .geometry import as_points
+from .limits import (
+    MAX_ANGLES,
+    MAX_BATCH,
+    MAX_CANDIDATES,
+    MAX_FACTOR,
+    MAX_GRID,
+    MAX_ITERATIONS,
+    MAX_REACH,
+    MAX_REFINE,
+    MAX_ROUNDS,
+    MAX_STEP,
+    MIN_STEP,
+    check_int,
+    check_real,
+)
 from .tolerances import GEOM_EPS, MVBB_DEGENERATE_REL
 
 logger = logging.getLogger(__name__)
@@ -92,6 +107,41 @@ class MvbbParams:
     snap_grid: int = 16
     """Columns per side of the grid that thins the points near the box faces before the snap's
     hull."""
+
+    def __post_init__(self) -> None:
+        # bounds: pregrasp_core.limits and docs/limits.md ("MVBB"); each keeps a table finite
+        ints = {
+            "kernel_grid": (1, MAX_GRID),
+            "coarse_grid": (1, MAX_GRID),
+            "n_angles": (1, MAX_ANGLES),
+            "max_normals": (1, MAX_CANDIDATES),
+            "sweep_batch": (1, MAX_BATCH),
+            "n_refine": (1, MAX_REFINE),
+            "max_iterations": (1, MAX_ITERATIONS),
+            "refine_restart_level": (0, MAX_ROUNDS),
+            "polish_grid": (1, MAX_GRID),
+            "max_rounds": (0, MAX_ROUNDS),
+            "snap_max": (0, MAX_REFINE),
+            "snap_grid": (1, MAX_GRID),
+        }
+        for name, (lo, hi) in ints.items():
+            object.__setattr__(self, name, check_int(name, getattr(self, name), lo, hi))
+        for name, lo_open, top in (
+            ("sweep_slack", False, MAX_FACTOR),
+            ("active_reach", True, MAX_REACH),
+        ):
+            v = check_real(name, getattr(self, name), 0.0, top, lo_open=lo_open)
+            object.__setattr__(self, name, v)
+        start = check_real(
+            "step_start", self.step_start, MIN_STEP, MAX_STEP, what="an angle", unit=" rad"
+        )
+        stop = check_real("step_min", self.step_min, MIN_STEP, start, what="an angle", unit=" rad")
+        snap = check_real(
+            "snap_angle", self.snap_angle, 0.0, MAX_STEP, what="an angle", unit=" rad"
+        )
+        object.__setattr__(self, "step_start", start)
+        object.__setattr__(self, "step_min", stop)
+        object.__setattr__(self, "snap_angle", snap)
 
 
 DEFAULT_PARAMS = MvbbParams()

@@ -32,6 +32,7 @@ import numpy as np
 from .decomposition import BoxTree, DecompositionParams, decompose
 from .facemask import FaceMaskParams, FaceMasks, compute_face_masks, support_plane
 from .io import PointCloud
+from .limits import WorkLimits
 from .planner import GraspSet, PlannerParams, cloud_normals, grasps_sections, plan_grasps
 from .pregrasps import PreGraspPool, SamplingParams, Traversal, build_pool, traverse
 from .result import JsonDocument
@@ -127,12 +128,15 @@ def run_pipeline(
     until: str = "pool",
     previous: PipelineResult | None = None,
     progress: Callable[[float], None] | None = None,
+    limits: WorkLimits | None = None,
 ) -> PipelineResult:
     """Run the stages up to ``until`` (one of :data:`ALL_STAGES`), reusing those of ``previous``
     whose inputs are unchanged.
 
     hand: the hand (loaded with ``Hand.load()`` when ``None`` and the
-    ``pool`` stage runs). progress: called with the fraction of stages done (0..1).
+    ``pool`` stage runs). progress: called with the fraction of stages done (0..1). limits: the
+    work limits of the stages (default ``WorkLimits()``; ``docs/limits.md``); a stage that would
+    pass one raises ``WorkLimitError`` before its large allocations.
     """
     params = PipelineParams() if params is None else params
     last = _stage_index(until)
@@ -168,7 +172,7 @@ def run_pipeline(
         "decompose",
         pp is not None and pp.decomposition == params.decomposition,
         ("tree",),
-        lambda: {"tree": decompose(points, params.decomposition)},
+        lambda: {"tree": decompose(points, params.decomposition, limits)},
     )
     tick(0)
     tree_same = ok
@@ -184,7 +188,7 @@ def run_pipeline(
 
         def _masks() -> dict[str, Any]:
             sp = support_plane(points, params.facemask)
-            return {"masks": compute_face_masks(out["tree"], sp, params.facemask)}
+            return {"masks": compute_face_masks(out["tree"], sp, params.facemask, limits=limits)}
 
         ok_fm = stage(
             "facemask",
@@ -196,15 +200,16 @@ def run_pipeline(
     if last >= 3:
         if hand is None:
             hand = prev.hand if prev is not None and prev.hand is not None else _load_hand()
+        run_hand: Hand = hand  # the hand of the pool and grasps stages
 
         def _pool() -> dict[str, Any]:
-            trav = traverse(out["tree"], out["shapes"], hand, params.sampling, params.shape)
+            trav = traverse(out["tree"], out["shapes"], run_hand, params.sampling, params.shape)
             pool = build_pool(
                 points,
                 out["tree"],
                 out["shapes"],
                 out["masks"],
-                hand,
+                run_hand,
                 params.sampling,
                 trav,
                 params.shape,
@@ -247,7 +252,7 @@ def run_pipeline(
                 points,
                 out["normals"],
                 out["pool"],
-                hand,
+                run_hand,
                 params.planner,
                 support=None if masks is None else masks.support,
                 progress=_plan_progress,
@@ -309,6 +314,8 @@ def result_document(
     if result.pool is not None:
         extra["pool"] = pool_section(result)
     if result.grasps is not None:
+        if result.hand is None:
+            raise ValueError("the result has grasps but no hand: it was not made by run_pipeline")
         extra.update(grasps_sections(result.grasps, result.hand, params.planner))
     return _result_document(
         result.cloud,

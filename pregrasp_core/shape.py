@@ -26,6 +26,7 @@ from .box import OrientedBox
 from .decomposition import BoxTree
 from .errors import DegenerateGeometryError
 from .geometry import as_points
+from .limits import MAX_LENGTH, check_real
 from .tolerances import GEOM_EPS
 
 if TYPE_CHECKING:
@@ -85,19 +86,12 @@ class ShapeParams:
     fingertips pinch parts up to ~0.05 m."""
 
     def __post_init__(self) -> None:
+        # bounds: pregrasp_core.limits and docs/limits.md ("Shape classes")
         for name in ("max_ratio_1d", "max_ratio_2d"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
-                raise ValueError(f"{name} must be a number in (0, 1], got {v!r}")
-            if not (np.isfinite(v) and 0.0 < v <= 1.0):
-                raise ValueError(f"{name} must be in (0, 1], got {v!r}")
-            object.__setattr__(self, name, float(v))
-        v = self.small_size
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
-            raise ValueError(f"small_size must be a length >= 0 in metres, got {v!r}")
-        if not (np.isfinite(v) and v >= 0.0):
-            raise ValueError(f"small_size must be a length >= 0 in metres, got {v!r}")
-        object.__setattr__(self, "small_size", float(v))
+            v = check_real(name, getattr(self, name), 0.0, 1.0, lo_open=True)
+            object.__setattr__(self, name, v)
+        v = check_real("small_size", self.small_size, 0.0, MAX_LENGTH, what="a length", unit=" m")
+        object.__setattr__(self, "small_size", v)
 
 
 @dataclass(frozen=True, eq=False)

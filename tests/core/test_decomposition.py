@@ -6,6 +6,8 @@ brute-force O(n^2) search over every cut, and invariance under seeded random rig
 
 from __future__ import annotations
 
+import tracemalloc
+
 import numpy as np
 import pytest
 import trimesh
@@ -13,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from pregrasp_core import decomposition as dec
 from pregrasp_core.decomposition import (
     BoxNode,
     BoxTree,
@@ -20,9 +23,10 @@ from pregrasp_core.decomposition import (
     best_cut,
     decompose,
 )
-from pregrasp_core.errors import DegenerateGeometryError
+from pregrasp_core.errors import DegenerateGeometryError, WorkLimitError
 from pregrasp_core.io import load_point_cloud
-from pregrasp_core.paths import demo_objects
+from pregrasp_core.limits import WorkLimits, decomposition_bytes
+from pregrasp_core.paths import DEFAULT_OBJECT, demo_objects
 from pregrasp_core.tolerances import BOX_CONTAINS_TOL
 
 
@@ -102,13 +106,18 @@ def test_params_defaults_and_validation():
     for bad in (0.0, -0.1, 1.5, float("nan"), "0.9", True):
         with pytest.raises(ValueError, match="volume_ratio"):
             DecompositionParams(volume_ratio=bad)
-    for bad in (3, 0, 2.5, True, "500"):
-        with pytest.raises(ValueError, match="min_points"):
+    for bad in (3, 0, 2.5, True, "500", 10**9 + 1):
+        with pytest.raises(
+            ValueError, match=r"^min_points must be an integer in \[4, 1,000,000,000\]"
+        ):
             DecompositionParams(min_points=bad)
-    for bad in (-1, 1.0, None):
-        with pytest.raises(ValueError, match="max_depth"):
+    for bad in (-1, 1.0, None, 65):
+        with pytest.raises(ValueError, match=r"^max_depth must be an integer in \[0, 64\], got"):
             DecompositionParams(max_depth=bad)
+    with pytest.raises(ValueError, match=r"^volume_ratio must be a number in \(0, 1\], got 1.5"):
+        DecompositionParams(volume_ratio=1.5)
     assert DecompositionParams(volume_ratio=1, min_points=np.int64(4)).min_points == 4
+    assert DecompositionParams(max_depth=64, min_points=10**9).max_depth == 64
 
 
 def test_bad_points_rejected():
@@ -215,6 +224,64 @@ def test_max_depth_respected():
         _check_tree_invariants(tree, pts, params)
         assert max(nd.depth for nd in tree.nodes) == depth
         assert len(tree.leaves()) == n_leaves
+
+
+def test_max_parts_stops_the_decomposition_with_the_limits_name():
+    """The row of cubes splits into 8 parts: a limit of 8 gives the same tree, 7 an error
+    naming max_parts and the parameters that make the parts."""
+    pts = _row_of_cubes()
+    params = DecompositionParams(min_points=100)
+    free = decompose(pts, params)
+    exact = decompose(pts, params, WorkLimits(max_parts=8))
+    assert len(exact.leaves()) == 8
+    for a, b in zip(free.nodes, exact.nodes, strict=True):
+        assert np.array_equal(a.indices, b.indices)
+        assert np.array_equal(a.box.center, b.box.center)
+    for limit in (7, 1):
+        with pytest.raises(WorkLimitError, match=rf"more than {limit} parts \(max_parts\)") as e:
+            decompose(pts, params, WorkLimits(max_parts=limit))
+        for name in ("volume_ratio 0.9", "min_points 100", "max_depth 8", "raise min_points"):
+            assert name in str(e.value)
+    assert decompose(pts, DecompositionParams(max_depth=0), WorkLimits(max_parts=1)).n_splits == 0
+    for bad in (0, 65_537, 2.0):
+        with pytest.raises(ValueError, match=r"^max_parts must be an integer in \[1, 65,536\]"):
+            WorkLimits(max_parts=bad)
+
+
+def test_memory_estimate_refuses_before_any_work(monkeypatch):
+    pts = _row_of_cubes()  # 2,400 points: about 1.4 MB by the estimate
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("the decomposition started")
+
+    monkeypatch.setattr(dec, "minimum_volume_box", no_work)
+    need = "decomposing 2,400 points needs about 1.3 MiB, more than the limit 1.0 MiB"
+    with pytest.raises(WorkLimitError, match=need):
+        decompose(pts, None, WorkLimits(max_decomposition_bytes=2**20))
+    with pytest.raises(WorkLimitError, match=r"\(max_decomposition_bytes\): give fewer points"):
+        decompose(pts, None, WorkLimits(max_decomposition_bytes=2**20))
+    with pytest.raises(ValueError, match="max_decomposition_bytes must be an integer in"):
+        WorkLimits(max_decomposition_bytes=1000)
+
+
+@pytest.mark.parametrize(
+    ("params", "max_parts"),
+    [(DecompositionParams(), 256), (DecompositionParams(1.0, 4, 20), 16)],
+    ids=["defaults", "issue16"],
+)
+def test_memory_estimate_bounds_the_measured_peak(params, max_parts):
+    """decomposition_bytes is an upper bound of the peak (tracemalloc) on the default mug."""
+    cloud = load_point_cloud(DEFAULT_OBJECT, n_points=20_000, seed=0)
+    pts = np.array(cloud.points)
+    tracemalloc.start()
+    try:
+        tree = decompose(pts, params, WorkLimits(max_parts=max_parts))
+    except WorkLimitError:
+        tree = None
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert tree is None or len(tree.leaves()) <= max_parts
+    assert peak < decomposition_bytes(len(pts), params.max_depth, max_parts)
 
 
 def test_min_points_respected():

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import time
+import tracemalloc
+
 import fcl
 import numpy as np
 import pytest
@@ -9,8 +12,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from pregrasp_core import facemask
 from pregrasp_core.box import OrientedBox
 from pregrasp_core.decomposition import BoxNode, BoxTree
+from pregrasp_core.errors import WorkLimitError
 from pregrasp_core.facemask import (
     ADJACENT,
     FACE_NORMAL,
@@ -18,14 +23,19 @@ from pregrasp_core.facemask import (
     FACE_UP,
     FaceMaskParams,
     SupportPlane,
+    blocked_by_support,
     compute_face_masks,
+    face_coverage,
     face_mask_matrix,
+    face_slabs,
     obb_penetration,
     subface_rectangles,
     subface_scheme,
     support_plane,
+    tree_intervals,
     usable_subfaces,
 )
+from pregrasp_core.limits import WorkLimits
 
 UP = np.array([0.0, 0.0, 1.0])
 TABLE = SupportPlane(UP, 0.0)
@@ -285,13 +295,157 @@ def test_cut_limits_the_blockers_to_the_current_decomposition():
         compute_face_masks(tree, None, cut=[9])
 
 
-def test_params_validation():
-    with pytest.raises(ValueError, match="clearance must be a length >= 0"):
-        FaceMaskParams(clearance=-1.0)
-    with pytest.raises(ValueError, match="up must be a non-zero"):
-        FaceMaskParams(up=(0, 0, 0))
-    with pytest.raises(ValueError, match="support_height must be finite"):
-        FaceMaskParams(support_height=float("nan"))
+def test_params_validation_names_the_field_and_its_bounds():
+    p = FaceMaskParams()  # the documented defaults
+    assert (p.clearance, p.overlap_tolerance, p.min_coverage, p.support_tolerance) == (
+        0.025,
+        0.002,
+        0.05,
+        0.002,
+    )
+    assert (p.support, p.up, p.support_height) == (True, (0.0, 0.0, 1.0), None)
+    for name in ("clearance", "overlap_tolerance", "support_tolerance"):
+        for bad in (-1.0, 10.5, float("nan"), float("inf"), "0.02", True, None):
+            with pytest.raises(ValueError, match=rf"^{name} must be a length in \[0, 10\] m, got"):
+                FaceMaskParams(**{name: bad})
+    for bad in (0.0, 1.5, float("nan"), "x"):
+        with pytest.raises(ValueError, match=r"^min_coverage must be a fraction in \(0, 1\]"):
+            FaceMaskParams(min_coverage=bad)
+    for bad in ((0, 0, 0), (1e308, 1e308, 0.0), (0, 0, float("nan")), "abc", (0, 1), None):
+        with pytest.raises(ValueError, match="^up must be a non-zero finite 3-vector"):
+            FaceMaskParams(up=bad)
+    for bad in (float("nan"), 2e6, "0"):
+        with pytest.raises(ValueError, match=r"^support_height must be a height \(or None\)"):
+            FaceMaskParams(support_height=bad)
+    for bad in ("yes", 2, None):
+        with pytest.raises(ValueError, match="^support must be True or False"):
+            FaceMaskParams(support=bad)
+    assert FaceMaskParams(clearance=10, up=[0, 0, 2], support=np.bool_(False)).clearance == 10.0
+
+
+# ----------------------------------------------------------------------------- bounded work
+
+
+def reference_face_masks(tree: BoxTree, support, params: FaceMaskParams, cut=None):
+    """The face masks by the plain algorithm (every (node, blocker) pair through the
+    separating-axis test at once, O(pairs) memory): the reference for the chunked stage."""
+    cut_ids = tuple(tree.leaves() if cut is None else cut)
+    K = len(tree.nodes)
+    pairs = [(nd.id, c) for nd in tree.nodes for c in cut_ids if not tree.is_related(nd.id, c)]
+    blocked = np.zeros((K, 6), dtype=bool)
+    hits = [[[] for _ in range(6)] for _ in range(K)]
+    if pairs:
+        pn, pb = (np.array(x) for x in zip(*pairs, strict=True))
+        slabs = [face_slabs(nd.box, params.clearance) for nd in tree.nodes]
+        slab_c = np.stack([c for c, _ in slabs])
+        slab_h = np.stack([h for _, h in slabs])
+        R = np.stack([nd.box.rotation for nd in tree.nodes])
+        C = np.stack([nd.box.center for nd in tree.nodes])
+        H = np.stack([nd.box.half_extents for nd in tree.nodes])
+        depth = obb_penetration(
+            slab_c[pn], R[pn][:, None], slab_h[pn], C[pb][:, None], R[pb][:, None], H[pb][:, None]
+        )
+        hit = depth > params.overlap_tolerance
+        for n, f in sorted({(int(pn[p]), int(f)) for p, f in zip(*np.nonzero(hit), strict=True)}):
+            cands = [int(pb[p]) for p in np.flatnonzero((pn == n) & hit[:, f])]
+            cov = face_coverage(
+                tree.nodes[n].box, f, [tree.nodes[c].box for c in cands], params.clearance
+            )
+            hits[n][f] = [c for c, v in zip(cands, cov[:-1], strict=True) if v > 0]
+            blocked[n, f] = cov[-1] >= params.min_coverage
+    by_support = (
+        blocked_by_support([nd.box for nd in tree.nodes], support, params)
+        if support is not None
+        else np.zeros((K, 6), dtype=bool)
+    )
+    return blocked | by_support, tuple(tuple(tuple(sorted(h)) for h in nh) for nh in hits)
+
+
+def random_tree(rng: np.random.Generator, n_leaves: int, spread: float = 0.3) -> BoxTree:
+    """A tree grown by splitting random leaves, with random boxes (0.01-0.12 m sides, random
+    orientations) in a cube of side ``spread``: many of them touch, overlap or nearly touch."""
+    parent, depth, kids = [-1], [0], [[]]
+    leaves = [0]
+    while len(leaves) < n_leaves:
+        k = leaves.pop(int(rng.integers(len(leaves))))
+        for _ in range(2):
+            kids[k].append(len(parent))
+            leaves.append(len(parent))
+            parent.append(k)
+            depth.append(depth[k] + 1)
+            kids.append([])
+    K = len(parent)
+    idx = np.arange(1, dtype=np.int64)
+    Rs = Rotation.random(K, random_state=int(rng.integers(1 << 31))).as_matrix()  # (K, 3, 3)
+    corners = rng.uniform(0, spread, (K, 1, 3)) + rng.uniform(-0.06, 0.06, (K, 2, 3))
+    nodes = [
+        BoxNode(i, parent[i], tuple(kids[i]), depth[i], idx, box, 0)
+        for i, box in enumerate(
+            OrientedBox.from_points_in_frame(corners[i] @ Rs[i].T, Rs[i]) for i in range(K)
+        )
+    ]
+    return BoxTree(tuple(nodes), 1)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_chunked_masks_equal_the_all_pairs_reference(seed, monkeypatch):
+    """Screening and chunking change nothing: blocked faces and blockers are those of the
+    all-pairs algorithm, for the leaves and for another cut, with chunks of a few pairs."""
+    rng = np.random.default_rng(seed)
+    tree = random_tree(rng, 40)
+    params = FaceMaskParams(clearance=0.03, overlap_tolerance=[0.0, 0.002, 0.01][seed])
+    cuts = [None, sorted(rng.choice(len(tree.nodes), 15, replace=False).tolist())]
+    for cut in cuts:
+        ref_blocked, ref_blockers = reference_face_masks(tree, TABLE, params, cut)
+        assert ref_blocked.sum() > 20  # the random boxes do block each other
+        for pair_chunk, sat_chunk in ((16_384, 1024), (7, 3), (1, 1)):
+            monkeypatch.setattr(facemask, "PAIR_CHUNK", pair_chunk)
+            monkeypatch.setattr(facemask, "SAT_CHUNK", sat_chunk)
+            fm = compute_face_masks(tree, TABLE, params, cut=cut)
+            assert np.array_equal(fm.blocked, ref_blocked)
+            assert fm.blockers == ref_blockers
+
+
+def test_tree_intervals_agree_with_is_related():
+    tree = random_tree(np.random.default_rng(5), 30)
+    tin, tout = tree_intervals(tree)
+    K = len(tree.nodes)
+    fast = (tin[:, None] <= tin[None]) & (tin[None] < tout[:, None])  # a is b or its ancestor
+    fast |= fast.T
+    slow = np.array([[tree.is_related(a, b) for b in range(K)] for a in range(K)])
+    assert np.array_equal(fast, slow)
+
+
+def test_too_many_pairs_are_refused_before_any_work():
+    """The 2,135 parts (4,269 nodes) of issue 16 would be 9.1 million (node, blocker) pairs:
+    refused at once with the limit's name, without allocating for them."""
+    tree = random_tree(np.random.default_rng(3), 2135, spread=3.0)
+    assert len(tree.nodes) == 4269
+    tracemalloc.start()
+    t0 = time.perf_counter()
+    with pytest.raises(WorkLimitError, match=r"9,114,315 pairs, more than the limit 4,000,000 "):
+        compute_face_masks(tree, TABLE)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert time.perf_counter() - t0 < 1.0 and peak < 2**20
+    small = tree_of(aabb([0] * 3, [2] * 3), aabb([0] * 3, [1] * 3), aabb([1] * 3, [2] * 3))
+    with pytest.raises(WorkLimitError, match=r"\(max_face_mask_pairs\): decompose into fewer"):
+        compute_face_masks(small, None, limits=WorkLimits(max_face_mask_pairs=5))  # 3 x 2 = 6
+    assert compute_face_masks(small, None, limits=WorkLimits(max_face_mask_pairs=6)).cut == (1, 2)
+
+
+def test_memory_does_not_grow_with_the_pairs():
+    """600 parts (719,400 pairs): the all-pairs algorithm's separating-axis arrays alone would
+    take 720k x 6 x 15 x 3 floats x several temporaries (gigabytes); the chunked stage stays
+    within tens of megabytes."""
+    tree = random_tree(np.random.default_rng(4), 600, spread=1.0)
+    pairs = len(tree.nodes) * 600
+    tracemalloc.start()
+    fm = compute_face_masks(tree, TABLE)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert pairs == 719_400 and fm.blocked.any()
+    assert peak < 48 * 2**20, f"peak {peak / 2**20:.1f} MiB"
 
 
 # ----------------------------------------------------------------------------- sub-faces

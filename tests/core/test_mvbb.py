@@ -7,6 +7,8 @@ multi-start scipy search over rotations.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import trimesh
@@ -298,3 +300,36 @@ def test_params_trade_speed_for_accuracy(clouds):
     coarse = minimum_volume_box(pts, MvbbParams(kernel_grid=6, n_angles=6, n_refine=1))
     _assert_valid(coarse, pts)
     assert coarse.volume >= minimum_volume_box(pts).volume * (1.0 - 1e-3)
+
+
+def test_params_defaults_and_bounds():
+    """Every field is checked against the bounds of pregrasp_core.limits; the message names it."""
+    p = MvbbParams()
+    assert (p.kernel_grid, p.coarse_grid, p.n_angles, p.n_refine, p.snap_max) == (16, 6, 12, 4, 4)
+    assert dataclasses.astuple(MvbbParams(**dataclasses.asdict(p))) == dataclasses.astuple(p)
+    bad_values = {
+        "kernel_grid": (0, 257, 2.0, True),
+        "coarse_grid": (0, 1000),
+        "n_angles": (0, 721),
+        "max_normals": (0, 10_001),
+        "sweep_batch": (0, 1025),
+        "n_refine": (0, 65),
+        "max_iterations": (0, 100_001),
+        "refine_restart_level": (-1, 17),
+        "polish_grid": (0,),
+        "max_rounds": (-1, 17),
+        "snap_max": (-1, 65),
+        "snap_grid": (0, 300),
+        "sweep_slack": (-0.1, 1001.0, float("nan")),
+        "active_reach": (0.0, -1.0, float("inf")),
+        "step_start": (0.0, 1.0, "0.05"),
+        "step_min": (0.0, 1e-10, 0.06),  # above step_start (3 degrees)
+        "snap_angle": (-0.1, 0.8),
+    }
+    for name, values in bad_values.items():
+        for bad in values:
+            with pytest.raises(ValueError, match=rf"^{name} must be "):
+                MvbbParams(**{name: bad})
+    with pytest.raises(ValueError, match=r"^step_min must be an angle in \[1e-09, 0.0523599\] rad"):
+        MvbbParams(step_min=0.06)
+    assert MvbbParams(active_reach=1e9, snap_max=0, max_rounds=0).active_reach == 1e9

@@ -4,14 +4,19 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from pregrasp_core.decomposition import DecompositionParams
+from pregrasp_core.errors import WorkLimitError
 from pregrasp_core.facemask import FaceMaskParams
 from pregrasp_core.hand import load_hand
 from pregrasp_core.io import PointCloud, load_point_cloud
+from pregrasp_core.limits import WorkLimits
 from pregrasp_core.paths import DEFAULT_OBJECT
 from pregrasp_core.pipeline import (
     STAGES,
@@ -155,3 +160,66 @@ def test_the_default_object_gets_a_pool_identical_for_the_same_seed(hand):
     for name in ("T_world_hand", "q", "node", "face", "subface", "backoff", "grasp_type"):
         assert np.array_equal(getattr(r.pool, name), getattr(r2.pool, name))
     assert r.pool.dropped == r2.pool.dropped
+
+
+ISSUE_16_RUN = """
+import json, resource, sys, time
+from pregrasp_core.decomposition import DecompositionParams
+from pregrasp_core.errors import PregraspError
+from pregrasp_core.io import load_point_cloud
+from pregrasp_core.paths import DEFAULT_OBJECT
+from pregrasp_core.pipeline import PipelineParams, run_pipeline
+
+cloud = load_point_cloud(DEFAULT_OBJECT)
+params = PipelineParams(decomposition=DecompositionParams(1.0, 4, 20))
+t0, c0 = time.perf_counter(), time.process_time()
+try:
+    result = run_pipeline(cloud, params, until="facemask")
+    outcome = {"parts": len(result.tree.leaves())}
+except PregraspError as exc:
+    outcome = {"error": type(exc).__name__, "message": str(exc)}
+outcome["seconds"] = time.perf_counter() - t0
+outcome["cpu_seconds"] = time.process_time() - c0
+outcome["max_rss"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # Linux: KiB
+print(json.dumps(outcome))
+"""
+
+
+def test_issue_16_settings_end_in_a_clear_error_quickly_and_small():
+    """Volume ratio 1.0, min points 4, max depth 20 on the default mug: 2,135 parts, which made
+    the face masks ask for 21.6 GB. Now the decomposition stops at WorkLimits.max_parts with a
+    message naming the parameters, within 10 s of CPU (about 2.2 s; the wall clock of a shared
+    test machine only bounds hangs); the whole process (interpreter, numpy, cloud) peaks far
+    below 2 GiB (its resident size bounds what tracemalloc would count: about 140 MiB)."""
+    proc = subprocess.run(
+        [sys.executable, "-c", ISSUE_16_RUN],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=Path(__file__).resolve().parents[2],
+    )
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out["error"] == "WorkLimitError"
+    assert out["message"].startswith("the decomposition needs more than 256 parts (max_parts)")
+    for name in ("volume_ratio 1", "min_points 4", "max_depth 20", "raise max_parts"):
+        assert name in out["message"]
+    assert out["cpu_seconds"] < 10.0 and out["seconds"] < 60.0
+    assert out["max_rss"] < 2**30, f"{out['max_rss'] / 2**20:.0f} MiB"
+
+
+def test_limits_reach_the_stages(first, hand, params):
+    """run_pipeline passes its WorkLimits to the decomposition and the face masks."""
+    with pytest.raises(WorkLimitError, match="max_parts"):
+        run_pipeline(l_shape_cloud(), params, hand, until="decompose", limits=WorkLimits(1))
+    n_nodes = len(first.tree.nodes)
+    n_cut = len(first.tree.leaves())
+    with pytest.raises(WorkLimitError, match=f"{n_nodes * n_cut:,} pairs"):
+        run_pipeline(
+            l_shape_cloud(),
+            dataclasses.replace(params, facemask=FaceMaskParams(clearance=0.03)),
+            hand,
+            until="facemask",
+            previous=first,
+            limits=WorkLimits(max_face_mask_pairs=n_nodes * n_cut - 1),
+        )

@@ -151,9 +151,11 @@ def test_params_validation():
         for bad in (0.0, -1.0, 1.01, float("nan"), "x", True):
             with pytest.raises(ValueError, match=name):
                 ShapeParams(**{name: bad})
-    for bad in (-0.01, float("inf"), None):
-        with pytest.raises(ValueError, match="small_size"):
+    for bad in (-0.01, float("inf"), None, 10.5, "0.05"):
+        with pytest.raises(ValueError, match=r"^small_size must be a length in \[0, 10\] m, got"):
             ShapeParams(small_size=bad)
+    with pytest.raises(ValueError, match=r"^max_ratio_1d must be a number in \(0, 1\], got 0.0"):
+        ShapeParams(max_ratio_1d=0.0)
 
 
 def test_bad_input():
