@@ -119,11 +119,11 @@ def test_bad_file_exit_code_2(tmp_path, capsys, content, name, match):
 @pytest.mark.parametrize(
     ("option", "value", "match"),
     [
-        ("--volume-ratio", "1.5", "--volume-ratio: must be in"),
-        ("--min-points", "2", "--min-points: must be an integer >= 4"),
-        ("--max-depth", "-1", "--max-depth: must be an integer >= 0"),
-        ("--ratio-1d", "0", "--ratio-1d: must be in"),
-        ("--ratio-2d", "3", "--ratio-2d: must be in"),
+        ("--volume-ratio", "1.5", "--volume-ratio: must be a number in (0, 1]"),
+        ("--min-points", "2", "--min-points: must be an integer in [4, 1,000,000,000]"),
+        ("--max-depth", "-1", "--max-depth: must be an integer in [0, 64]"),
+        ("--ratio-1d", "0", "--ratio-1d: must be a number in (0, 1]"),
+        ("--ratio-2d", "3", "--ratio-2d: must be a number in (0, 1]"),
         ("--small-size", "-0.1", "--small-size: must be a length"),
     ],
 )

@@ -79,7 +79,7 @@ def test_bad_input_and_options_exit_2(box_cloud, tmp_path, capsys):
     assert main(["pregrasps", str(box_cloud), "--interval", "-1"]) == 2
     assert "pregrasp pregrasps: error: --interval: must be > 0" in capsys.readouterr().err
     assert main(["pregrasps", str(box_cloud), "--face-clearance", "-0.1"]) == 2
-    assert "error: --face-clearance: must be a length >= 0" in capsys.readouterr().err
+    assert "error: --face-clearance: must be a length in [0, 10] m" in capsys.readouterr().err
 
 
 def test_options_build_the_dataclasses():
