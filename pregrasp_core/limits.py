@@ -181,7 +181,10 @@ def check_real(
     """``value`` as a finite ``float`` in ``[lo, hi]`` (``(lo, hi]`` when ``lo_open``);
     otherwise a ``ValueError`` naming ``name``, what it is, the bounds and the value."""
     if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
-        v = float(value)
+        try:
+            v = float(value)
+        except OverflowError:  # an int beyond the float range
+            v = math.inf
         if math.isfinite(v) and (lo < v if lo_open else lo <= v) and v <= hi:
             return v
     interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
