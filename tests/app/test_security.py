@@ -8,6 +8,7 @@ CommonMark renderer independent of the code under test.
 
 from __future__ import annotations
 
+import dataclasses
 import html
 import http.client
 import re
@@ -29,6 +30,7 @@ from viser import _messages
 
 from app import viser_hooks
 from app.controller import MAX_PARTS
+from app.gui import accepted_range
 from app.safe_text import md_text
 from app.server import exposure_warning
 
@@ -344,6 +346,24 @@ def test_bad_values_over_the_protocol_end_in_a_notice(app):
         assert app.gui.plan.disabled is False  # a client may set values only
     finally:
         b.close()
+
+
+def test_widget_ranges_are_what_the_parameter_dataclasses_accept(app):
+    """Each number widget's min and max are accepted by its parameter dataclass (the one source
+    of bounds), and a step outside is refused where the dataclass has a bound there."""
+    params = app.controller.state.params
+    assert accepted_range(params.decomposition, "min_points", 1, 10**6) == (4, 10**6)
+    lo, hi = accepted_range(params.decomposition, "volume_ratio", 0.05, 2.0)
+    assert lo == 0.05 and 1.0 - 1e-8 < hi <= 1.0
+    for (section, name), h in app.gui.params.items():
+        if getattr(h, "min", None) is None:
+            continue  # a checkbox or a dropdown
+        sub = getattr(params, section)
+        for v in (h.min, h.max):
+            dataclasses.replace(sub, **{name: type(getattr(sub, name))(v)})  # accepted
+    with pytest.raises(ValueError, match="min_points"):
+        dataclasses.replace(params.decomposition, min_points=app.gui.params[
+            ("decomposition", "min_points")].min - 1)  # fmt: skip
 
 
 def test_runaway_thresholds_end_in_a_clear_error_and_the_server_stays_responsive(app):
