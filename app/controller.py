@@ -43,28 +43,6 @@ SPEED_RANGE = (0.1, 4.0)
 """Accepted animation speeds, cycles per 2 s (the ``speed`` control uses the same range)."""
 
 
-MAX_PARTS = 256
-"""Most parts (leaves of the decomposition) the viewer goes on with: past it the face masks
-(quadratic in the parts), the pool and the browser's boxes grow too large to inspect, so the
-thresholds are refused with an error naming them (``docs/security.md``)."""
-
-
-def check_parts_bound(params: Any, n_points: int) -> None:
-    """``InputError`` when the decomposition thresholds allow more than :data:`MAX_PARTS` parts
-    on a cloud of ``n_points`` points: a tree of depth ``max_depth`` has at most
-    ``2 ** max_depth`` leaves, and each leaf keeps at least ``min_points`` points."""
-    d = params.decomposition
-    bound = min(2 ** min(int(d.max_depth), 62), int(n_points) // max(int(d.min_points), 1))
-    if bound > MAX_PARTS:
-        depth_ok = int(np.log2(MAX_PARTS))
-        points_ok = -(-int(n_points) // MAX_PARTS)
-        raise InputError(
-            f"max depth {d.max_depth} with min points {d.min_points} allows up to {bound} parts "
-            f"on {n_points} points, more than the viewer's limit of {MAX_PARTS}: set max depth "
-            f"to {depth_ok} or less, or min points to {points_ok} or more"
-        )
-
-
 class Superseded(Exception):
     """Raised inside a long action when a newer request has arrived: the newer one runs instead
     (it includes every change the superseded one asked for)."""
@@ -392,10 +370,6 @@ class Controller:
         value = coerce_param(getattr(sub, name), value, f"{section}.{name}")
         new_sub = dataclasses.replace(sub, **{name: value})  # validates (ValueError)
         params = dataclasses.replace(base, **{section: new_sub})
-        cloud = self._state.cloud
-        check_parts_bound(
-            params, len(cloud.points) if cloud is not None else self.pending("n_points")
-        )
         return self._request(params=params)
 
     def _rerun(self, gen: int) -> AppState:
@@ -617,28 +591,14 @@ class Controller:
         show: bool = False,
     ) -> Any:
         """One call into ``pregrasp_core.pipeline`` (the app has no pipeline of its own); it
-        stops between stages (and between planner chunks) when request ``gen`` is superseded,
-        and after the decomposition when it has more than :data:`MAX_PARTS` parts."""
-        first = ppl.run_pipeline(
-            cloud, params, self.hand, until="decompose", previous=previous, progress=None
-        )
-        self._check(gen)
-        if previous is not None and first.tree is previous.tree:
-            first = previous  # the tree is reused: so are the later stages that did not change
-        n_parts = len(first.tree.leaves()) if first.tree is not None else 0
-        if n_parts > MAX_PARTS:
-            d = params.decomposition
-            raise InputError(
-                f"volume ratio {d.volume_ratio:g}, min points {d.min_points}, max depth "
-                f"{d.max_depth} split the object into {n_parts} parts, more than the viewer's "
-                f"limit of {MAX_PARTS}: lower the volume ratio or raise min points"
-            )
+        stops between stages (and between planner chunks) when request ``gen`` is superseded.
+        The core refuses work past its limits (``WorkLimitError``, ``docs/limits.md``)."""
         result = ppl.run_pipeline(
             cloud,
             params,
             self.hand,
             until="grasps" if plan else "pool",
-            previous=first,
+            previous=previous,
             progress=self._progress(gen, show),
         )
         self._check(gen)

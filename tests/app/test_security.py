@@ -29,7 +29,6 @@ from markdown_it import MarkdownIt
 from viser import _messages
 
 from app import viser_hooks
-from app.controller import MAX_PARTS
 from app.gui import accepted_range
 from app.safe_text import md_text
 from app.server import exposure_warning
@@ -367,9 +366,9 @@ def test_widget_ranges_are_what_the_parameter_dataclasses_accept(app):
 
 
 def test_runaway_thresholds_end_in_a_clear_error_and_the_server_stays_responsive(app):
-    """The combination of issue 16 (volume ratio 1, min points 4, max depth 20) sent at once
-    over the protocol: a clear error within 10 s, a bounded result, and meanwhile a second
-    browser is answered."""
+    """The combination of issue 16 (volume ratio 1, min points 4, max depth 20: 2,135 parts and
+    21.6 GB of face masks before) sent at once over the protocol: the core's work limit ends it
+    in a clear error within 10 s, and meanwhile a second browser is answered."""
     s0 = app.controller.state
     b = Browser(app.server.get_port())
     try:
@@ -383,17 +382,17 @@ def test_runaway_thresholds_end_in_a_clear_error_and_the_server_stays_responsive
         _wait(lambda: any(m["type"] == "ReplayDoneMessage" for m in other.messages), 2, "replay")
         answered = time.monotonic() - t1
         other.close()
-        _wait(lambda: any(f"limit of {MAX_PARTS}" in t for t in b.notifications()), 10, "error")
+        _wait(lambda: any("max_parts" in t for t in b.notifications()), 10, "the error")
         assert time.monotonic() - t0 < 10.0 and answered < 2.0
-        assert any("max depth 20" in t for t in b.notifications())
-        _wait(lambda: not app.gui._timers and app.controller.idle(), 120, "settled")
+        assert any(t.startswith("Cannot do that") for t in b.notifications())
+        _wait(lambda: not app.gui._timers and app.controller.idle(), 60, "settled")
         s = app.controller.state
-        assert s.params.decomposition.max_depth == s0.params.decomposition.max_depth
-        assert len(s.tree.leaves()) <= MAX_PARTS  # what was accepted gives a bounded result
+        assert s.params == s0.params and s.result is s0.result  # the object stays as it was
+        assert "max_parts" in s.error
         for key in ("volume_ratio", "min_points", "max_depth"):
             h = app.gui.params[("decomposition", key)]
             want = getattr(s.params.decomposition, key)
-            assert h.value == want
+            assert h.value == want  # every widget shows the values in use again
             _wait(lambda u=h._impl.uuid, w=want: b.updates.get(u, [None])[-1] == w, 5, key)
     finally:
         b.close()
