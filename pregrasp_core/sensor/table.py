@@ -15,7 +15,9 @@ the table in it) and returns a :class:`TableSegmentation`:
    Euclidean proximity on a voxel grid of side ``cluster_radius`` (occupied voxels that touch,
    26-neighbourhood, are one cluster: scipy's connected components on the voxel graph). The
    object is the largest cluster, or with ``pick`` the cluster with the point nearest ``pick``.
-   Clusters smaller than ``min_cluster`` points are never chosen.
+   Clusters smaller than ``min_cluster`` points are never chosen. Clusters of at least
+   ``merge_min_points`` points within ``merge_gap`` of the chosen one join it (the object's own
+   occlusion cuts a handle off its body).
 4. **The object's foot**: the object's points inside the band (the bottom of its walls, within
    the noise of the table) are given back to the object: band points whose projection on the
    plane lies within ``max(band, foot_radius)`` of the projection of one of the object's points
@@ -76,6 +78,12 @@ class SegmentParams:
     foot_radius: float = 0.001
     """Band points closer than ``max(band, foot_radius)`` to that footprint (along the plane)
     are the object's."""
+    merge_gap: float = 0.02
+    """Clusters of at least ``merge_min_points`` points that come within this of the chosen one
+    join it: parts of the object cut off by its own occlusion (a mug's handle seen past the
+    body). Objects standing closer than this are one object (0: off)."""
+    merge_min_points: int = 10
+    """Smallest cluster that ``merge_gap`` merges (keeps clumps of table noise out)."""
     min_neighbours: int = 2
     """A point above the band with fewer than this many others above the band within
     ``neighbour_spacings`` median spacings is isolated noise, not part of a cluster (0: off).
@@ -92,7 +100,7 @@ class SegmentParams:
             if not (np.isfinite(v) and v > 0.0):
                 raise ValueError(f"{name} must be a positive length in metres, got {v!r}")
             object.__setattr__(self, name, v)
-        for name in ("band_sigmas", "foot_height"):
+        for name in ("band_sigmas", "foot_height", "merge_gap"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v >= 0.0):
                 raise ValueError(f"{name} must be >= 0, got {v!r}")
@@ -101,7 +109,7 @@ class SegmentParams:
             raise ValueError(f"min_neighbours must be an integer >= 0, got {self.min_neighbours!r}")
         if self.min_neighbours < 0 or not self.neighbour_spacings > 0.0:
             raise ValueError("min_neighbours must be >= 0 and neighbour_spacings positive")
-        for name in ("iterations", "sample", "min_cluster"):
+        for name in ("iterations", "sample", "min_cluster", "merge_min_points"):
             v = getattr(self, name)
             if isinstance(v, bool) or int(v) != v or v < 1:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
@@ -317,7 +325,16 @@ def segment_table(
             cand = np.isin(lab, eligible)
             d2 = np.sum((pts[above][cand] - pk) ** 2, axis=1)
             chosen = int(lab[cand][np.argmin(d2)])
-        object_mask[above[lab == chosen]] = True
+        mine = lab == chosen
+        if params.merge_gap > 0.0 and n_clusters > 1:
+            # parts of the object that its own occlusion cut off (a handle behind the body)
+            gap, _ = cKDTree(pts[above][mine]).query(
+                pts[above][~mine], distance_upper_bound=params.merge_gap
+            )
+            near = np.bincount(lab[~mine][np.isfinite(gap)], minlength=n_clusters)
+            merge = np.nonzero((near > 0) & (counts >= params.merge_min_points))[0]
+            mine |= np.isin(lab, merge)
+        object_mask[above[mine]] = True
         # the object's foot inside the band: band points under its lowest slice
         low = object_mask & (dist <= band + params.foot_height)
         if np.any(low) and np.any(in_band):
