@@ -76,18 +76,18 @@ def check_obj(data: bytes, source: str) -> None:
         try:
             values = np.asarray(v_values, dtype=np.float64)
         except ValueError:
-            j = next(k for k, t in enumerate(v_values) if not _is_float(t))
+            j = next((k for k, t in enumerate(v_values) if not _is_float(t)), 0)
             line = v_lines[j // int(counts[0])]
-            raise bad(line, f"non-numeric coordinate {v_values[j]!r}") from None
+            raise bad(line, f"non-numeric coordinate {v_values[j][:30]!r}") from None
         del values
     if not f_sizes:
         return  # "no triangles" is reported after reading
     try:
         refs = np.asarray(f_refs, dtype=np.int64)  # (sum sizes,)
     except (ValueError, OverflowError):
-        j = next(k for k, t in enumerate(f_refs) if not _is_int(t))
+        j = next((k for k, t in enumerate(f_refs) if not _is_int(t)), 0)
         line = f_lines[int(np.searchsorted(np.cumsum(f_sizes), j, side="right"))]
-        raise bad(line, f"face vertex {f_refs[j]!r} is not an integer index") from None
+        raise bad(line, f"face vertex {f_refs[j][:30]!r} is not an integer index") from None
     sizes = np.asarray(f_sizes, dtype=np.int64)
     before = np.repeat(np.asarray(f_vertices_before, dtype=np.int64), sizes)  # (sum sizes,)
     face_of = np.repeat(np.arange(len(sizes)), sizes)  # (sum sizes,)
@@ -118,8 +118,8 @@ def _is_float(s: str) -> bool:
 
 
 def _is_int(s: str) -> bool:
+    """Whether ``s`` is an integer numpy reads as int64."""
     try:
-        int(s)
+        return -(2**63) <= int(s) < 2**63
     except ValueError:
         return False
-    return True

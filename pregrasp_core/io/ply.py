@@ -245,6 +245,22 @@ def _ascii_rows(data: bytes, header: PlyHeader, source: str) -> list[str]:
     return lines
 
 
+def _check_ascii_elements(
+    lines: list[str], header: PlyHeader, source: str, skip: tuple[str, ...]
+) -> None:
+    """Rows of the scalar-only elements not named in ``skip``: numbers, one per property."""
+    for e in header.elements:
+        if e.name in skip or e.has_lists or e.count == 0:
+            continue
+        start = _items_before(header, e)
+        arr = parse_numbers(lines[start : start + e.count], source, f"ascii PLY {e.name} rows")
+        if arr.shape != (e.count, len(e.props)):
+            raise InputError(
+                f"{source}: wrong column count in the ascii PLY {e.name} rows: {arr.shape[1]} "
+                f"numbers per row, the header declares {len(e.props)}"
+            )
+
+
 def _items_before(header: PlyHeader, element: PlyElement) -> int:
     return sum(e.count for e in header.elements[: header.elements.index(element)])
 
@@ -257,11 +273,17 @@ def _read_ply_cloud(data: bytes, header: PlyHeader, source: str) -> RawCloud:
     if header.fmt == "ascii":
         lines = _ascii_rows(data, header, source)
         skip = _items_before(header, vertex)
+        _check_ascii_elements(lines, header, source, skip=("vertex",))
         arr = parse_numbers(lines[skip : skip + vertex.count], source, "ascii PLY vertices")
         if arr.shape[1] != len(prop_names):
             raise InputError(
                 f"{source}: wrong column count in the ascii PLY: {arr.shape[1]} numbers per "
                 f"vertex, the header declares {len(prop_names)}"
+            )
+        if arr.shape[0] != vertex.count:
+            raise InputError(
+                f"{source}: the ascii PLY has {arr.shape[0]} vertex rows of numbers, the header "
+                f"declares {vertex.count} (a '#' in the body?); re-export the file"
             )
         col = {n: arr[:, i] for i, n in enumerate(prop_names)}
     else:
@@ -339,6 +361,7 @@ def _check_faces(data: bytes, header: PlyHeader, source: str) -> None:
     k = _face_index_position(face, source)
     if header.fmt == "ascii":
         lines = _ascii_rows(data, header, source)
+        _check_ascii_elements(lines, header, source, skip=())
         skip = _items_before(header, face)
         lengths = np.empty(face.count, dtype=np.int64)
         chunks: list[list[int]] = []

@@ -737,6 +737,8 @@ OBJ_BREAKS: list[tuple[str, Mutation, str]] = [
     ("face past vertices", lambda b, d: _obj_face_ref(b, d, lambda nv: nv + d.draw(k_small)),
      "face uses vertex"),
     ("face index 0", lambda b, d: _obj_face_ref(b, d, lambda nv: 0), "face uses vertex 0"),
+    ("face index past int64", lambda b, d: _obj_face_ref(b, d, lambda nv: 10**19 + nv),
+     "not an integer index"),
     ("negative past start", lambda b, d: _obj_face_ref(b, d, lambda nv: -nv - d.draw(k_small)),
      "face uses vertex -"),
     ("face of 2", lambda b, d: _obj_edit(b, d, b"f", lambda r: b" ".join(r.split()[:3])),
