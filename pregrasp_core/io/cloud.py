@@ -235,7 +235,8 @@ def split_columns(arr: np.ndarray, source: str, what: str = "column") -> RawClou
     nrm = None
     if n_cols == 6:
         extra = arr[:, 3:]
-        length = np.linalg.norm(extra, axis=1)
+        with np.errstate(over="ignore", invalid="ignore"):  # huge columns: not unit vectors
+            length = np.linalg.norm(extra, axis=1)
         ok = np.isfinite(length) & np.isfinite(pts).all(axis=1)
         if ok.any() and np.all(np.abs(length[ok] - 1.0) < UNIT_NORMAL_TOL):
             nrm = extra
@@ -281,7 +282,8 @@ def finish_cloud(
             + f"; at least {MIN_POINTS} are needed: give a denser cloud or a mesh"
         )
     if nrm is not None:
-        length = np.linalg.norm(nrm, axis=1)  # (N,)
+        with np.errstate(over="ignore", invalid="ignore"):  # inf lengths are reported below
+            length = np.linalg.norm(nrm, axis=1)  # (N,)
         if not (np.isfinite(length).all() and (length > GEOM_EPS).all()):
             add_warning(warns, f"{source}: some normals are zero or not finite; normals ignored")
             nrm = None

@@ -26,6 +26,11 @@ TYPE_COMPONENTS: dict[str, int] = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4,
 """glTF accessor type -> components."""
 
 
+MAX_GLTF_TRIANGLES: int = 10_000_000
+"""Most triangles a glTF scene may expand to (nodes instancing meshes multiply them; about
+100 bytes of memory each once read)."""
+
+
 def read_glb(file: FileData) -> TriangleMesh:
     """Check the GLB container and its JSON, then read the triangles with trimesh."""
     doc, bin_len = _glb_parts(file.data, file.source)
@@ -152,6 +157,7 @@ def check_gltf_json(doc: dict[str, object], bin_len: int | None, source: str) ->
         step = stride if isinstance(stride, int) and stride > 0 else elem
         if count and off + step * (count - 1) + elem > n_view:
             raise bad(f"{what} ({count} x {elem} bytes) runs past bufferView {vi}")
+    mesh_triangles = [0] * len(meshes)  # (M,) triangles of each mesh
     for i, m in enumerate(meshes):
         prims = m.get("primitives")
         if not isinstance(prims, list) or not all(isinstance(p, dict) for p in prims):
@@ -166,15 +172,25 @@ def check_gltf_json(doc: dict[str, object], bin_len: int | None, source: str) ->
             if pos.get("type") != "VEC3" or pos.get("componentType") != 5126:
                 raise bad(f"mesh {i} POSITION is not float VEC3")
             ind = index(p, "indices", len(accessors), f"mesh {i} primitive", False)
+            counted = accessors[ind] if ind is not None else pos
+            mesh_triangles[i] += int(str(counted.get("count", 0))) // 3
             if ind is not None:
                 acc = accessors[ind]
                 unsigned = acc.get("componentType") in (5121, 5123, 5125)
                 if acc.get("type") != "SCALAR" or not unsigned:
                     raise bad(f"mesh {i} indices are not unsigned integer scalars")
+    instanced = 0
+    for i, nd in enumerate(nodes):
+        mi = index(nd, "mesh", len(meshes), f"node {i}", False)
+        instanced += mesh_triangles[mi] if mi is not None else 0
+    if instanced > MAX_GLTF_TRIANGLES:
+        raise bad(
+            f"its nodes place {instanced} triangles, more than {MAX_GLTF_TRIANGLES}; "
+            "simplify the scene"
+        )
     parent = np.full(len(nodes), -1, dtype=np.int64)
     kids: list[list[int]] = []  # children of each node
     for i, nd in enumerate(nodes):
-        index(nd, "mesh", len(meshes), f"node {i}", False)
         children = nd.get("children", [])
         if not isinstance(children, list):
             raise bad(f"node {i} 'children' is not a list")

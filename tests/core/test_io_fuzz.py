@@ -1041,6 +1041,29 @@ def test_peak_memory_of_a_50_mib_input():
     assert (valid - before) * 1024 < 2**30
 
 
+def test_glb_instancing_bounded(monkeypatch):
+    """Nodes instancing one mesh multiply its triangles: past the bound the GLB is refused
+    before trimesh expands it (the bound lowered here so that a small file reaches it)."""
+    from pregrasp_core.io import gltf
+
+    m = make_mesh(1, 0)  # 20 triangles
+
+    def ten(doc: dict, binary: bytearray) -> None:
+        n = len(doc["nodes"])
+        doc["nodes"].extend({"mesh": 0, "translation": [0.3 * k, 0.0, 0.0]} for k in range(1, 10))
+        doc["scenes"][0]["nodes"].extend(range(n, n + 9))
+
+    many = _glb_edit(glb(m), ten)
+    monkeypatch.setattr(gltf, "MAX_GLTF_TRIANGLES", 200)
+    copies = Mesh(
+        np.vstack([m.vertices + [0.3 * k, 0.0, 0.0] for k in range(10)]),
+        np.vstack([m.faces + k * len(m.vertices) for k in range(10)]),
+    )
+    check_mesh(timed_load(many, "ten.glb"), copies, 1e-6)
+    monkeypatch.setattr(gltf, "MAX_GLTF_TRIANGLES", 199)
+    assert_rejected(many, "ten.glb", "its nodes place 200 triangles, more than 199")
+
+
 # ------------------------------------------------------------------------------------------------
 # The hand-made corpus: tests/data/bad/README.md lists each file and its expected error
 
