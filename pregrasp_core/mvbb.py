@@ -43,12 +43,14 @@ from .limits import (
     MAX_ANGLES,
     MAX_BATCH,
     MAX_CANDIDATES,
+    MAX_COARSE_GRID,
     MAX_FACTOR,
     MAX_GRID,
     MAX_ITERATIONS,
     MAX_REACH,
     MAX_REFINE,
     MAX_ROUNDS,
+    MAX_SNAP_GRID,
     MAX_STEP,
     MIN_STEP,
     check_int,
@@ -112,7 +114,7 @@ class MvbbParams:
         # bounds: pregrasp_core.limits and docs/limits.md ("MVBB"); each keeps a table finite
         ints = {
             "kernel_grid": (1, MAX_GRID),
-            "coarse_grid": (1, MAX_GRID),
+            "coarse_grid": (1, MAX_COARSE_GRID),
             "n_angles": (1, MAX_ANGLES),
             "max_normals": (1, MAX_CANDIDATES),
             "sweep_batch": (1, MAX_BATCH),
@@ -122,7 +124,7 @@ class MvbbParams:
             "polish_grid": (1, MAX_GRID),
             "max_rounds": (0, MAX_ROUNDS),
             "snap_max": (0, MAX_REFINE),
-            "snap_grid": (1, MAX_GRID),
+            "snap_grid": (1, MAX_SNAP_GRID),
         }
         for name, (lo, hi) in ints.items():
             object.__setattr__(self, name, check_int(name, getattr(self, name), lo, hi))
@@ -145,6 +147,10 @@ class MvbbParams:
 
 
 DEFAULT_PARAMS = MvbbParams()
+
+SIGNED_BLOCK: int = 1 << 22
+"""Entries (hull faces x kernel points) of the signed-distance table computed at once (32 MB);
+the default settings need at most a few hundred thousand, so one block."""
 
 
 def pca_box(points: np.ndarray) -> OrientedBox:
@@ -233,9 +239,14 @@ def minimum_volume_box(points: np.ndarray, params: MvbbParams = DEFAULT_PARAMS) 
     Vc = np.take(S, hull.vertices, axis=1)  # (3, h) coarse hull vertices
     # Only fine-kernel points outside the coarse hull (or on it) can be extreme in some direction.
     eq = hull.equations  # (faces, 4): unit outward normal, offset
-    signed = eq[:, :3] @ F  # (faces, m)
-    signed += eq[:, 3:]  # in place: a second large temporary costs ~10x more here
-    outside = signed.max(axis=0) > -GEOM_EPS * float(ext[0])
+    # (faces, m) signed distances, in column blocks of at most SIGNED_BLOCK entries (one block
+    # at the default settings; large grids would otherwise take gigabytes here)
+    step = max(1, SIGNED_BLOCK // len(eq))
+    outside = np.empty(F.shape[1], dtype=bool)
+    for j in range(0, F.shape[1], step):
+        signed = eq[:, :3] @ F[:, j : j + step]  # (faces, block)
+        signed += eq[:, 3:]  # in place: a second large temporary costs ~10x more here
+        outside[j : j + step] = signed.max(axis=0) > -GEOM_EPS * float(ext[0])
     R_local = _search(Vc, eq[:, :3], _face_areas(S, hull.simplices), fine[outside], q, params)
     return _tight_box(PT, R_pca @ R_local, origin)
 

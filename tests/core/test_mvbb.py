@@ -308,18 +308,18 @@ def test_params_defaults_and_bounds():
     assert (p.kernel_grid, p.coarse_grid, p.n_angles, p.n_refine, p.snap_max) == (16, 6, 12, 4, 4)
     assert dataclasses.astuple(MvbbParams(**dataclasses.asdict(p))) == dataclasses.astuple(p)
     bad_values = {
-        "kernel_grid": (0, 257, 2.0, True),
-        "coarse_grid": (0, 1000),
-        "n_angles": (0, 721),
+        "kernel_grid": (0, 65, 2.0, True),
+        "coarse_grid": (0, 17),
+        "n_angles": (0, 61),
         "max_normals": (0, 10_001),
-        "sweep_batch": (0, 1025),
-        "n_refine": (0, 65),
+        "sweep_batch": (0, 129),
+        "n_refine": (0, 17),
         "max_iterations": (0, 100_001),
         "refine_restart_level": (-1, 17),
-        "polish_grid": (0,),
+        "polish_grid": (0, 65),
         "max_rounds": (-1, 17),
-        "snap_max": (-1, 65),
-        "snap_grid": (0, 300),
+        "snap_max": (-1, 17),
+        "snap_grid": (0, 33),
         "sweep_slack": (-0.1, 1001.0, float("nan")),
         "active_reach": (0.0, -1.0, float("inf")),
         "step_start": (0.0, 1.0, "0.05"),
@@ -333,3 +333,33 @@ def test_params_defaults_and_bounds():
     with pytest.raises(ValueError, match=r"^step_min must be an angle in \[1e-09, 0.0523599\] rad"):
         MvbbParams(step_min=0.06)
     assert MvbbParams(active_reach=1e9, snap_max=0, max_rounds=0).active_reach == 1e9
+
+
+def test_memory_at_the_bounds_of_every_field_stays_small():
+    """Every grid, angle count, batch and refine count at its upper bound, on the worst case
+    (a sphere: every kernel point lies on the hull): the box is valid and the peak is bounded."""
+    import tracemalloc
+
+    from pregrasp_core import limits
+
+    extreme = MvbbParams(
+        kernel_grid=limits.MAX_GRID,
+        coarse_grid=limits.MAX_COARSE_GRID,
+        polish_grid=limits.MAX_GRID,
+        snap_grid=limits.MAX_SNAP_GRID,
+        n_angles=limits.MAX_ANGLES,
+        sweep_batch=limits.MAX_BATCH,
+        n_refine=limits.MAX_REFINE,
+        snap_max=limits.MAX_REFINE,
+        max_normals=limits.MAX_CANDIDATES,
+    )
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(20_000, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    tracemalloc.start()
+    box = minimum_volume_box(pts, extreme)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert np.all(box.contains(pts))
+    assert box.volume <= pca_box(pts).volume * (1 + 1e-9)
+    assert peak < 256 * 2**20, f"{peak / 2**20:.0f} MiB"
