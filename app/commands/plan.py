@@ -11,10 +11,12 @@ skipped); ``--report report.csv`` writes one row per object (object, points, par
 force closure, best type, contacts, epsilon, volume, seconds, error), else the CSV goes to
 stdout; ``-o DIR`` also writes ``DIR/<object>.json`` per object. ``--jobs J`` plans J objects
 at a time in worker processes (each with a one-thread planner unless ``--threads`` says
-otherwise); the report lists the objects in name order whatever order they finish in. An
-object that fails, whatever the exception (a reader failing on a malformed file, the planner
-running out of memory), gets its error in the ``error`` column and a line on stderr, and the
-batch goes on (exit 1 at the end).
+otherwise); ``--scheduler ADDRESS`` plans them on the workers of a running Dask distributed
+scheduler instead (see :func:`batch_executor`). Either way the workers return each object's row
+and result document and this process writes the files; the report lists the objects in name
+order whatever order they finish in. An object that fails, whatever the exception (a reader
+failing on a malformed file, the planner running out of memory), gets its error in the
+``error`` column and a line on stderr, and the batch goes on (exit 1 at the end).
 
 The options are those of :mod:`app.commands.common` for the input and the stages (generated
 from the parameter dataclasses) and :class:`PlanOutput` for what is written.
@@ -23,6 +25,8 @@ from the parameter dataclasses) and :class:`PlanOutput` for what is written.
 from __future__ import annotations
 
 import argparse
+import asyncio
+import contextlib
 import csv
 import dataclasses
 import functools
@@ -31,7 +35,8 @@ import json
 import multiprocessing
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Iterator
+from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
@@ -41,7 +46,7 @@ from pregrasp_core.hand import Hand, load_hand
 from pregrasp_core.io import SUPPORTED_EXTENSIONS, PointCloud
 from pregrasp_core.pipeline import PipelineParams, PipelineResult, result_document, run_pipeline
 from pregrasp_core.planner import Grasp, GraspSet, PlannerParams
-from pregrasp_core.result import to_jsonable, write_result
+from pregrasp_core.result import JsonValue, to_jsonable, write_result
 
 from .common import ALL_STAGES, INPUT_OPTIONS, InputOptions, add_input_args, pipeline_options
 from .common import input_path as _input_path
@@ -81,12 +86,23 @@ class PlanOutput:
     jobs: int = 1
     """For a folder INPUT: plan this many objects at a time in worker processes (>= 1; with
     more than one, each planner runs on one thread unless --threads is given)."""
+    scheduler: str | None = None
+    """For a folder INPUT: plan the objects on the workers of this running Dask distributed
+    scheduler (e.g. tcp://10.0.0.5:8786) instead of local worker processes; needs pip install
+    'pregrasp[batch]', and the input files at the same path on the workers."""
 
     def __post_init__(self) -> None:
         if self.top < 0:
             raise ValueError(f"top must be >= 0, got {self.top}")
         if self.jobs < 1:
             raise ValueError(f"jobs must be >= 1, got {self.jobs}")
+        if self.scheduler is not None and not self.scheduler.strip():
+            raise ValueError("scheduler must be an address such as tcp://HOST:8786, got ''")
+        if self.scheduler is not None and self.jobs != 1:
+            raise ValueError(
+                "scheduler cannot be combined with --jobs: the cluster's workers set how many "
+                "objects run at a time"
+            )
 
 
 @dataclass(frozen=True)
@@ -114,6 +130,7 @@ OUTPUT_OPTIONS: Options[PlanOutput] = Options(
         "report": Flag(metavar="CSV"),
         "include_indices": Flag(store_true=True),
         "jobs": Flag(metavar="J"),
+        "scheduler": Flag(metavar="ADDRESS"),
     },
 )
 
@@ -168,6 +185,8 @@ def run(args: argparse.Namespace) -> int:
         return run_batch(path, job, hand)
     if out.jobs != 1:
         raise PregraspError("--jobs is for a folder INPUT")
+    if out.scheduler is not None:
+        raise PregraspError("--scheduler is for a folder INPUT")
     if out.report is not None:
         raise PregraspError("--report is for a folder INPUT; use -o OUT.json for one object")
     t0 = time.perf_counter()
@@ -369,26 +388,33 @@ def _error_text(f: Path, exc: BaseException) -> str:
     return text if f.name in text else f"{f}: {text}"
 
 
-def _batch_item(f: Path, job: PlanRun, hand: Hand, out_dir: Path | None) -> tuple[Row, bool]:
-    """Plan one file of a batch: ``(report row, failed)``. A file that does not read as a cloud
-    or mesh gives a row with ``skipped: <reason>``; any other failure, while reading the file or
-    planning it, a row with the error (``failed``); neither stops the batch."""
+BatchItem = tuple[Row, bool, JsonValue]
+"""What planning one file of a batch gives: ``(report row, failed, result document)``; the
+document is plain JSON data (``None`` when the file failed or no ``-o DIR`` was asked for)."""
+
+
+def _batch_item(f: Path, job: PlanRun, hand: Hand, with_doc: bool) -> BatchItem:
+    """Plan one file of a batch. A file that does not read as a cloud or mesh gives a row with
+    ``skipped: <reason>``; any other failure, while reading the file or planning it, a row with
+    the error (``failed``); neither stops the batch. With ``with_doc`` the result document comes
+    back as plain JSON data (the caller writes it: a worker on another machine need not see the
+    output folder)."""
     t0 = time.perf_counter()
     try:
         cloud = job.input.load(f)
     except InputError as exc:  # not an object (a manifest, notes...): listed, skipped
-        return error_row(f.name, f"skipped: {exc}", time.perf_counter() - t0), False
+        return error_row(f.name, f"skipped: {exc}", time.perf_counter() - t0), False, None
     except Exception as exc:  # a reader failing on a malformed file: told, the batch goes on
-        return error_row(f.name, _error_text(f, exc), time.perf_counter() - t0), True
+        return error_row(f.name, _error_text(f, exc), time.perf_counter() - t0), True, None
     try:
         result, timings = plan_loaded(cloud, time.perf_counter() - t0, job.params, hand)
         row = report_row(f.name, result, time.perf_counter() - t0)
-        if out_dir is not None:
-            doc = result_doc(result, timings, job.output.include_indices)
-            write_result(doc, out_dir / f"{f.stem}.json")
-        return row, False
+        doc = None
+        if with_doc:
+            doc = to_jsonable(result_doc(result, timings, job.output.include_indices))
+        return row, False, doc
     except Exception as exc:  # a failed object does not stop the batch
-        return error_row(f.name, _error_text(f, exc), time.perf_counter() - t0), True
+        return error_row(f.name, _error_text(f, exc), time.perf_counter() - t0), True, None
 
 
 @functools.cache
@@ -397,9 +423,85 @@ def _worker_hand() -> Hand:
     return load_hand()
 
 
-def _worker_item(f: Path, job: PlanRun, out_dir: Path | None) -> tuple[Row, bool]:
-    """:func:`_batch_item` in a worker process."""
-    return _batch_item(f, job, _worker_hand(), out_dir)
+def _worker_item(f: Path, job: PlanRun, with_doc: bool) -> BatchItem:
+    """:func:`_batch_item` in a worker process (local or on a Dask worker)."""
+    return _batch_item(f, job, _worker_hand(), with_doc)
+
+
+SCHEDULER_TIMEOUT_S = 5.0
+"""How long ``--scheduler`` waits to reach the scheduler, and for it to have a worker."""
+
+
+def batch_executor(out: PlanOutput, n_files: int) -> contextlib.AbstractContextManager[Executor]:
+    """Where the objects of a batch run: ``n_files`` is the number of objects.
+
+    The local default is a pool of ``min(--jobs, n_files)`` spawned worker processes (no state
+    shared with this one); with ``--scheduler`` the workers of that Dask distributed scheduler
+    (:func:`_dask_executor`). Both are ``concurrent.futures`` executors: the batch loop submits
+    :func:`_worker_item` and reads the futures as they finish, the same code either way."""
+    if out.scheduler is not None:
+        return _dask_executor(out.scheduler)
+    jobs = min(out.jobs, n_files)
+    return ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"))
+
+
+@contextlib.contextmanager
+def _dask_executor(address: str) -> Iterator[Executor]:
+    """An executor on the workers of the Dask scheduler at ``address`` (imported only here:
+    ``distributed`` is the optional ``batch`` extra). The address is probed first, so that an
+    unreachable scheduler is one ``PregraspError`` after :data:`SCHEDULER_TIMEOUT_S`, not a
+    client left half-open."""
+    try:
+        from distributed import Client
+        from distributed.comm import connect
+    except ImportError:
+        raise PregraspError(
+            "--scheduler needs Dask distributed: pip install 'pregrasp[batch]'"
+        ) from None
+
+    async def probe() -> None:
+        comm = await connect(address, timeout=SCHEDULER_TIMEOUT_S)
+        await comm.close()
+
+    try:
+        asyncio.run(probe())
+    except (OSError, ValueError, TypeError) as exc:  # refused, timed out, a bad address
+        raise PregraspError(
+            f"--scheduler {address}: cannot reach the Dask scheduler ({exc})"
+        ) from None
+    try:
+        client = Client(address, timeout=SCHEDULER_TIMEOUT_S, set_as_default=False)
+    except (OSError, ValueError) as exc:
+        raise PregraspError(f"--scheduler {address}: cannot connect a client ({exc})") from None
+    try:
+        try:
+            client.wait_for_workers(1, timeout=SCHEDULER_TIMEOUT_S)
+        except TimeoutError:
+            raise PregraspError(
+                f"--scheduler {address}: the scheduler has no worker after "
+                f"{SCHEDULER_TIMEOUT_S:g} s; start one with dask worker {address}"
+            ) from None
+        # pure=False: every object is its own task, even two files with equal names and options
+        with client.get_executor(pure=False) as ex:
+            yield ex
+    finally:
+        client.close()
+
+
+def _write_item(item: BatchItem, f: Path, out_dir: Path | None) -> tuple[Row, bool]:
+    """Write the result document of a batch item to ``out_dir/<object>.json``: ``(row,
+    failed)``. A file that cannot be written turns the row into an error row (the batch goes
+    on)."""
+    row, failed, doc = item
+    if out_dir is None or not isinstance(doc, dict):  # no -o DIR, or the object failed
+        return row, failed
+    try:
+        write_result(doc, out_dir / f"{f.stem}.json")
+    except Exception as exc:
+        err = error_row(f.name, _error_text(f, exc), 0.0)
+        err["seconds"] = row["seconds"]
+        return err, True
+    return row, failed
 
 
 def run_batch(folder: Path, job: PlanRun, hand: Hand) -> int:
@@ -415,37 +517,37 @@ def run_batch(folder: Path, job: PlanRun, hand: Hand) -> int:
             raise PregraspError("-o - is for one object; for a folder give a directory")
         out_dir = Path(out.output)
         out_dir.mkdir(parents=True, exist_ok=True)
+    with_doc = out_dir is not None
     bar = ProgressBar(len(files))
     results: list[tuple[Row, bool] | None] = [None] * len(files)
-    bar.update(0, "")
 
-    def done(k: int, item: tuple[Row, bool], n_done: int) -> None:
-        results[k] = item
-        if item[0]["error"]:
-            bar.note(f"pregrasp plan: {'error: ' if item[1] else ''}{item[0]['error']}")
+    def done(k: int, item: BatchItem, n_done: int) -> None:
+        results[k] = row_failed = _write_item(item, files[k], out_dir)
+        if row_failed[0]["error"]:
+            bar.note(f"pregrasp plan: {'error: ' if row_failed[1] else ''}{row_failed[0]['error']}")
         bar.update(n_done, files[k].name)
 
-    jobs = min(out.jobs, len(files))
-    if jobs <= 1:
-        for k, f in enumerate(files):  # loop over objects
-            done(k, _batch_item(f, job, hand, out_dir), k + 1)
-    else:  # worker processes (spawned: no state shared with this one)
+    if out.scheduler is None and min(out.jobs, len(files)) <= 1:
+        bar.update(0, "")
+        for k, f in enumerate(files):  # loop over objects, in this process
+            done(k, _batch_item(f, job, hand, with_doc), k + 1)
+    else:  # worker processes: local (spawned, no state shared with this one) or a cluster's
         planner = job.params.planner
         if planner.threads == PlannerParams().threads:  # the default: one thread per process
             params = dataclasses.replace(
                 job.params, planner=dataclasses.replace(planner, threads=1)
             )
             job = dataclasses.replace(job, params=params)
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(jobs, mp_context=ctx) as ex:
-            futures = {ex.submit(_worker_item, f, job, out_dir): k for k, f in enumerate(files)}
+        with batch_executor(out, len(files)) as ex:
+            bar.update(0, "")
+            futures = {ex.submit(_worker_item, f, job, with_doc): k for k, f in enumerate(files)}
             for n_done, fut in enumerate(as_completed(futures), start=1):  # as they finish
                 k = futures[fut]
                 try:
                     item = fut.result()
                 except Exception as exc:  # the worker itself died (killed, out of memory)
                     why = f"{files[k]}: worker process failed: {type(exc).__name__}: {exc}"
-                    item = error_row(files[k].name, why, 0.0), True
+                    item = error_row(files[k].name, why, 0.0), True, None
                 done(k, item, n_done)
     rows = [r[0] for r in results if r is not None]
     failed = sum(1 for r in results if r is not None and r[1])
