@@ -111,6 +111,10 @@ class CompletedView:
     frame, metres."""
     assumed: np.ndarray
     """(N + M,) bool: True for the assumed points (colour them apart in the viewer)."""
+    source: np.ndarray
+    """(N + M,) int64: the visible point each point comes from (itself for the visible ones), so
+    that per-point data follows the copy: e.g. normals ``normals[source] @ transform[:3, :3].T``
+    (an isometry maps outward normals to outward normals)."""
     kind: str
     """The symmetry used: ``"rotation"`` or ``"mirror"``."""
     transform: np.ndarray
@@ -309,19 +313,21 @@ def complete_view(
     _, _, kind, M = min(near_most, key=lambda r: r[1])
     q = pts @ M[:3, :3].T + M[:3, 3]
     bad = vis.violates(q, tol)
-    q = q[~bad]
-    if len(q):
-        dup, _ = cKDTree(pts).query(q, distance_upper_bound=0.5 * vis.spacing)
-        q = q[~np.isfinite(dup)]
+    src = np.nonzero(~bad)[0]  # visible point each kept copy comes from
+    if len(src):
+        dup, _ = cKDTree(pts).query(q[src], distance_upper_bound=0.5 * vis.spacing)
+        src = src[~np.isfinite(dup)]
+    q = q[src]
     out = np.concatenate([pts, q])
     assumed = np.concatenate([np.zeros(len(pts), bool), np.ones(len(q), bool)])
-    out.setflags(write=False)
-    assumed.setflags(write=False)
+    source = np.concatenate([np.arange(len(pts)), src]).astype(np.int64)
+    for arr in (out, assumed, source):
+        arr.setflags(write=False)
     logger.info(
         "completion: %s, %d points assumed, %.1f %% of the copy dropped as seen free",
         kind, len(q), 100.0 * float(bad.mean()),
     )  # fmt: skip
-    return CompletedView(out, assumed, kind, M, float(bad.mean()), vp.copy())
+    return CompletedView(out, assumed, source, kind, M, float(bad.mean()), vp.copy())
 
 
 def _hull_area(p2: np.ndarray) -> float:

@@ -393,6 +393,12 @@ def test_completion_recovers_the_true_box(name: str, azimuth: float) -> None:
     done = complete_view(pts, vp, plane)
     assert np.array_equal(done.points[~done.assumed], pts)
     assert done.assumed.sum() > 0.3 * len(pts)
+    # each assumed point is its source moved by the symmetry
+    M = done.transform
+    src = done.source[done.assumed]
+    assert np.allclose(done.points[done.assumed], pts[src] @ M[:3, :3].T + M[:3, 3])
+    assert np.array_equal(done.source[~done.assumed], np.arange(len(pts)))
+    assert abs(abs(np.linalg.det(M[:3, :3])) - 1.0) < 1e-12
     lo, hi = done.points.min(axis=0), done.points.max(axis=0)
     err = np.abs(np.concatenate([lo - mesh.bounds[0], hi - mesh.bounds[1]]))
     assert err.max() < 0.004, err
