@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import struct
+from urllib.parse import unquote
 
 import numpy as np
 
@@ -100,6 +101,14 @@ def _items(doc: dict[str, object], key: str, source: str) -> list[dict[str, obje
     return value
 
 
+def _is_local_file(uri: str) -> bool:
+    """A relative path inside the file's folder: no scheme, no absolute path, no '..'."""
+    path = unquote(uri).replace("\\", "/")
+    return (
+        bool(path) and ":" not in path and not path.startswith("/") and ".." not in path.split("/")
+    )
+
+
 def check_gltf_json(doc: dict[str, object], bin_len: int | None, source: str) -> None:
     """Indices and sizes of a glTF document; ``bin_len``: the GLB's BIN chunk (None: GLTF)."""
 
@@ -120,6 +129,14 @@ def check_gltf_json(doc: dict[str, object], bin_len: int | None, source: str) ->
             raise bad(f"{what} '{key}' is {value!r}, expected a non-negative integer")
         return value
 
+    for key in ("buffers", "images"):  # only embedded data or files beside the .gltf
+        for i, item in enumerate(_items(doc, key, source)):
+            uri = item.get("uri")
+            if uri is None or (isinstance(uri, str) and uri.startswith("data:")):
+                continue
+            if not isinstance(uri, str) or not _is_local_file(uri):
+                shown = str(uri)[:60]
+                raise bad(f"{key[:-1]} {i} uri {shown!r} is not a file beside the GLTF")
     buffers = _items(doc, "buffers", source)
     views = _items(doc, "bufferViews", source)
     accessors = _items(doc, "accessors", source)

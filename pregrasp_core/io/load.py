@@ -82,6 +82,7 @@ def load_point_cloud(
         data = p.read_bytes()
     except OSError as exc:
         raise InputError(f"{source}: cannot read the file ({exc})") from exc
+    check_size(len(data), max_bytes, source)  # the file may have grown since stat
     file = FileData(data=data, source=source, path=p, max_bytes=max_bytes)
     return _load(file, ext, n_points, seed, scale)
 

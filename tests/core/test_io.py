@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import importlib.util
 import io
+import json
 import logging
 from pathlib import Path
 
@@ -363,6 +364,24 @@ def test_gltf_with_external_buffer(tmp_path):
     embedded = trimesh.exchange.gltf.export_gltf(trimesh.Scene(cube), embed_buffers=True)
     cloud = load_point_cloud_bytes(embedded["model.gltf"], "upload.gltf", n_points=500)
     _assert_on_unit_cube(cloud.points, cloud.normals)
+
+
+def test_gltf_refuses_files_outside_its_folder(tmp_path):
+    """A .gltf on disk may read the buffers beside it, nothing else (no '..', absolute paths,
+    devices or URLs), checked before trimesh opens anything."""
+    cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    files = trimesh.exchange.gltf.export_gltf(trimesh.Scene(cube), embed_buffers=False)
+    (tmp_path / "sub").mkdir()
+    for name, data in files.items():
+        (tmp_path / "sub" / name).write_bytes(data)
+        (tmp_path / name).write_bytes(data)
+    doc = json.loads(files["model.gltf"])
+    for uri in ("../" + doc["buffers"][0]["uri"], "/dev/zero", "file:///etc/passwd"):
+        doc["buffers"][0]["uri"] = uri
+        (tmp_path / "sub" / "model.gltf").write_text(json.dumps(doc))
+        with pytest.raises(InputError, match=r"model\.gltf: malformed glTF: buffer 0 uri .* is not "
+                           "a file beside the GLTF"):  # fmt: skip
+            load_point_cloud(tmp_path / "sub" / "model.gltf", n_points=100)
 
 
 def test_inside_out_mesh_gets_outward_normals(tmp_path):

@@ -891,6 +891,12 @@ GLB_BREAKS: list[tuple[str, Mutation, str]] = [
     ("bad JSON", lambda b, d: glb_pack({}, b"")[:20] + b"{not json" + bytes(3),
      "JSON cannot be read"),
     ("bad magic", lambda b, d: b"gltf" + b[4:], "does not start with the 'glTF' header"),
+    ("buffer uri outside", lambda b, d: _glb_edit(b, lambda j, x: j["buffers"][0].update(
+        uri=d.draw(st.sampled_from(["/dev/zero", "../../etc/passwd", "file:///etc/passwd",
+                                    "%2e%2e/x.bin", "https://example.com/x.bin"])))),
+     "is not a file beside the GLTF"),
+    ("image uri outside", lambda b, d: _glb_edit(b, lambda j, x: j.update(
+        images=[{"uri": "/dev/urandom"}])), "image 0 uri '/dev/urandom' is not a file beside"),
     ("no POSITION", lambda b, d: _glb_edit(b, lambda j, x: j["meshes"][0]["primitives"][0][
         "attributes"].pop("POSITION")), "no POSITION attribute"),
 ]  # fmt: skip
