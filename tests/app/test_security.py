@@ -420,3 +420,18 @@ def test_two_browsers_editing_one_control_end_with_identical_widgets(app):
     finally:
         a.close()
         b.close()
+
+
+def test_a_threshold_change_supersedes_a_running_plan(app):
+    """A newer request stops the plan in progress at its next chunk; the threshold change then
+    runs (a plan that had finished would be re-planned: ``planned`` would stay true)."""
+    c = app.controller
+    plan = threading.Thread(target=c.act, args=(None, c.plan))
+    plan.start()
+    _wait(lambda: c.state.busy == "plan", 30, "the plan to start")
+    c.set_param("decomposition", "volume_ratio", 0.5)
+    plan.join(timeout=60)
+    s = c.state
+    assert not plan.is_alive() and s.busy == "" and s.error == ""
+    assert s.params.decomposition.volume_ratio == 0.5 and not s.planned
+    assert app.gui.params[("decomposition", "volume_ratio")].value == 0.5
