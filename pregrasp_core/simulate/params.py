@@ -1,0 +1,191 @@
+"""Parameters and results of the physics check (no MuJoCo import here)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from .object_model import ObjectModelParams
+
+OUTCOMES: dict[str, str] = {
+    "lifted": "the object rose with the hand and slipped less than max_slip relative to it",
+    "slipped": "the object rose but moved max_slip or more relative to the hand",
+    "dropped": "the object did not rise with the hand (it stayed, fell or was pushed away)",
+    "unstable": "the simulation diverged (non-finite state); the grasp is not judged",
+}
+"""Outcome key -> meaning (``SimulationResult.outcome``)."""
+
+
+@dataclass(frozen=True)
+class SimulationParams:
+    """Parameters of the lift test (SI units: metres, seconds, radians, newton metres)."""
+
+    timestep: float = 0.002
+    """Seconds per MuJoCo step."""
+    approach_speed: float = 0.1
+    """m/s: the hand's speed from the pre-grasp pose to the grasp pose (smooth start and stop)."""
+    closing_speed: float = 2.0
+    """rad/s: rate of the fingers' closing command (the URDF's joint velocity limit)."""
+    squeeze: float = 0.3
+    """Radians: each closing joint is commanded this far beyond its planned closed angle
+    (clamped to its limit), so a finger stopped by the object presses on it."""
+    settle_time: float = 0.25
+    """Seconds between the end of the closing command and the lift (the grip builds up)."""
+    lift_height: float = 0.10
+    """Metres the hand rises (along the support's up direction, or world +z)."""
+    lift_speed: float = 0.2
+    """m/s mean lifting speed (smooth start and stop)."""
+    hold_time: float = 1.0
+    """Seconds the hand holds still at the top."""
+    max_slip: float = 0.02
+    """Metres: success needs the object's centre of mass to move less than this in the hand
+    frame from the start of the lift to the end of the hold, and to rise by at least
+    ``lift_height - max_slip``."""
+    finger_kp: float = 10.0
+    """N m/rad: stiffness of the flexion joints' position servos."""
+    finger_torque: tuple[float, float] = (0.8, 0.5)
+    """N m: torque limits of the (proximal, distal) flexion servos (the grip strength)."""
+    finger_damping: float = 0.05
+    """N m s/rad: damping of every finger joint."""
+    finger_armature: float = 2e-4
+    """kg m^2: rotor inertia added to every finger joint (keeps the light links stable)."""
+    spread_kp: float = 20.0
+    """N m/rad: stiffness of the spread servos holding the preshape's spread."""
+    base_timeconst: float = 0.005
+    """Seconds: time constant of the weld that drives the hand's base (>= 2 timesteps)."""
+    friction: float | None = None
+    """Coulomb friction of every contact; None = the planner's ``mu`` (0.5 without a plan)."""
+    torsional_friction: float = 0.002
+    """Metres: torsional friction of the contacts (a soft finger pad)."""
+    impratio: float = 10.0
+    """MuJoCo's friction-to-normal impedance ratio (elliptic cones; > 1 resists slip better)."""
+    object_settle_time: float = 0.3
+    """Seconds the object rests on the support before the test (once per object)."""
+    gravity: float = 9.81
+    """m/s^2."""
+    record_fps: float = 30.0
+    """Frames per second of :func:`simulate_playback`."""
+    object: ObjectModelParams = field(default_factory=ObjectModelParams)
+    """The object's collision model and mass."""
+
+    def __post_init__(self) -> None:
+        positive = (
+            "timestep",
+            "approach_speed",
+            "closing_speed",
+            "lift_speed",
+            "max_slip",
+            "finger_kp",
+            "spread_kp",
+            "base_timeconst",
+            "impratio",
+            "record_fps",
+        )
+        for name in positive:
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0.0):
+                raise ValueError(f"SimulationParams.{name} must be a finite number > 0, got {v}")
+        nonneg = (
+            "squeeze",
+            "settle_time",
+            "lift_height",
+            "hold_time",
+            "finger_damping",
+            "finger_armature",
+            "torsional_friction",
+            "object_settle_time",
+            "gravity",
+        )
+        for name in nonneg:
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0.0):
+                raise ValueError(f"SimulationParams.{name} must be a finite number >= 0, got {v}")
+        if len(self.finger_torque) != 2 or not all(t > 0.0 for t in self.finger_torque):
+            raise ValueError(
+                f"SimulationParams.finger_torque must be two torques > 0, got {self.finger_torque}"
+            )
+        if self.friction is not None and not (np.isfinite(self.friction) and self.friction >= 0):
+            raise ValueError(f"SimulationParams.friction must be >= 0 or None, got {self.friction}")
+        if self.base_timeconst < 2.0 * self.timestep:
+            raise ValueError(
+                f"SimulationParams.base_timeconst ({self.base_timeconst}) must be at least two "
+                f"timesteps ({2.0 * self.timestep})"
+            )
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """The outcome of one simulated lift (see ``docs/simulation.md``)."""
+
+    success: bool
+    """True when ``outcome == "lifted"``."""
+    outcome: str
+    """A key of :data:`OUTCOMES`."""
+    rise: float
+    """Metres the object's centre of mass rose (along up) from the start of the lift to the end
+    of the hold (the hand rises ``lift_height``)."""
+    slip: float
+    """Metres the object's centre of mass moved in the hand frame from the start of the lift to
+    the end of the hold."""
+    slip_angle: float
+    """Radians the object turned relative to the hand over the same interval."""
+    push: float
+    """Metres the object's centre of mass moved while the fingers closed (closing and settling,
+    before the lift)."""
+    approach_push: float
+    """Metres the object's centre of mass moved during the approach."""
+    initial_penetration: float
+    """Metres: deepest hand-object contact at the start (hand at the pre-grasp pose with the
+    preshape); 0 when they do not touch."""
+    planned_penetration: float
+    """Metres: deepest hand-object contact of the planned closed hand at the grasp pose against
+    the collision model (a kinematic check before the run; the planner allows 2 mm against the
+    cloud)."""
+    contact_links: tuple[str, ...]
+    """Hand links touching the object at the end of the hold."""
+    q_closed: np.ndarray
+    """(J,) float64, radians: the hand's joints at the start of the lift (``Hand.joint_names``)."""
+    sim_time: float
+    """Simulated seconds."""
+    n_steps: int
+    """MuJoCo steps."""
+    cpu_time: float
+    """CPU seconds of the run (process time; the model build is not included)."""
+    phase_times: dict[str, float] = field(default_factory=dict)
+    """Simulated seconds of each phase: ``approach``, ``close``, ``lift``, ``hold``."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (arrays as lists, every field by name)."""
+        return {
+            "success": self.success,
+            "outcome": self.outcome,
+            "rise": self.rise,
+            "slip": self.slip,
+            "slip_angle": self.slip_angle,
+            "push": self.push,
+            "approach_push": self.approach_push,
+            "initial_penetration": self.initial_penetration,
+            "planned_penetration": self.planned_penetration,
+            "contact_links": list(self.contact_links),
+            "q_closed": self.q_closed.tolist(),
+            "sim_time": self.sim_time,
+            "n_steps": self.n_steps,
+            "cpu_time": self.cpu_time,
+            "phase_times": dict(self.phase_times),
+        }
+
+
+class PlaybackFrame(NamedTuple):
+    """One frame of a simulated lift, for a viewer."""
+
+    t: float
+    """Seconds since the start."""
+    T_world_hand: np.ndarray
+    """(4, 4) pose of the palm (hand frame) in the world."""
+    q: np.ndarray
+    """(J,) the hand's joints (``Hand.joint_names``; ``f2_spread`` follows ``f1_spread``)."""
+    T_world_object: np.ndarray
+    """(4, 4) motion of the object: maps a point of the input (file frame, as the object was at
+    the start) to where it is now; the identity at t = 0 up to the settling on the table."""
