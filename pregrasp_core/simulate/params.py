@@ -61,8 +61,19 @@ class SimulationParams:
     """Metres: torsional friction of the contacts (a soft finger pad)."""
     impratio: float = 10.0
     """MuJoCo's friction-to-normal impedance ratio (elliptic cones; > 1 resists slip better)."""
+    noslip_iterations: int = 5
+    """MuJoCo's no-slip solver iterations (0 = off): removes the slow creep of soft frictional
+    contacts under a sustained load."""
+    contact_timeconst: float = 0.005
+    """Seconds: time constant of the contacts' soft constraint (MuJoCo's solref; >= 2
+    timesteps): smaller is stiffer (less penetration, less creep)."""
     object_settle_time: float = 0.3
     """Seconds the object rests on the support before the test (once per object)."""
+    max_settle_shift: float = 0.005
+    """Metres: an object that moves more than this while settling is not at rest on the support
+    in its input pose (it topples); it is then held in that pose (welded to the world) until
+    the lift starts, so that the grasps are tested on the pose they were planned for
+    (``SimulationResult.object_held``)."""
     gravity: float = 9.81
     """m/s^2."""
     record_fps: float = 30.0
@@ -96,6 +107,7 @@ class SimulationParams:
             "finger_armature",
             "torsional_friction",
             "object_settle_time",
+            "max_settle_shift",
             "gravity",
         )
         for name in nonneg:
@@ -108,6 +120,20 @@ class SimulationParams:
             )
         if self.friction is not None and not (np.isfinite(self.friction) and self.friction >= 0):
             raise ValueError(f"SimulationParams.friction must be >= 0 or None, got {self.friction}")
+        if (
+            isinstance(self.noslip_iterations, bool)
+            or int(self.noslip_iterations) != (self.noslip_iterations)
+            or self.noslip_iterations < 0
+        ):
+            raise ValueError(
+                "SimulationParams.noslip_iterations must be an integer >= 0, got "
+                f"{self.noslip_iterations!r}"
+            )
+        if self.contact_timeconst < 2.0 * self.timestep:
+            raise ValueError(
+                f"SimulationParams.contact_timeconst ({self.contact_timeconst}) must be at least "
+                f"two timesteps ({2.0 * self.timestep})"
+            )
         if self.base_timeconst < 2.0 * self.timestep:
             raise ValueError(
                 f"SimulationParams.base_timeconst ({self.base_timeconst}) must be at least two "
@@ -145,6 +171,9 @@ class SimulationResult:
     cloud)."""
     contact_links: tuple[str, ...]
     """Hand links touching the object at the end of the hold."""
+    object_held: bool
+    """True when the object does not rest in its input pose on its own (it moved more than
+    ``max_settle_shift`` while settling) and was held in place until the lift started."""
     q_closed: np.ndarray
     """(J,) float64, radians: the hand's joints at the start of the lift (``Hand.joint_names``)."""
     sim_time: float
@@ -169,6 +198,7 @@ class SimulationResult:
             "initial_penetration": self.initial_penetration,
             "planned_penetration": self.planned_penetration,
             "contact_links": list(self.contact_links),
+            "object_held": self.object_held,
             "q_closed": self.q_closed.tolist(),
             "sim_time": self.sim_time,
             "n_steps": self.n_steps,

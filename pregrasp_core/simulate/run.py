@@ -37,7 +37,7 @@ import numpy as np
 from ..errors import InputError
 from .object_model import ObjectModel, object_from_cloud, object_from_mesh
 from .params import PlaybackFrame, SimulationParams, SimulationResult
-from .scene import SceneIndex, compile_scene, up_direction
+from .scene import compile_scene, up_direction
 
 if TYPE_CHECKING:
     import trimesh
@@ -118,6 +118,8 @@ class LiftSimulator:
         self.model, self.index = compile_scene(hand, obj, support, self.params, self.friction)
         self.data = mujoco.MjData(self.model)
         self._gravity = np.array(self.model.opt.gravity)
+        self.held = False
+        """Whether the object is held in its input pose until the lift (it does not rest)."""
         self._object_rest = self._settle()
 
     # ------------------------------------------------------------------ state
@@ -142,8 +144,14 @@ class LiftSimulator:
                 mujoco.mj_step(m, d)
         rest = d.qpos[ix.object_qpos : ix.object_qpos + 7].copy()
         shift = float(np.linalg.norm(rest[:3] - self.obj.com))
-        if shift > 0.005:
-            logger.warning("the object moved %.1f mm while settling on the support", 1e3 * shift)
+        self.held = shift > self.params.max_settle_shift
+        if self.held:
+            logger.warning(
+                "the object moved %.1f mm while settling on the support: it does not rest in "
+                "its input pose and is held there until the lift",
+                1e3 * shift,
+            )
+            rest = m.qpos0[ix.object_qpos : ix.object_qpos + 7].copy()
         return rest
 
     def _reset(self, T_hand: np.ndarray, q: np.ndarray) -> None:
@@ -163,6 +171,7 @@ class LiftSimulator:
         d.mocap_quat[0] = quat
         d.ctrl[ix.actuator_of_joint] = q
         m.opt.gravity[:] = self._gravity if self.support is not None else 0.0
+        d.eq_active[ix.hold_eq] = 1 if self.held else 0
         mujoco.mj_forward(m, d)
 
     def _hand_object_contacts(self) -> tuple[float, set[str]]:
@@ -263,8 +272,10 @@ class LiftSimulator:
         gravity_on_at_lift = self.support is None
         n = len(pos)
         for i in range(n):
-            if gravity_on_at_lift and i == lift_start:
-                m.opt.gravity[:] = self._gravity
+            if i == lift_start:
+                if gravity_on_at_lift:
+                    m.opt.gravity[:] = self._gravity
+                d.eq_active[ix.hold_eq] = 0
             d.mocap_pos[0] = pos[i]
             d.ctrl[act] = ctrl[i]
             mujoco.mj_step(m, d)
@@ -273,9 +284,10 @@ class LiftSimulator:
                 frames.append(frame(step * dt))
             for name, end in ends.items():
                 if step == end:
-                    if not np.isfinite(d.qpos).all() or d.warning[
-                        mujoco.mjtWarning.mjWARN_BADQACC
-                    ].number:
+                    if (
+                        not np.isfinite(d.qpos).all()
+                        or d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number
+                    ):
                         unstable = True
                     marks[name] = self._object_T()
                     hand_marks[name] = self._hand_T()
@@ -298,6 +310,7 @@ class LiftSimulator:
                 initial_penetration=initial,
                 planned_penetration=planned,
                 contact_links=(),
+                object_held=self.held,
                 q_closed=q_closed,
                 sim_time=d.time,
                 n_steps=step,
@@ -340,6 +353,7 @@ class LiftSimulator:
             initial_penetration=initial,
             planned_penetration=planned,
             contact_links=tuple(sorted(links, key=self.hand.link_names.index)),
+            object_held=self.held,
             q_closed=q_closed,
             sim_time=float(d.time),
             n_steps=n,
@@ -373,7 +387,9 @@ def grasp_spec(
             raise ValueError(f"{name} must have shape ({J},), got {q.shape}")
     if closing is None:
         closing = tuple(
-            f.name for f in hand.fingers if not np.array_equal(qc[list(f.flex_index)], qs[list(f.flex_index)])
+            f.name
+            for f in hand.fingers
+            if not np.array_equal(qc[list(f.flex_index)], qs[list(f.flex_index)])
         )
     names = tuple(hand.finger(n).name for n in closing)
     return GraspSpec(T0, T, hand.clamp(qs), hand.clamp(qc), names)

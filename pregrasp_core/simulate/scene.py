@@ -40,7 +40,7 @@ def _f(x: float) -> str:
     return repr(float(x))
 
 
-def _v(a: np.ndarray) -> str:
+def _v(a: object) -> str:
     return " ".join(_f(x) for x in np.asarray(a, dtype=np.float64).reshape(-1))
 
 
@@ -98,9 +98,7 @@ def scene_xml(
         R = T[:3, :3]
         I = R @ np.asarray(ine.inertia) @ R.T  # in the link frame
         full = [I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
-        return (
-            f'<inertial pos="{_v(T[:3, 3])}" mass="{_f(ine.mass)}" fullinertia="{_v(full)}"/>'
-        )
+        return f'<inertial pos="{_v(T[:3, 3])}" mass="{_f(ine.mass)}" fullinertia="{_v(full)}"/>'
 
     def geom(name: str) -> str:
         i = index[name]
@@ -166,7 +164,10 @@ def scene_xml(
     )
     equalities = [
         f'    <weld name="base" body1="hand_target" body2="{root}" relpose="0 0 0 1 0 0 0" '
-        f'solref="{_f(params.base_timeconst)} 1"/>'
+        f'solref="{_f(params.base_timeconst)} 1"/>',
+        # holds an object that does not rest on its own in its input pose (off by default)
+        f'    <weld name="hold" body1="object" active="false" '
+        f'solref="{_f(params.base_timeconst)} 1"/>',
     ]
     actuators = []
     for j in urdf.robot.joints:
@@ -190,11 +191,12 @@ def scene_xml(
     return f"""<mujoco model="pregrasp_lift">
   <compiler angle="radian" inertiafromgeom="false" autolimits="true"/>
   <option timestep="{_f(params.timestep)}" gravity="{_v(g)}" integrator="implicitfast"
-          cone="elliptic" impratio="{_f(params.impratio)}">
+          cone="elliptic" impratio="{_f(params.impratio)}"
+          noslip_iterations="{int(params.noslip_iterations)}">
     <flag multiccd="enable" filterparent="disable"/>
   </option>
   <default>
-    <geom friction="{fr}" condim="{condim}"/>
+    <geom friction="{fr}" condim="{condim}" solref="{_f(params.contact_timeconst)} 1"/>
   </default>
   <asset>
 {meshes}
@@ -243,6 +245,8 @@ class SceneIndex:
     """Hand geom id -> link name."""
     object_geoms: frozenset[int]
     """Geom ids of the object's pieces."""
+    hold_eq: int
+    """Id of the equality that holds the object in its input pose."""
 
 
 def compile_scene(
@@ -287,5 +291,6 @@ def compile_scene(
         object_qpos=int(model.jnt_qposadr[jid("object")]),
         geom_link=geom_link,
         object_geoms=object_geoms,
+        hold_eq=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, "hold"),
     )
     return model, idx
