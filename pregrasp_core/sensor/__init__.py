@@ -7,6 +7,8 @@
 - :mod:`.units`: the rule that recognises millimetre clouds;
 - :mod:`.completion`: the unseen back of a single view completed by symmetry under the view's
   visibility constraint (``docs/partial-views.md``);
+- :mod:`.view`: :func:`prepare_view`, the whole chain in one call (:class:`SensorView`), and the
+  PCD header's viewpoint;
 - :mod:`.synthetic`: simulated depth views of a mesh on a table (the test data).
 
 See ``docs/input.md`` ("Depth-camera input").
@@ -30,6 +32,7 @@ from .table import (
     voxel_clusters,
 )
 from .units import UnitGuess, detect_units
+from .view import SensorView, pcd_viewpoint, prepare_view
 
 __all__ = [
     "CompletedView",
@@ -37,6 +40,7 @@ __all__ = [
     "DepthCloud",
     "Intrinsics",
     "SegmentParams",
+    "SensorView",
     "TableSegmentation",
     "UnitGuess",
     "complete_view",
@@ -45,6 +49,8 @@ __all__ = [
     "fit_plane_ransac",
     "load_camera_pose",
     "load_depth_image",
+    "pcd_viewpoint",
+    "prepare_view",
     "read_depth_file",
     "remove_outliers",
     "segment_table",

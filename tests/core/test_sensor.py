@@ -29,6 +29,8 @@ from pregrasp_core.sensor import (
     fit_plane_ransac,
     load_camera_pose,
     load_depth_image,
+    pcd_viewpoint,
+    prepare_view,
     remove_outliers,
     segment_table,
     voxel_clusters,
@@ -411,6 +413,52 @@ def test_completion_recovers_the_true_box(name: str, azimuth: float) -> None:
     # assumed points lie near the true surface (the symmetry holds for these objects)
     d = np.abs(trimesh.proximity.signed_distance(mesh, done.points[done.assumed][::10]))
     assert np.median(d) < 0.003
+
+
+def test_prepare_view_carries_viewpoint_plane_and_normals() -> None:
+    mesh = trimesh.load(OBJECTS_DIR / "box_cereal.obj", force="mesh")
+    T = orbit_camera(np.array([0.0, 0.0, 0.075]), 0.55, np.radians(150.0), np.radians(35.0))
+    view = render_view(mesh.vertices, mesh.faces, T, Intrinsics(420.0, 420.0, 239.5, 179.5),
+                       480, 360, table_half=0.3)  # fmt: skip
+    pts, lab = view.points_world()
+    sv = prepare_view(pts, T[:3, 3], outliers=(16, 3.0))
+    assert sv.kept.sum() > 0.97 * len(pts)
+    assert np.array_equal(sv.viewpoint, T[:3, 3])
+    assert sv.plane.normal[2] > 0.9999 and abs(sv.plane.height) < 1e-6
+    assert sv.assumed.any() and sv.n_visible == int(sv.segmentation.object_mask.sum())
+    fm = sv.face_mask_params()
+    assert fm.support and np.allclose(fm.up, sv.plane.normal) and fm.support_height is not None
+    # normals: the visible ones pass through, the assumed ones follow their source's symmetry;
+    # the box's true outward face normals, moved by the symmetry, stay the true ones
+    visible = sv.points[~sv.assumed]
+    _, _, tri = trimesh.proximity.closest_point(mesh, visible)
+    nv = mesh.face_normals[tri]
+    full = sv.full_normals(nv)
+    assert np.array_equal(full[~sv.assumed], nv)
+    _, _, tri_a = trimesh.proximity.closest_point(mesh, sv.points[sv.assumed])
+    agree = np.einsum("ij,ij->i", full[sv.assumed], mesh.face_normals[tri_a]) > 0.9
+    assert agree.mean() > 0.9
+    with pytest.raises(ValueError, match="visible_normals must have shape"):
+        sv.full_normals(nv[:-1])
+    flat = prepare_view(pts, T[:3, 3], complete=False)
+    assert flat.completion is None and not flat.assumed.any()
+
+
+def test_pcd_viewpoint(tmp_path: Path) -> None:
+    T = orbit_camera(np.array([0.0, 0.0, 0.05]), 0.6, 1.0, 0.5)
+    qx, qy, qz, qw = Rotation.from_matrix(T[:3, :3]).as_quat()
+    head = "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\nHEIGHT 1\n"
+    p = tmp_path / "v.pcd"
+    p.write_text(head + f"VIEWPOINT {T[0, 3]} {T[1, 3]} {T[2, 3]} {qw} {qx} {qy} {qz}\n"
+                 "POINTS 1\nDATA ascii\n0 0 0\n")  # fmt: skip
+    assert np.allclose(pcd_viewpoint(p), T)
+    p.write_text(head + "VIEWPOINT 0 0 0 1 0 0 0\nPOINTS 1\nDATA ascii\n0 0 0\n")
+    assert pcd_viewpoint(p) is None
+    p.write_text(head + "POINTS 1\nDATA ascii\n0 0 0\n")
+    assert pcd_viewpoint(p) is None
+    p.write_text(head + "VIEWPOINT 0 0 1\nPOINTS 1\nDATA ascii\n0 0 0\n")
+    with pytest.raises(InputError, match=r"v\.pcd: VIEWPOINT must hold 7 numbers"):
+        pcd_viewpoint(p)
 
 
 def test_completion_input_checks() -> None:
