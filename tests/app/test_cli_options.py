@@ -16,6 +16,7 @@ import pytest
 from app.cli import build_parser, main
 from app.commands import common, decompose, plan, pregrasps, view
 from app.commands.options import Flag, OptionError, Options, field_docs
+from pregrasp_core.io import MIN_POINTS
 from pregrasp_core.paths import OBJECTS_DIR
 from pregrasp_core.pregrasps import TraversalPolicy
 
@@ -253,7 +254,7 @@ def test_the_app_starts_with_the_scale_and_parameters_of_the_command_line(make_a
         (["plan", "--mu", "-1"], "pregrasp plan: error: --mu: must be a finite number >= 0, got"),
         (["plan", "--cone-edges", "2"], "pregrasp plan: error: --cone-edges: must be an integer"),
         (["plan", "--normals-k", "2"], "pregrasp plan: error: --normals-k: must be an integer"),
-        (["plan", "--points", "5"], "pregrasp plan: error: --points: must be in [10, "),
+        (["plan", "--points", "5"], f"pregrasp plan: error: --points: must be in [{MIN_POINTS}, "),
         (["plan", "--seed", "-1"], "pregrasp plan: error: --seed: must be >= 0"),
         (["plan", "--scale", "0"], "pregrasp plan: error: --scale: must be a positive"),
         (["plan", "--closing-margin", "0.0002"], "pregrasp plan: error: --slice-resolution: "
