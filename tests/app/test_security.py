@@ -279,6 +279,8 @@ def test_oversize_upload_is_refused_without_buffering(make_app):
         grown = _peak_rss_bytes() - base
         assert grown < 32 * 2**20, f"the server's peak memory grew by {grown / 2**20:.0f} MiB"
         assert "limit is 4.0 MiB" in app.uploads.refused[-1]
+        acks = [m for m in b.messages if m["type"] == "FileTransferPartAck"]
+        assert acks and acks[-1]["transferred_bytes"] == acks[-1]["total_bytes"]  # button freed
         assert app.uploads.in_flight == 0 and not app.server.gui._current_file_upload_states
         assert app.controller.state.source.name == "mug_handle"
         # a client that announces a small file and sends more is cut off at its announcement
