@@ -44,7 +44,8 @@ MAX_UPLOAD_NAME_CHARS = 255
 """Longest accepted upload file name (characters; the longest file name most systems allow)."""
 
 MAX_UPLOADS_IN_FLIGHT = 2
-"""Most uploads buffered at once over all browsers (each at most the upload limit)."""
+"""Most uploads buffered at once over all browsers (each at most the upload limit; one per
+browser)."""
 
 UPLOAD_IDLE_S = 30.0
 """An upload whose last chunk is older than this (seconds) is dropped to make room."""
@@ -237,7 +238,9 @@ class UploadGuard:
         limit = int(self.max_bytes())
         with self._lock:
             why = None
-            if not isinstance(name, str) or len(name) > MAX_UPLOAD_NAME_CHARS:
+            if not isinstance(msg.transfer_uuid, str) or msg.transfer_uuid in self._transfers:
+                why = "the browser sent a malformed upload request"
+            elif not isinstance(name, str) or len(name) > MAX_UPLOAD_NAME_CHARS:
                 why = f"the file name is longer than {MAX_UPLOAD_NAME_CHARS} characters"
             elif not all(isinstance(v, int) and not isinstance(v, bool) for v in (size, parts)):
                 why = "the browser sent a malformed upload request"
@@ -249,6 +252,8 @@ class UploadGuard:
                 )
             elif size < 0 or parts < 0 or parts > size or (parts == 0) != (size == 0):
                 why = "the browser sent a malformed upload request"
+            elif any(t.client_id == client_id for t in self._transfers.values()):
+                why = "this browser's previous upload has not finished: wait for it"
             elif not self._make_room():
                 why = "another upload is in progress: try again when it has finished"
             if why is None:
@@ -261,7 +266,11 @@ class UploadGuard:
 
     def on_part(self, client_id: int, msg: Any) -> None:
         with self._lock:
-            t = self._transfers.get(msg.transfer_uuid)
+            t = (
+                self._transfers.get(msg.transfer_uuid)
+                if isinstance(msg.transfer_uuid, str)
+                else None
+            )
             if t is None or t.client_id != client_id:
                 return  # refused or unknown: dropped unread
             content = msg.content

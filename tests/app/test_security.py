@@ -174,6 +174,9 @@ def _wait(cond, timeout: float, what: str) -> float:
 # ------------------------------------------------------------------------------ origin and host
 def test_websocket_from_a_foreign_origin_is_refused(app):
     port = app.server.get_port()
+    # the check sits in the websockets server viser runs (fails if a viser upgrade moves it)
+    hook = viser_hooks.websockets_server(app.server).process_request
+    assert getattr(hook, "pregrasp_origin_check", False)
     for origin in ("http://evil.example", "null", f"http://127.0.0.1:{port + 1}"):
         with pytest.raises(websockets.exceptions.InvalidStatus) as err:
             Browser(port, origin=origin)
@@ -299,6 +302,8 @@ def test_upload_of_a_client_that_goes_away_is_dropped(make_app):
     _part(b, app, tid, 0, b"\0" * 2**20)
     _wait(lambda: app.uploads.in_flight == 1 and app.server.gui._current_file_upload_states,
           10, "the first half buffered")  # fmt: skip
+    _start(b, app, "second.ply", 1000, 1)  # one upload at a time per browser
+    _wait(lambda: "previous upload" in (app.uploads.refused or [""])[-1], 10, "one at a time")
     b.close()
     _wait(lambda: app.uploads.in_flight == 0, 10, "the upload dropped on disconnect")
     assert not app.server.gui._current_file_upload_states
