@@ -55,7 +55,8 @@ def grasp_to_dict(g: Grasp, hand: Hand) -> dict[str, object]:
 def grasps_sections(
     gs: GraspSet, hand: Hand, params: PlannerParams | None = None
 ) -> dict[str, object]:
-    """The ``grasps`` and ``best`` top-level sections of the result file."""
+    """The ``grasps``, ``best`` and ``best_reason`` top-level sections of the result file
+    (``best``: the best force-closure grasp or ``None``)."""
     prm = PlannerParams() if params is None else params
     best = gs.best
     return {
@@ -73,4 +74,5 @@ def grasps_sections(
             "items": [grasp_to_dict(g, hand) for g in gs.grasps],
         },
         "best": best,
+        "best_reason": gs.best_reason,
     }

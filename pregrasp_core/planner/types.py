@@ -222,8 +222,35 @@ class GraspSet:
 
     @property
     def best(self) -> int | None:
-        """Index into ``grasps`` of the best grasp, or None when every pre-grasp was rejected."""
-        return int(self.ranking[0]) if len(self.ranking) else None
+        """Index into ``grasps`` of the best force-closure grasp (the first of the ranking, when
+        its epsilon is > 0), or None when no grasp is force closure (see :attr:`best_reason`)."""
+        if len(self.ranking) and self.grasps[int(self.ranking[0])].epsilon > 0.0:
+            return int(self.ranking[0])
+        return None
+
+    @property
+    def best_reason(self) -> str:
+        """Why :attr:`best` is what it is, in one sentence for a user: the best grasp's epsilon,
+        or why there is no force-closure grasp (empty pool, every pre-grasp rejected, or the
+        kept grasps all score epsilon 0 and how many of them have fewer than 3 contacts)."""
+        best = self.best
+        if best is not None:
+            g = self.grasps[best]
+            return (
+                f"force closure: the best of {self.n_force_closure} force-closure grasps has "
+                f"epsilon {g.epsilon:.4f} with {g.n_contacts} contacts"
+            )
+        if len(self.grasps) == 0:
+            return "no force-closure grasp: the pre-grasp pool is empty"
+        if len(self.ranking) == 0:
+            why = ", ".join(f"{k} {v}" for k, v in self.rejected.items() if v)
+            return f"no force-closure grasp: every pre-grasp was rejected ({why})"
+        kept = self.ranked
+        few = sum(g.n_contacts < 3 for g in kept)
+        return (
+            f"no force-closure grasp: all {len(kept)} kept grasps have epsilon 0 "
+            f"({few} with fewer than 3 contacts)"
+        )
 
     def top(self, k: int) -> list[Grasp]:
         """The ``k`` best kept grasps."""
