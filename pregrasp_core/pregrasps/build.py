@@ -26,6 +26,7 @@ from ..hand import grasp_type_name
 from ..shape import GRASP_TYPES, NodeShape, ShapeParams
 from .collision import CellCache, collision_batch_bytes, hand_hits_points, hand_min_height
 from .params import MAX_POOL_SAMPLES, POOL_BYTES_PER_SAMPLE, SAMPLING_BOUNDS, SamplingParams
+from .pinch import PINCH_SURFACE, pinch_samples
 from .pool import DROP_REASONS, PreGraspPool
 from .surfaces import sample_node, total_samples
 from .traversal import Traversal, grip_width, traverse
@@ -158,6 +159,9 @@ def build_pool(
         todo = [i for i in todo if i not in placed and attempt + 1 < len(queue[i])]
         if not todo:
             break
+    if params.pinch and masks.support is not None:
+        pinches = _pinch_pool(tree, traversal.candidates, masks, hand, params, dropped)
+        kept.append(_clear_the_hand(pinches, hand, pts, kd, masks.support, params, dropped))
     pool = _concat_pools(kept, joint_names)
     order = np.lexsort((np.arange(len(pool)), pool.node))  # group by node, stable
     pool = replace(
@@ -211,6 +215,43 @@ def _node_pool(
         surface=ok.surface,
         joint_names=tuple(hand.joint_names),
     )
+
+
+def _pinch_pool(
+    tree: BoxTree,
+    candidates: Sequence[int],
+    masks: FaceMasks,
+    hand: Hand,
+    params: SamplingParams,
+    dropped: dict[str, int],
+) -> PreGraspPool:
+    """The fingertip pinches from above of every candidate (:mod:`.pinch`) whose top face is
+    free, as a pool (those of a blocked top face are counted ``blocked_subface``)."""
+    assert masks.support is not None
+    pools = []
+    for i in candidates:  # loop over the candidate nodes
+        got = pinch_samples(hand, tree.nodes[i].box, masks.support, params)
+        if got is None:
+            continue
+        M = len(got.q)
+        if masks.blocked[i, got.face]:
+            dropped["blocked_subface"] += M
+            continue
+        pools.append(
+            PreGraspPool(
+                T_world_hand=got.T_world_hand,
+                approach=got.T_world_hand[:, :3, 2].copy(),
+                grasp_type=got.grasp_type,
+                spread=got.spread,
+                q=got.q,
+                node=np.full(M, i, dtype=np.int64),
+                face=np.full(M, got.face, dtype=np.int64),
+                subface=np.zeros(M, dtype=np.int64),
+                surface=np.full(M, PINCH_SURFACE, dtype=np.int64),
+                joint_names=tuple(hand.joint_names),
+            )
+        )
+    return _concat_pools(pools, hand.joint_names)
 
 
 def _clear_the_hand(

@@ -50,6 +50,17 @@ CellCache = dict[tuple[bytes, float], tuple[np.ndarray, np.ndarray]]
 """:func:`link_cells` per (preshape bytes, margin), shared by calls of :func:`hand_hits_points`."""
 
 
+def _by_preshape(q: np.ndarray) -> list[np.ndarray]:
+    """Indices of the rows of ``q`` (P, J) grouped by distinct preshape, in order of first
+    appearance (the paper's types have one preshape each, the pinches adapt theirs)."""
+    Q = np.asarray(q, dtype=np.float64)
+    if len(Q) == 0:
+        return []
+    _, first, inv = np.unique(Q, axis=0, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    return [np.flatnonzero(inv == g) for g in np.argsort(first)]
+
+
 def hand_corners(hand: Hand, q: np.ndarray) -> np.ndarray:
     """(8 L, 3) corners of all the links' collision boxes at configuration ``q`` (J,), hand
     frame."""
@@ -66,10 +77,10 @@ def hand_min_height(
 ) -> np.ndarray:
     """(P,) metres: height above ``support`` of the lowest corner of the links' collision boxes
     of each open hand at ``T_world_hand`` (P, 4, 4) with preshape ``q`` (P, J), one preshape
-    per value of ``grasp_type`` (P,) (negative: the hand reaches below the plane)."""
+    per row (negative: the hand reaches below the plane). ``grasp_type`` (P,) is not used: the
+    hands are grouped by preshape (the pinches adapt theirs to the part)."""
     out = np.zeros(len(T_world_hand))
-    for gt in np.unique(grasp_type):  # loop over the (at most 4) preshapes
-        sel = np.flatnonzero(grasp_type == gt)
+    for sel in _by_preshape(q):  # loop over the distinct preshapes (a few)
         corners = hand_corners(hand, q[sel[0]])  # (C, 3) hand frame
         T = T_world_hand[sel]  # (m, 4, 4)
         up_hand = np.einsum("mji,j->mi", T[:, :3, :3], support.normal)  # (m, 3) up in hand frames
@@ -127,8 +138,7 @@ def hand_hits_points(
     if P == 0 or len(pts) == 0:
         return out
     kd = cKDTree(pts) if kd is None else kd
-    for gt in np.unique(grasp_type):  # loop over the (at most 4) preshapes
-        every = np.flatnonzero(grasp_type == gt)
+    for every in _by_preshape(q):  # loop over the distinct preshapes (a few)
         key = (q[every[0]].tobytes(), float(margin))
         if cells is None or key not in cells:
             cell = link_cells(hand, q[every[0]], margin)

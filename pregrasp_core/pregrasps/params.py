@@ -85,6 +85,11 @@ class SamplingParams:
     first that gives any (recorded in ``PreGraspPool.fallback``). ``False`` = the paper's fixed
     mapping only."""
 
+    pinch: bool = True
+    """Also give every candidate fingertip pinches from above, the preshape opened just wider
+    than the part (``docs/pregrasps.md`` section 6b; only with a support plane). ``False`` =
+    the paper's enclosing surfaces only."""
+
     def __post_init__(self) -> None:
         checks = (
             ("interval", lambda v: v > 0, "> 0"),
@@ -118,6 +123,9 @@ class SamplingParams:
         if not isinstance(self.fallback, (bool, np.bool_)):
             raise ValueError(f"fallback must be True or False, got {self.fallback!r}")
         object.__setattr__(self, "fallback", bool(self.fallback))
+        if not isinstance(self.pinch, (bool, np.bool_)):
+            raise ValueError(f"pinch must be True or False, got {self.pinch!r}")
+        object.__setattr__(self, "pinch", bool(self.pinch))
         try:
             object.__setattr__(self, "policy", TraversalPolicy(self.policy))
         except ValueError:

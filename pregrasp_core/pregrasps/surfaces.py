@@ -21,8 +21,9 @@ from ..hand import grasp_type_name
 from ..tolerances import GEOM_EPS
 from .params import MAX_POOL_SAMPLES, SamplingParams
 
-SURFACES: tuple[str, ...] = ("sphere", "cylinder_side", "cylinder_cap", "circle")
-"""Names of the enclosing-surface patches a pre-grasp can come from."""
+SURFACES: tuple[str, ...] = ("sphere", "cylinder_side", "cylinder_cap", "circle", "pinch")
+"""Names of the enclosing-surface patches a pre-grasp can come from (``pinch``: a fingertip
+pinch from above, :mod:`~pregrasp_core.pregrasps.pinch`, not an enclosing surface)."""
 
 
 @dataclass(frozen=True)

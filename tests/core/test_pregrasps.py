@@ -294,25 +294,29 @@ def test_box_on_the_table_gets_no_pregrasp_from_below_and_all_are_collision_free
     assert len(pool) > 0
     assert bottom not in pool.face
     assert np.all(pool.approach @ UP < 0.5)  # nothing approaches upwards from under the box
-    # nothing below the support plane: every corner of every link box above z = 0
-    for gt in np.unique(pool.grasp_type):
-        sel = pool.grasp_type == gt
-        c = hand_corners(hand, pool.q[sel][0])  # (C, 3)
+    # nothing below the support plane: every corner of every link box above z = 0 (pinches
+    # from above adapt their preshape: one check per distinct preshape)
+    for q in np.unique(pool.q, axis=0):
+        sel = np.all(pool.q == q, axis=1)
+        c = hand_corners(hand, q)  # (C, 3)
         z = np.einsum("pij,cj->pci", pool.T_world_hand[sel, :3, :3], c)[..., 2]
         assert (z + pool.T_world_hand[sel, None, 2, 3]).min() >= -1e-12
-    # no cloud point inside the open hand (the hand model's own query)
-    for gt in np.unique(pool.grasp_type):
-        sel = pool.grasp_type == gt
-        assert not hand.hands_hit_points(pts, pool.T_world_hand[sel], pool.q[sel][0]).any()
-    # the drops were counted; the preshape is the hand's
+        # no cloud point inside the open hand (the hand model's own query)
+        assert not hand.hands_hit_points(pts, pool.T_world_hand[sel], q).any()
+    # the drops were counted; the enclosing-surface samples have the hand's preshape
     assert pool.dropped["blocked_subface"] > 0 and pool.dropped["support"] > 0
-    assert np.allclose(pool.q, hand.preshape("spherical"))
-    assert np.allclose(pool.spread, hand.spread_for("spherical"))
+    paper = pool.surface != SURFACES.index("pinch")
+    assert paper.sum() > 0
+    assert np.allclose(pool.q[paper], hand.preshape("spherical"))
+    assert np.allclose(pool.spread[paper], hand.spread_for("spherical"))
+    assert np.all(hand.within_limits(pool.q))
     assert np.all((pool.backoff >= 0) & (pool.backoff <= 0.06 + 1e-12))
 
 
 def test_every_pregrasp_of_the_pool_aims_at_its_box_centre(hand):
-    tree, _, _, pool = box_on_table_pool(hand)
+    # the enclosing-surface samples (pinches from above aim at their own positions along the
+    # part: tests/core/test_coverage.py)
+    tree, _, _, pool = box_on_table_pool(hand, pinch=False)
     c = tree.root.box.center
     # the line from the hand's grasp centre along the approach passes through the box centre
     g = pool.T_world_hand[:, :3, :3] @ hand.grasp_center("spherical") + pool.T_world_hand[:, :3, 3]
@@ -412,16 +416,17 @@ def test_fallback_type_when_the_own_type_gives_nothing(hand):
     tree, pts = tree_from_parts([([-0.05, -0.03, 0.0], [0.05, 0.03, 0.012])], rng, 3000)
     shapes = (shape_of(ShapeClass.TWO_D),)
     masks = compute_face_masks(tree, SupportPlane(UP, 0.0))
-    strict = build_pool(pts, tree, shapes, masks, hand, SamplingParams(fallback=False))
+    # the paper's enclosing surfaces only (the pinches from above are extra: test_coverage.py)
+    strict = build_pool(pts, tree, shapes, masks, hand, SamplingParams(fallback=False, pinch=False))
     assert len(strict) == 0 and strict.dropped["support"] > 0
-    pool = build_pool(pts, tree, shapes, masks, hand)
+    pool = build_pool(pts, tree, shapes, masks, hand, SamplingParams(pinch=False))
     assert len(pool) > 0
     assert pool.fallback == {0: str(pool.grasp_type[0])}
     assert pool.grasp_type[0] != "three_finger_tip"
 
 
 def test_pool_container(hand):
-    *_, pool = box_on_table_pool(hand)
+    *_, pool = box_on_table_pool(hand, pinch=False)
     P = len(pool)
     g = pool[P - 1]
     assert np.array_equal(g.T_world_hand, pool.T_world_hand[-1]) and g.node == 0
