@@ -52,7 +52,7 @@ the fingers 0.02 m wide: 2 x (0.028 - 0.01)); shorter parts get the tripod."""
 MAX_TILT_COS: float = float(np.cos(np.deg2rad(30.0)))
 """A box's top face must face up within 30 degrees for pinches from above."""
 
-TRIPOD_SPREAD: float = float(np.deg2rad(40.0))
+TRIPOD_SPREAD: float = float(np.deg2rad(60.0))
 """Radians: the tripod's spread. The three closing lines of this hand never meet in one point
 (the spreading fingers' flexion planes are offset from their axes); at 40 degrees they pass
 within 9 mm of each other (at the spherical pi/3, 14 mm), so the three 0.02 m wide fingertips
@@ -88,20 +88,43 @@ def pinch_center(hand: Hand, kind: str) -> np.ndarray:
     return np.linalg.solve(A, b)
 
 
+def _tip_ik(
+    L1: float, L2: float, beta: float, u: float, v: float, lower: np.ndarray, upper: np.ndarray
+) -> tuple[float, float] | None:
+    """Flexion (q1, q2) putting a finger's tip inner edge at (u, v) of its flexion plane: links
+    ``L1`` (middle) and ``L2`` (distal joint to the inner edge, turned ``beta`` from the distal
+    axis); of the two solutions within the limits the one whose distal link is nearer the
+    approach; ``None`` when out of reach or limits."""
+    cos2 = (u * u + v * v - L1 * L1 - L2 * L2) / (2.0 * L1 * L2)
+    if abs(cos2) > 1.0:
+        return None
+    best: tuple[float, float] | None = None
+    for sgn in (1.0, -1.0):  # the two solutions
+        a2 = sgn * float(np.arccos(cos2))
+        q1 = float(np.arctan2(v, u) - np.arctan2(L2 * np.sin(a2), L1 + L2 * np.cos(a2)))
+        q = np.array([q1, a2 - beta])
+        if np.all(q >= lower - 1e-12) and np.all(q <= upper + 1e-12):
+            if best is None or abs(q.sum()) < abs(sum(best)):
+                best = (float(q[0]), float(q[1]))
+    return best
+
+
 def pinch_preshape(hand: Hand, kind: str, half_width: float) -> tuple[np.ndarray, float] | None:
     """The pinch preshape (J,) for a part of half width ``half_width`` about
-    :func:`pinch_center`, and the depth of its deepest fingertip below the palm plane (metres).
+    :func:`pinch_center`, and the depth of its fingertips below the palm plane (metres).
 
-    Every finger is straight (distal joint 0) and turned about its proximal joint so that its
-    fingertip's inner edge is ``half_width + PINCH_MARGIN`` from the centre along its closing
-    direction: each finger opens only as far as the part needs (a straight finger keeps its tip
-    deepest, at 0.083-0.09 m below the palm over the proximal joint's range). ``None`` when a
-    finger would have to open beyond its joint limit or the preshape collides with itself."""
+    Every fingertip's inner edge starts ``half_width + PINCH_MARGIN`` from the centre along its
+    finger's closing direction (each finger opens only as far as the part needs), and all three
+    at the same depth: first each finger straight, turned about its proximal joint to that
+    distance (a straight finger keeps its tip deepest); the common depth is the shallowest of
+    the three, and the other fingers bend their distal joints to bring their tips up to it
+    (two-link inverse kinematics in the flexion plane). ``None`` when a finger cannot reach
+    its point within its joint limits or the preshape collides with itself."""
     spread = KINDS[kind][1]
     c = pinch_center(hand, kind)
     q = np.zeros(len(hand.joint_names))
     q[list(hand.joint_names).index("f1_spread")] = spread
-    depth = 0.0
+    target = []  # per finger: (finger, plane, v, straight q1, straight depth)
     for name in FINGERS:  # loop over the three fingers
         f = hand.finger(name)
         p = hand.flexion_plane(name, spread)
@@ -114,10 +137,22 @@ def pinch_preshape(hand: Hand, kind: str, half_width: float) -> tuple[np.ndarray
         if abs(v) > R:
             return None
         q1 = float(np.arcsin(v / R)) - g
-        if not (f.lower[0] - 1e-12 <= q1 <= f.upper[0] + 1e-12):
-            return None
-        q[list(f.flex_index)] = (q1, 0.0)
-        depth = max(depth, float(p.origin[2]) + R * float(np.cos(q1 + g)))
+        target.append((f, p, v, q1, float(p.origin[2]) + R * float(np.cos(q1 + g))))
+    depth = min(t[4] for t in target)
+    for f, p, v, q1, d in target:  # loop over the three fingers
+        if d - depth < 1e-9:
+            flex: tuple[float, float] | None = (q1, 0.0)
+            if not (f.lower[0] - 1e-12 <= q1 <= f.upper[0] + 1e-12):
+                return None
+        else:
+            L2 = float(np.hypot(f.distal_length, 0.5 * f.thickness))
+            beta = float(np.arctan2(0.5 * f.thickness, f.distal_length))
+            flex = _tip_ik(
+                f.middle_length, L2, beta, depth - float(p.origin[2]), v, f.lower, f.upper
+            )
+            if flex is None:
+                return None
+        q[list(f.flex_index)] = flex
     q = np.asarray(hand.clamp(q), dtype=np.float64)
     return None if hand.self_collision(q) else (q, depth)
 
