@@ -95,6 +95,10 @@ ADJACENT: np.ndarray = np.stack(
 
 # ----------------------------------------------------------------------------- parameters
 
+FACE_RULES: tuple[str, ...] = ("face", "subface")
+"""Values of :attr:`FaceMaskParams.rule`: the paper's whole-face rule, or the clearance of each
+sub-face."""
+
 
 def _is_vector(value: object) -> bool:
     """True for a sequence or array of real numbers (not a string, not booleans)."""
@@ -130,6 +134,14 @@ class FaceMaskParams:
     """Height of the support plane along ``up`` (metres); ``None`` = the lowest cloud point."""
     support_tolerance: float = SUPPORT_PENETRATION_TOL
     """Metres: a face's slab must reach deeper than this below the plane to be blocked by it."""
+    rule: str = "subface"
+    """Which sub-faces may carry pre-grasps. ``"face"``: the paper's rule, whole faces blocked
+    by the boxes in front of them (and the support plane), a sub-face usable when its face and
+    every adjacent face it borders are free. ``"subface"`` (default): the same sub-faces, each
+    judged by the geometry in front of it: the cloud points of the other parts (or, without
+    points, their boxes) and the support plane in the slab in front of the sub-face and in
+    front of the third of each adjacent face next to it (:func:`usable_subfaces_by_cells`), so
+    a handle in the corner of the body's box keeps its outer sub-faces."""
 
     def __post_init__(self) -> None:
         # bounds: docs/limits.md ("Face masks"); lengths up to MAX_LENGTH (10 m)
@@ -160,6 +172,8 @@ class FaceMaskParams:
         if not (isinstance(sup, (bool, np.bool_, int, np.integer)) and sup in (0, 1)):
             raise ValueError(f"support must be True or False, got {self.support!r}")
         object.__setattr__(self, "support", bool(self.support))
+        if self.rule not in FACE_RULES:
+            raise ValueError(f"rule must be one of {list(FACE_RULES)}, got {self.rule!r}")
 
 
 # ----------------------------------------------------------------------------- support plane
@@ -327,6 +341,18 @@ class FaceMasks:
     """The support plane, or ``None`` when it is turned off."""
     params: FaceMaskParams = field(default_factory=FaceMaskParams)
     """The parameters the masks were computed with."""
+    covered: np.ndarray | None = None
+    """(K, 6, G, G) bool, ``G = SUBFACE_GRID``, under the ``subface`` rule (else ``None``): cell
+    ``(col, row)`` of face ``f`` of node ``k`` (``col`` along the face's right, ``row`` along its
+    up) has another part's point (or box) or the support plane in front of it, within the
+    clearance."""
+
+    def usable(self, node: int, grasp_type: GraspType | str) -> list[np.ndarray]:
+        """The usable sub-faces of a node for a grasp type under the masks' rule (a list of 6
+        bool arrays, as :func:`usable_subfaces`)."""
+        if self.covered is None:
+            return usable_subfaces(self.blocked[node], grasp_type)
+        return usable_subfaces_by_cells(self.covered[node], grasp_type, self.params.min_coverage)
 
     @property
     def masks(self) -> np.ndarray:
@@ -408,6 +434,7 @@ def compute_face_masks(
     params: FaceMaskParams | None = None,
     cut: Sequence[int] | None = None,
     limits: WorkLimits | None = None,
+    points: np.ndarray | None = None,
 ) -> FaceMasks:
     """Face masks of every node of ``tree``.
 
@@ -415,7 +442,9 @@ def compute_face_masks(
     object. cut: ids of the boxes forming the current decomposition (the possible blockers);
     default the leaves. The blockers of node ``n`` are the boxes of ``cut`` that are neither
     ``n`` nor an ancestor or descendant of ``n``. limits: ``max_face_mask_pairs`` bounds
-    ``nodes x cut boxes`` (``WorkLimitError`` past it, before any work).
+    ``nodes x cut boxes`` (``WorkLimitError`` past it, before any work). points: (N, 3) the
+    cloud the tree was built from; under the ``subface`` rule the blockers' points decide each
+    sub-face's clearance (without points, their boxes do).
 
     The pairs are screened in chunks of :data:`PAIR_CHUNK` (world-axis bounding boxes, then the
     node's three face axes), and only the pairs that may still block get the full
@@ -508,6 +537,11 @@ def compute_face_masks(
         by_support = np.zeros((K, 6), dtype=bool)
     blocked |= by_support
     blockers = tuple(tuple(tuple(sorted(h)) for h in node_hits) for node_hits in hits)
+    covered = None
+    if params.rule == "subface":
+        covered = _covered_cells(tree, cut_ids, support, params, points)
+        # a face is blocked when its own cells are covered as much as min_coverage of it
+        blocked = covered.mean(axis=(2, 3)) >= params.min_coverage
     return FaceMasks(
         blocked=blocked,
         by_support=by_support,
@@ -515,6 +549,7 @@ def compute_face_masks(
         cut=cut_ids,
         support=support,
         params=params,
+        covered=covered,
     )
 
 
@@ -627,4 +662,143 @@ def subface_rectangles(box: OrientedBox, grasp_type: GraspType | str) -> list[np
         us = np.stack([u0, u0, u1, u1], axis=1)
         p_box = centre + rs[..., None] * r_ax + us[..., None] * u_ax  # (S, 4, 3)
         out.append(box.to_world(p_box.reshape(-1, 3)).reshape(-1, 4, 3))
+    return out
+
+
+# ----------------------------------------------------------------------------- sub-face clearance
+
+SUBFACE_GRID: int = 12
+"""Cells per side of the grid on which the ``subface`` rule measures the clearance in front of
+each face (a multiple of 3, so the 3 x 3 and 3 x 1 sub-faces are whole cells)."""
+
+
+def face_cell_coords() -> np.ndarray:
+    """(6, G, G, 3) the centres of the ``G x G`` cells of each face of the cube ``[-1, 1]^3``
+    (a box's frame divided by its half extents): ``[f, col, row]``, ``col`` along the face's
+    right, ``row`` along its up."""
+    G = SUBFACE_GRID
+    c = (np.arange(G) + 0.5) / G * 2.0 - 1.0  # (G,)
+    return (
+        FACE_NORMAL[:, None, None, :]
+        + c[None, :, None, None] * FACE_RIGHT[:, None, None, :]
+        + c[None, None, :, None] * FACE_UP[:, None, None, :]
+    )
+
+
+def _covered_cells(
+    tree: BoxTree,
+    cut: Sequence[int],
+    support: SupportPlane | None,
+    params: FaceMaskParams,
+    points: np.ndarray | None,
+) -> np.ndarray:
+    """(K, 6, G, G) bool: :attr:`FaceMasks.covered` of every node (loop over nodes)."""
+    G = SUBFACE_GRID
+    K = len(tree.nodes)
+    out = np.zeros((K, 6, G, G), dtype=bool)
+    pts = None if points is None else as_points(points)
+    unit = face_cell_coords()  # (6, G, G, 3)
+    for nd in tree.nodes:  # loop over nodes (a small set)
+        box = nd.box
+        h = box.half_extents
+        others = [c for c in cut if not tree.is_related(nd.id, c)]
+        if others and pts is not None:
+            idx = np.concatenate([tree.nodes[c].indices for c in others])
+            p_box = (pts[idx] - box.center) @ box.rotation  # (M, 3)
+            for f in range(6):  # loop over the six faces
+                a = FACE_AXIS[f]
+                depth = FACE_SIGN[f] * p_box[:, a] - h[a]
+                r, u = p_box @ FACE_RIGHT[f], p_box @ FACE_UP[f]
+                hr, hu = float(np.abs(FACE_RIGHT[f]) @ h), float(np.abs(FACE_UP[f]) @ h)
+                sel = (
+                    (depth > GEOM_EPS)  # a neighbour's points touching the face block it
+                    & (depth <= params.clearance)
+                    & (np.abs(r) <= hr)
+                    & (np.abs(u) <= hu)
+                )
+                col = np.clip(((r[sel] + hr) / max(2 * hr, GEOM_EPS) * G).astype(int), 0, G - 1)
+                row = np.clip(((u[sel] + hu) / max(2 * hu, GEOM_EPS) * G).astype(int), 0, G - 1)
+                out[nd.id, f, col, row] = True
+        elif others:  # no points: probe each cell's column against the blocker boxes
+            depths = (np.arange(COVERAGE_DEPTHS) + 0.5) / COVERAGE_DEPTHS * params.clearance
+            p_box = unit[..., None, :] * h + depths[:, None] * FACE_NORMAL[:, None, None, None, :]
+            p_world = box.to_world(p_box.reshape(-1, 3))  # (6 G G D, 3)
+            inside = np.zeros(len(p_world), dtype=bool)
+            for c in others:  # loop over the blocker boxes
+                b = tree.nodes[c].box
+                local = (p_world - b.center) @ b.rotation
+                inside |= np.all(np.abs(local) <= b.half_extents, axis=1)
+            out[nd.id] |= inside.reshape(6, G, G, COVERAGE_DEPTHS).any(axis=-1)
+        if support is not None:
+            # the lowest point of each cell's column (the cell's rectangle pushed out by the
+            # clearance) against min(plane, the box's lowest corner), as for whole faces
+            proj = np.abs(box.rotation.T @ support.normal)  # (3,) |axis . up|
+            centre = unit * h + FACE_NORMAL[:, None, None, :] * (0.5 * params.clearance)
+            half = (
+                np.abs(FACE_RIGHT) * h / G
+                + np.abs(FACE_UP) * h / G
+                + np.abs(FACE_NORMAL) * (0.5 * params.clearance)
+            )  # (6, 3) half sides of a column, box axes
+            lowest = (box.to_world(centre.reshape(-1, 3)) @ support.normal).reshape(6, G, G)
+            lowest = lowest - (half @ proj)[:, None, None]
+            box_lowest = float(box.center @ support.normal - h @ proj)
+            out[nd.id] |= lowest < min(support.height, box_lowest) - params.support_tolerance
+    return out
+
+
+def subface_regions(grasp_type: GraspType | str) -> list[list[np.ndarray]]:
+    """For each face ``f`` and each of its sub-faces ``s`` (``subface_scheme``), the cells
+    ``(6, G, G)`` bool whose clearance decides it: ``regions[f][s][0]`` its own cells on face
+    ``f``; then, for every adjacent face ``a`` the sub-face borders, the cells of ``a`` in the
+    third of ``a`` next to the shared edge, along the sub-face's own span of that edge (where
+    the fingers go when they wrap round the edge). The same for every box (in the cube
+    ``[-1, 1]^3``)."""
+    scheme = subface_scheme(grasp_type)
+    unit = face_cell_coords()  # (6, G, G, 3)
+    regions: list[list[np.ndarray]] = []
+    for f in range(6):
+        nc, nr = scheme.grid[f]
+        borders = scheme.borders(f)  # (S, 4)
+        per: list[np.ndarray] = []
+        for s in range(nc * nr):
+            col, row = s % nc, s // nc
+            r0, r1 = -1 + 2 * col / nc, -1 + 2 * (col + 1) / nc
+            u0, u1 = -1 + 2 * row / nr, -1 + 2 * (row + 1) / nr
+            rc, uc = unit[f] @ FACE_RIGHT[f], unit[f] @ FACE_UP[f]  # (G, G)
+            own = np.zeros((6, SUBFACE_GRID, SUBFACE_GRID), dtype=bool)
+            own[f] = (rc > r0) & (rc < r1) & (uc > u0) & (uc < u1)
+            bands = [own]
+            for j in np.flatnonzero(borders[s]):  # the adjacent faces the sub-face borders
+                a = int(ADJACENT[f, j])
+                # along the edge: f's up for l and r (j = 0, 2), f's right for d and u
+                e_dir, lo, hi = (FACE_UP[f], u0, u1) if j in (0, 2) else (FACE_RIGHT[f], r0, r1)
+                e = unit[a] @ e_dir  # (G, G)
+                near = unit[a] @ FACE_NORMAL[f] > 1.0 / 3.0  # the third of a next to f
+                band = np.zeros_like(own)
+                band[a] = near & (e > lo) & (e < hi)
+                bands.append(band)
+            per.append(np.stack(bands))  # (1 + borders, 6, G, G)
+        regions.append(per)
+    return regions
+
+
+def usable_subfaces_by_cells(
+    covered: np.ndarray, grasp_type: GraspType | str, min_coverage: float
+) -> list[np.ndarray]:
+    """The usable sub-faces of one box under the ``subface`` rule: a list of 6 arrays
+    ``(S_f,) bool``. covered: (6, G, G) bool, the box's :attr:`FaceMasks.covered`. A sub-face is
+    usable when none of its regions (:func:`subface_regions`: its own cells, the bands of the
+    adjacent faces it borders) has ``min_coverage`` of its cells covered."""
+    cov = np.asarray(covered, dtype=bool)
+    G = SUBFACE_GRID
+    if cov.shape != (6, G, G):
+        raise ValueError(f"covered must have shape (6, {G}, {G}), got {cov.shape}")
+    out = []
+    for per in subface_regions(grasp_type):  # six faces
+        ok = np.zeros(len(per), dtype=bool)
+        for s, reg in enumerate(per):  # (R, 6, G, G) regions of sub-face s
+            n = reg.sum(axis=(1, 2, 3))  # (R,) cells per region
+            hit = (reg & cov).sum(axis=(1, 2, 3))
+            ok[s] = bool(np.all(hit < min_coverage * np.maximum(n, 1)))
+        out.append(ok)
     return out

@@ -188,7 +188,10 @@ def run_pipeline(
 
         def _masks() -> dict[str, Any]:
             sp = support_plane(points, params.facemask)
-            return {"masks": compute_face_masks(out["tree"], sp, params.facemask, limits=limits)}
+            masks = compute_face_masks(
+                out["tree"], sp, params.facemask, limits=limits, points=points
+            )
+            return {"masks": masks}
 
         ok_fm = stage(
             "facemask",
@@ -247,6 +250,7 @@ def run_pipeline(
                 progress((4 + done / max(total, 1)) / (last + 1))
 
         def _grasps() -> dict[str, Any]:
+            assert hand is not None  # loaded by the pool stage above
             masks = out["masks"]
             gs = plan_grasps(
                 points,
