@@ -120,6 +120,9 @@ def prepare(ctx: Context, pool: PreGraspPool, i: int) -> Prepared | Grasp:
     # 1. approach, with the cloud (its cells) in the frame of the hand at the pre-grasp pose
     c0 = to_frame(ctx.cells.centre, T0)  # (C, 3)
     s, stop = _approach(ctx, T0, q0, c0)
+    limit = float(pool.approach_limit[i]) if pool.approach_limit is not None else np.inf
+    if s > limit:  # a pinch across a thin part: the fingertips stay on it
+        s, stop = max(limit, 0.0), "limit"
     if not np.isfinite(s):
         detail = f"no cloud point within {prm.max_approach:.3f} m ahead"
         return Grasp.from_rejection(i, gt, T0, q0, "nothing_ahead", detail)

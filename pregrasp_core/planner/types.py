@@ -23,9 +23,10 @@ REJECTION_REASONS: dict[str, str] = {
 }
 """Why a pre-grasp can be rejected (keys used in ``Grasp.rejection`` and the result file)."""
 
-APPROACH_STOPS: tuple[str, ...] = ("object", "support", "start", "support_lifted")
-"""What ended the approach: a cloud point, the support plane, already close at the start, or
-the support followed by a retreat so that the fingers close on the object (``max_lift``)."""
+APPROACH_STOPS: tuple[str, ...] = ("object", "support", "start", "support_lifted", "limit")
+"""What ended the approach: a cloud point, the support plane, already close at the start, the
+support followed by a retreat so that the fingers close on the object (``max_lift``), or the
+pre-grasp's own approach limit (``PreGraspPool.approach_limit``: pinches across thin parts)."""
 
 
 @dataclass(frozen=True)

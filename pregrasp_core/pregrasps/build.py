@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 from ..box import OrientedBox
 from ..decomposition import BoxNode, BoxTree
 from ..errors import PregraspError
-from ..facemask import FaceMasks, SupportPlane, usable_subfaces
+from ..facemask import FaceMasks, SupportPlane
 from ..geometry import as_points
 from ..hand import grasp_type_name
 from ..shape import GRASP_TYPES, NodeShape, ShapeParams
@@ -55,6 +55,7 @@ def _concat_pools(pools: list[PreGraspPool], joint_names: Sequence[str]) -> PreG
         subface=np.concatenate([p.subface for p in pools]),
         surface=np.concatenate([p.surface for p in pools]),
         backoff=np.concatenate([p.backoff for p in pools]),
+        approach_limit=np.concatenate([np.asarray(p.approach_limit) for p in pools]),
         joint_names=tuple(joint_names),
     )
 
@@ -159,7 +160,7 @@ def build_pool(
         todo = [i for i in todo if i not in placed and attempt + 1 < len(queue[i])]
         if not todo:
             break
-    if params.pinch and masks.support is not None:
+    if params.pinch:
         pinches = _pinch_pool(tree, traversal.candidates, masks, hand, params, dropped)
         kept.append(_clear_the_hand(pinches, hand, pts, kd, masks.support, params, dropped))
     pool = _concat_pools(kept, joint_names)
@@ -182,7 +183,7 @@ def _node_pool(
 ) -> PreGraspPool:
     """The samples of one node for one grasp type on its usable sub-faces, as a pool."""
     every = sample_node(nd.box, gt, params, max_samples=max_samples)
-    use = usable_subfaces(masks.blocked[nd.id], gt)
+    use = masks.usable(nd.id, gt)
     table = np.zeros((6, max(len(u) for u in use) or 1), dtype=bool)  # (6, S_max) usable
     for f, u in enumerate(use):
         table[f, : len(u)] = u
@@ -225,29 +226,32 @@ def _pinch_pool(
     params: SamplingParams,
     dropped: dict[str, int],
 ) -> PreGraspPool:
-    """The fingertip pinches from above of every candidate (:mod:`.pinch`) whose top face is
-    free, as a pool (those of a blocked top face are counted ``blocked_subface``)."""
-    assert masks.support is not None
+    """The fingertip pinches (:mod:`.pinch`) of every candidate whose face they come from has
+    its centre sub-face usable, as a pool (the others are counted ``blocked_subface``)."""
     pools = []
     for i in candidates:  # loop over the candidate nodes
         got = pinch_samples(hand, tree.nodes[i].box, masks.support, params)
         if got is None:
             continue
-        M = len(got.q)
-        if masks.blocked[i, got.face]:
-            dropped["blocked_subface"] += M
+        # a pinch needs its face's centre sub-face (3 x 3 grid) usable
+        use = masks.usable(i, "spherical")
+        keep = np.array([use[f][4] for f in got.face], dtype=bool)
+        dropped["blocked_subface"] += int(np.count_nonzero(~keep))
+        M = int(keep.sum())
+        if M == 0:
             continue
         pools.append(
             PreGraspPool(
-                T_world_hand=got.T_world_hand,
-                approach=got.T_world_hand[:, :3, 2].copy(),
-                grasp_type=got.grasp_type,
-                spread=got.spread,
-                q=got.q,
+                T_world_hand=got.T_world_hand[keep],
+                approach=got.T_world_hand[keep, :3, 2].copy(),
+                grasp_type=got.grasp_type[keep],
+                spread=got.spread[keep],
+                q=got.q[keep],
                 node=np.full(M, i, dtype=np.int64),
-                face=np.full(M, got.face, dtype=np.int64),
-                subface=np.zeros(M, dtype=np.int64),
+                face=got.face[keep],
+                subface=np.full(M, 4, dtype=np.int64),
                 surface=np.full(M, PINCH_SURFACE, dtype=np.int64),
+                approach_limit=got.approach_limit[keep],
                 joint_names=tuple(hand.joint_names),
             )
         )
@@ -325,4 +329,6 @@ def _clear_the_hand(
     out = pool.select(placed)
     T = out.T_world_hand.copy()
     T[:, :3, 3] -= backoff[placed][:, None] * out.approach
-    return replace(out, T_world_hand=T, backoff=backoff[placed])
+    # a limited approach (pinches) is measured from the pre-grasp before its back-off
+    limit = np.asarray(out.approach_limit) + backoff[placed]
+    return replace(out, T_world_hand=T, backoff=backoff[placed], approach_limit=limit)

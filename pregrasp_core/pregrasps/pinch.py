@@ -1,28 +1,33 @@
-"""Fingertip pinches from above for parts standing on the support plane (:func:`pinch_samples`).
+"""Fingertip pinches: from above for parts on the table, across the thickness of thin parts
+(:func:`pinch_samples`).
 
-A decision beyond the paper (``docs/pregrasps.md`` section 6b). The paper's enclosing surfaces
+Decisions beyond the paper (``docs/pregrasps.md`` section 6b). The paper's enclosing surfaces
 put the hand at a fixed preshape on a sphere, cylinder or circle around the part; for a part a
-few centimetres high on a table the fully open hand (0.12 m fingers) then reaches below the
-table from every direction but straight down, and from straight down the open fingertips land
-on the table far from the part. A person picks such a part up with the fingertips from above,
-the hand opened just wider than the part. So every candidate whose top face is free also gets
-pinches from above:
+few centimetres high on a table the open hand (0.12 m fingers) then reaches below the table
+from every direction but straight down, and from straight down the open fingertips land on the
+table far from the part. A person picks such a part up with the fingertips, the hand opened
+just wider than the part. So every candidate also gets pinches:
 
-- the hand approaches straight down (``-up``), the palm parallel to the table;
-- the preshape adapts to the part: the fingers' flexion is the first configuration along
-  :data:`PINCH_PATH` (from nearly closed to the widest opening) whose fingertip gap exceeds the
-  part's width across the pinch by ``2 * PINCH_MARGIN``;
-- two kinds, by the part's length along the hand's x axis (the direction the fingers are spread
-  along at spread 0): a part at least :data:`TIP_MIN_LENGTH` long gets the three-finger tip
-  (thumb against f1 and f2, spread 0) across its width, at positions along its length; a
-  shorter part gets a tripod (spread :data:`TRIPOD_SPREAD`, three fingertips around it,
-  labelled ``spherical``) about its centre, opened to the part's horizontal diagonal;
-- the hand is placed so that its fingertips are at the part's mid-height, or higher when the
-  fingers are too short for that (the palm stays ``standoff`` above the part's top).
+- **from above** (with a support plane, when the box's top face is within 30 degrees of
+  level): the hand approaches straight down, the palm parallel to the table, across each of
+  the two horizontal box axes; the fingertips start at the part's mid-height (higher when the
+  fingers are too short for that: the palm stays ``standoff`` above the part) and the
+  planner's approach then goes on until the part or the table stops it;
+- **across a thin part** (smallest box side at most :data:`THIN_PART`: a handle, a wall, a
+  wing): from each face around its rim (not from under the table), across the thickness; the
+  fingertips start ``standoff`` outside the part and the approach ends at most half a
+  thickness inside it (``PreGraspPool.approach_limit``), so that they close on the part and
+  not on what lies behind it (the mug's body behind its handle).
 
-Two fingertips alone (the paper's two-finger tip) never give force closure with point contacts
-(two contacts leave the torque about the line through them free, ``docs/quality.md``), which is
-why the small-part pinches use three fingers.
+The preshape adapts to the part (:func:`pinch_preshape`): every finger straight, turned about
+its proximal joint so that its fingertip starts :data:`PINCH_MARGIN` outside the part, all
+three fingertips at one depth. Two kinds, by the part's length along the hand's x axis (the
+direction f1 and f2 are spread along at spread 0): a part at least :data:`TIP_MIN_LENGTH` long
+gets the three-finger tip (thumb against f1 and f2, spread 0) at positions along it; a
+shorter part a tripod (spread :data:`TRIPOD_SPREAD`, three fingertips around it, labelled
+``spherical``) opened to its cross-section's diagonal. Two fingertips alone (the paper's
+two-finger tip) never give force closure with point contacts (two contacts leave the torque
+about the line through them free, ``docs/quality.md``), which is why every pinch uses three.
 """
 
 from __future__ import annotations
@@ -48,6 +53,10 @@ TIP_MIN_LENGTH: float = 0.036
 """Metres: shortest part (along the hand's x axis) whose sides both f1 and f2 reach in the
 three-finger tip at spread 0 (their flexion planes are 0.028 m either side of the thumb's and
 the fingers 0.02 m wide: 2 x (0.028 - 0.01)); shorter parts get the tripod."""
+
+THIN_PART: float = 0.015
+"""Metres: a part whose smallest box side is at most this (a handle, a wall, a wing) also gets
+pinches across its thickness from every face around its rim."""
 
 MAX_TILT_COS: float = float(np.cos(np.deg2rad(30.0)))
 """A box's top face must face up within 30 degrees for pinches from above."""
@@ -115,36 +124,48 @@ def pinch_preshape(hand: Hand, kind: str, half_width: float) -> tuple[np.ndarray
 
     Every fingertip's inner edge starts ``half_width + PINCH_MARGIN`` from the centre along its
     finger's closing direction (each finger opens only as far as the part needs), and all three
-    at the same depth: first each finger straight, turned about its proximal joint to that
-    distance (a straight finger keeps its tip deepest); the common depth is the shallowest of
-    the three, and the other fingers bend their distal joints to bring their tips up to it
-    (two-link inverse kinematics in the flexion plane). ``None`` when a finger cannot reach
-    its point within its joint limits or the preshape collides with itself."""
+    at the same depth: first each finger on its own, its distal link parallel to the approach
+    when the proximal joint can reach that distance so (between -30 and +15 degrees: the
+    distal link's inner face meets the part's side), else straight, turned about its proximal
+    joint (inwards for parts under about 1.5 cm, outwards for parts over about 7 cm); the
+    common depth is the shallowest of the three, and the
+    other fingers bend to bring their tips up to it (two-link inverse kinematics in the
+    flexion plane). ``None`` when a finger cannot reach its point within its joint limits or
+    the preshape collides with itself."""
     spread = KINDS[kind][1]
     c = pinch_center(hand, kind)
     q = np.zeros(len(hand.joint_names))
     q[list(hand.joint_names).index("f1_spread")] = spread
-    target = []  # per finger: (finger, plane, v, straight q1, straight depth)
+    target = []  # per finger: (finger, plane, v, first flexion, its depth)
     for name in FINGERS:  # loop over the three fingers
         f = hand.finger(name)
         p = hand.flexion_plane(name, spread)
         v = float((c - p.origin[:2]) @ p.v[:2]) - (half_width + PINCH_MARGIN)
-        # inner edge of the straight finger's tip at angle q1: (L cos q1 - t/2 sin q1,
-        # L sin q1 + t/2 cos q1) = R (cos(q1 + g), sin(q1 + g)) in the flexion plane
-        L = f.middle_length + f.distal_length
-        R = float(np.hypot(L, 0.5 * f.thickness))
-        g = float(np.arctan2(0.5 * f.thickness, L))
-        if abs(v) > R:
-            return None
-        q1 = float(np.arcsin(v / R)) - g
-        target.append((f, p, v, q1, float(p.origin[2]) + R * float(np.cos(q1 + g))))
-    depth = min(t[4] for t in target)
-    for f, p, v, q1, d in target:  # loop over the three fingers
-        if d - depth < 1e-9:
-            flex: tuple[float, float] | None = (q1, 0.0)
+        t2 = 0.5 * f.thickness
+        a = float(np.arcsin(np.clip((v - t2) / f.middle_length, -1.0, 1.0)))
+        if abs(v - t2) <= f.middle_length and f.lower[0] <= a <= -f.lower[1]:
+            # the distal link parallel to the approach (j2 = -j1): its inner face, not a
+            # corner, meets the part's side
+            first = (a, -a)
+            d = float(p.origin[2]) + f.middle_length * float(np.cos(a)) + f.distal_length
+        else:
+            # a straight finger turned about j1: the inner edge of its tip at angle q1 is
+            # R (cos(q1 + g), sin(q1 + g)) in the flexion plane
+            L = f.middle_length + f.distal_length
+            R = float(np.hypot(L, t2))
+            g = float(np.arctan2(t2, L))
+            if abs(v) > R:
+                return None
+            q1 = float(np.arcsin(v / R)) - g
             if not (f.lower[0] - 1e-12 <= q1 <= f.upper[0] + 1e-12):
                 return None
-        else:
+            first = (q1, 0.0)
+            d = float(p.origin[2]) + R * float(np.cos(q1 + g))
+        target.append((f, p, v, first, d))
+    depth = min(t[4] for t in target)
+    for f, p, v, start, d in target:  # loop over the three fingers
+        flex: tuple[float, float] | None = start
+        if d - depth > 1e-9:
             L2 = float(np.hypot(f.distal_length, 0.5 * f.thickness))
             beta = float(np.arctan2(0.5 * f.thickness, f.distal_length))
             flex = _tip_ik(
@@ -169,69 +190,147 @@ class PinchSamples:
     """(M,) grasp type labels."""
     spread: np.ndarray
     """(M,) spreads."""
-    face: int
-    """The box face the pinches come from (the top face)."""
+    approach_limit: np.ndarray
+    """(M,) metres: the longest approach from each (``inf`` for pinches from above, which go
+    down until they meet the part or the table)."""
+    face: np.ndarray
+    """(M,) int64: the box face each pinch comes from (the hand approaches against its
+    normal)."""
+
+
+def _face_pinches(
+    hand: Hand,
+    box: OrientedBox,
+    face: int,
+    d: np.ndarray,
+    closing_axes: tuple[int, ...],
+    floor: float | None,
+    kinds: tuple[str, ...],
+    every_kind: bool,
+    params: SamplingParams,
+) -> list[tuple[np.ndarray, np.ndarray, str, float, float]]:
+    """Pinches approaching ``box`` along ``-d`` (d: unit, world, about the outward normal of
+    ``face``), closing across each box axis of ``closing_axes`` (projected perpendicular to
+    ``d``), with the fingertips at the part's middle along ``d`` (not below ``floor`` along
+    ``d``, the table) or higher when the fingers are too short: ``(T_world_hand, q, grasp
+    type, spread, approach limit)`` each. ``kinds``: the pinch kinds allowed (the tip only
+    across a part at least ``TIP_MIN_LENGTH`` long); ``every_kind``: all of them, else the
+    first that fits."""
+    corners = box_corners(box.T_world_box[None], box.half_extents[None])  # (8, 3)
+    heights = corners @ d  # (8,)
+    z_top, z_bottom = float(heights.max()), float(heights.min())
+    if floor is not None:
+        z_bottom = max(z_bottom, floor)
+    out = []
+    for a_close in closing_axes:  # pinch across each axis
+        a_along = 3 - face // 2 - a_close
+        c_dir = box.rotation[:, a_close] - (box.rotation[:, a_close] @ d) * d
+        c_dir /= np.linalg.norm(c_dir)
+        x_dir = np.cross(c_dir, -d)  # hand x = y x z with y = closing, z = approach
+        width, length = float(box.extents[a_close]), float(box.extents[a_along])
+        chosen = [k for k in kinds if k != "tip" or length >= TIP_MIN_LENGTH]
+        if not every_kind:  # by the part's size: the tip when it fits along, else the tripod
+            chosen = chosen[:1]
+        for kind in chosen:
+            out += _placed(
+                hand, box, kind, width, length, c_dir, x_dir, d, z_top, z_bottom, floor, params
+            )
+    return out
+
+
+def _placed(
+    hand: Hand,
+    box: OrientedBox,
+    kind: str,
+    width: float,
+    length: float,
+    c_dir: np.ndarray,
+    x_dir: np.ndarray,
+    d: np.ndarray,
+    z_top: float,
+    z_bottom: float,
+    floor: float | None,
+    params: SamplingParams,
+) -> list[tuple[np.ndarray, np.ndarray, str, float, float]]:
+    """The pinches of one kind across ``c_dir`` (hand y), ``x_dir`` (hand x) and approach
+    ``-d``, both rolls, at positions along the part (tip) or about its centre (tripod).
+
+    With a ``floor`` (a table under the part, pinches from above) the fingertips start at the
+    part's middle height (or higher, when the fingers are too short for it) and the approach
+    is unlimited (it ends on the part or the table); without one (across a thin part) they
+    start ``standoff`` outside the part's near side and go at most to its middle, so that the
+    fingertips close on the part and not on what lies beyond it."""
+    out: list[tuple[np.ndarray, np.ndarray, str, float, float]] = []
+    if kind == "tripod":  # the tripod encloses the whole cross-section (its diagonal)
+        width = float(np.hypot(width, length))
+    gt, spread = KINDS[kind]
+    got = pinch_preshape(hand, kind, 0.5 * width)
+    if got is None:
+        return out
+    q_pinch, depth = got
+    c = pinch_center(hand, kind)
+    if kind == "tip":
+        half_run = max(0.5 * length - 0.5 * TIP_MIN_LENGTH, 0.0)
+        offsets = _grid(half_run, params.interval)  # along the hand's x, symmetric
+    else:
+        offsets = np.zeros(1)
+    if floor is not None:
+        z_tip = max(0.5 * (z_top + z_bottom), z_top + params.standoff - depth)
+        limit = np.inf
+    else:
+        z_tip = z_top + params.standoff
+        limit = params.standoff + min(0.5 * (z_top - z_bottom), 0.5 * float(box.extents[2]))
+    centre = box.center - (box.center @ d) * d  # the box centre projected on d = 0
+    for sign in (1.0, -1.0):  # both rolls: thumb on either side
+        R = np.stack([sign * x_dir, sign * c_dir, -d], axis=1)  # columns = hand axes
+        for off in offsets:  # a few positions along the part
+            p_c = centre + off * sign * x_dir + z_tip * d  # where the tips' centre goes
+            T = np.eye(4)
+            T[:3, :3] = R
+            T[:3, 3] = p_c - R @ np.array([c[0], c[1], depth])
+            out.append((T, q_pinch, gt, spread, limit))
+    return out
 
 
 def pinch_samples(
     hand: Hand,
     box: OrientedBox,
-    support: SupportPlane,
+    support: SupportPlane | None,
     params: SamplingParams,
 ) -> PinchSamples | None:
-    """Pinches from above of ``box`` (see the module docstring); ``None`` when the box's top
-    face is tilted more than 30 degrees from the table or no preshape encloses the part."""
-    up = support.normal
+    """The pinches of ``box`` (see the module docstring): from above (with a support plane,
+    when the box's top face is within 30 degrees of level), across each of the two horizontal
+    box axes; and for a thin part (smallest side at most ``THIN_PART``), across its thickness
+    from each face around its rim. ``None`` when there is none."""
     n_world = FACE_NORMAL @ box.rotation.T  # (6, 3) face normals, world
-    top = int(np.argmax(n_world @ up))
-    if float(n_world[top] @ up) < MAX_TILT_COS:
-        return None
-    corners = box_corners(box.T_world_box[None], box.half_extents[None])  # (8, 3)
-    heights = corners @ up  # (8,)
-    z_top, z_bottom = float(heights.max()), max(float(heights.min()), support.height)
-    in_plane = [a for a in range(3) if a != top // 2]
-    poses, qs, types, spreads = [], [], [], []
-    for a_close, a_along in (in_plane, in_plane[::-1]):  # pinch across each in-plane axis
-        c_dir = box.rotation[:, a_close] - (box.rotation[:, a_close] @ up) * up
-        c_dir /= np.linalg.norm(c_dir)
-        x_dir = np.cross(c_dir, -up)  # hand x = y x z with y = closing, z = approach
-        width, length = float(box.extents[a_close]), float(box.extents[a_along])
-        kind = "tip" if length >= TIP_MIN_LENGTH else "tripod"
-        if kind == "tripod":  # the tripod encloses the whole cross-section (its diagonal)
-            width = float(np.hypot(width, length))
-        gt, spread = KINDS[kind]
-        got = pinch_preshape(hand, kind, 0.5 * width)
-        if got is None:
-            continue
-        q_pinch, depth = got
-        c = pinch_center(hand, kind)
-        if kind == "tip":
-            half_run = max(0.5 * length - 0.5 * TIP_MIN_LENGTH, 0.0)
-            offsets = _grid(half_run, params.interval)  # along the hand's x, symmetric
-        else:
-            offsets = np.zeros(1)
-        z_tip = max(0.5 * (z_top + z_bottom), z_top + params.standoff - depth)
-        centre = box.center - (box.center @ up) * up  # the box centre projected on z = 0
-        for sign in (1.0, -1.0):  # both rolls: thumb on either side
-            y = sign * c_dir
-            x = sign * x_dir
-            R = np.stack([x, y, -up], axis=1)  # (3, 3) columns = hand axes in the world
-            for off in offsets:  # a few positions along the part
-                p_c = centre + off * x + z_tip * up  # where the tips' centre goes
-                origin = p_c - R @ np.array([c[0], c[1], depth])
-                T = np.eye(4)
-                T[:3, :3] = R
-                T[:3, 3] = origin
-                poses.append(T)
-                qs.append(q_pinch)
-                types.append(gt)
-                spreads.append(spread)
-    if not poses:
+    found: list[tuple[np.ndarray, np.ndarray, str, float, float]] = []
+    faces: list[int] = []
+    if support is not None:
+        up = support.normal
+        top = int(np.argmax(n_world @ up))
+        if float(n_world[top] @ up) >= MAX_TILT_COS:
+            axes = tuple(a for a in range(3) if a != top // 2)
+            got = _face_pinches(
+                hand, box, top, up, axes, support.height, ("tip", "tripod"), False, params
+            )
+            found += got
+            faces += [top] * len(got)
+    if float(box.extents[2]) <= THIN_PART:
+        for f in range(4):  # the rim faces (axes 0 and 1): across the thickness (axis 2)
+            if support is not None and float(n_world[f] @ support.normal) < -0.5:
+                continue  # not from under the table
+            got = _face_pinches(
+                hand, box, f, n_world[f], (2,), None, ("tip", "tripod"), True, params
+            )
+            found += got
+            faces += [f] * len(got)
+    if not found:
         return None
     return PinchSamples(
-        T_world_hand=np.stack(poses),
-        q=np.stack(qs),
-        grasp_type=np.array(types, dtype="<U16"),
-        spread=np.array(spreads),
-        face=top,
+        T_world_hand=np.stack([t[0] for t in found]),
+        q=np.stack([t[1] for t in found]),
+        grasp_type=np.array([t[2] for t in found], dtype="<U16"),
+        spread=np.array([t[3] for t in found]),
+        approach_limit=np.array([t[4] for t in found]),
+        face=np.array(faces, dtype=np.int64),
     )

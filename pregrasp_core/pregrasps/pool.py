@@ -40,6 +40,9 @@ class PreGrasp:
     """The enclosing-surface patch (one of :data:`SURFACES`)."""
     backoff: float = 0.0
     """Metres the hand was moved back along its approach from the enclosing surface."""
+    approach_limit: float = float("inf")
+    """Metres: the planner's approach ends here at the latest (pinches of thin parts: the
+    fingertips go no deeper than the part; ``inf`` = until contact)."""
 
 
 @dataclass(frozen=True)
@@ -69,6 +72,10 @@ class PreGraspPool:
     backoff: np.ndarray | None = None
     """(P,) float64, metres: how far the hand was moved back along its approach from the
     enclosing surface to clear the table and the cloud (``None`` = zeros)."""
+    approach_limit: np.ndarray | None = None
+    """(P,) float64, metres: the longest approach the planner makes from each pre-grasp (``inf``
+    = until contact, the paper's; finite for the pinches across a thin part, whose fingertips
+    must stay on it). ``None`` = all ``inf``."""
     candidates: tuple[int, ...] = ()
     """Ids of the nodes that were sampled."""
     fallback: dict[int, str] = field(default_factory=dict)
@@ -81,8 +88,11 @@ class PreGraspPool:
         P = len(self.node)
         if self.backoff is None:
             object.__setattr__(self, "backoff", np.zeros(P))
+        if self.approach_limit is None:
+            object.__setattr__(self, "approach_limit", np.full(P, np.inf))
         shapes = {
             "backoff": (P,),
+            "approach_limit": (P,),
             "T_world_hand": (P, 4, 4),
             "approach": (P, 3),
             "grasp_type": (P,),
@@ -97,6 +107,12 @@ class PreGraspPool:
             got = np.shape(getattr(self, name))
             if got != shp:
                 raise ValueError(f"PreGraspPool.{name} must have shape {shp}, got {got}")
+
+    @property
+    def _limit(self) -> np.ndarray:
+        """``approach_limit`` as an array (``__post_init__`` replaced ``None`` by inf)."""
+        assert self.approach_limit is not None
+        return self.approach_limit
 
     @property
     def _backoff(self) -> np.ndarray:
@@ -122,6 +138,7 @@ class PreGraspPool:
             subface=int(self.subface[i]),
             surface=SURFACES[int(self.surface[i])],
             backoff=float(self._backoff[i]),
+            approach_limit=float(self._limit[i]),
         )
 
     def __iter__(self) -> Iterator[PreGrasp]:
@@ -142,6 +159,7 @@ class PreGraspPool:
             subface=self.subface[idx],
             surface=self.surface[idx],
             backoff=self._backoff[idx],
+            approach_limit=self._limit[idx],
             dropped=dict(self.dropped),
             fallback=dict(self.fallback),
         )
@@ -205,6 +223,9 @@ class PreGraspPool:
                     "subface": int(self.subface[i]),
                     "surface": SURFACES[int(self.surface[i])],
                     "backoff": float(self._backoff[i]),
+                    "approach_limit": (
+                        float(self._limit[i]) if np.isfinite(self._limit[i]) else None
+                    ),
                     "preshape": dict(zip(names, map(float, self.q[i]), strict=True)),
                 }
                 for i in range(len(self))
