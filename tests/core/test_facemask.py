@@ -393,7 +393,9 @@ def test_chunked_masks_equal_the_all_pairs_reference(seed, monkeypatch):
     all-pairs algorithm, for the leaves and for another cut, with chunks of a few pairs."""
     rng = np.random.default_rng(seed)
     tree = random_tree(rng, 40)
-    params = FaceMaskParams(clearance=0.03, overlap_tolerance=[0.0, 0.002, 0.01][seed])
+    params = FaceMaskParams(  # the whole-face rule (the sub-face rule is test_coverage.py)
+        clearance=0.03, overlap_tolerance=[0.0, 0.002, 0.01][seed], rule="face"
+    )
     cuts = [None, sorted(rng.choice(len(tree.nodes), 15, replace=False).tolist())]
     for cut in cuts:
         ref_blocked, ref_blockers = reference_face_masks(tree, TABLE, params, cut)
