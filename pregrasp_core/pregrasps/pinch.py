@@ -41,7 +41,7 @@ from ..box import OrientedBox
 from ..facemask import FACE_NORMAL, SupportPlane
 from ..geometry import box_corners
 from .params import SamplingParams
-from .surfaces import SURFACES, _grid
+from .surfaces import SURFACES, centred_grid
 
 if TYPE_CHECKING:
     from ..hand import Hand
@@ -271,7 +271,7 @@ def _placed(
     c = pinch_center(hand, kind)
     if kind == "tip":
         half_run = max(0.5 * length - 0.5 * TIP_MIN_LENGTH, 0.0)
-        offsets = _grid(half_run, params.interval)  # along the hand's x, symmetric
+        offsets = centred_grid(half_run, params.interval)  # along the hand's x, symmetric
     else:
         offsets = np.zeros(1)
     if floor is not None:

@@ -44,12 +44,12 @@ class NodeSamples:
 
 
 def _grid_m(half_range: float, step: float) -> int:
-    """The m of :func:`_grid`: its 2 m + 1 cells have width ~``step``."""
+    """The m of :func:`centred_grid`: its 2 m + 1 cells have width ~``step``."""
     m = int(round(half_range / step - 0.5)) if step > 0 else 0
     return max(m, 0)
 
 
-def _grid(half_range: float, step: float) -> np.ndarray:
+def centred_grid(half_range: float, step: float) -> np.ndarray:
     """Centres of 2 m + 1 equal cells tiling [-half_range, half_range] with width ~``step``:
     symmetric about 0 and always containing 0 (the face's centre line)."""
     m = _grid_m(half_range, step)
@@ -60,7 +60,7 @@ def _patch_grids(box: OrientedBox, grasp_type: str) -> list[tuple[int, int, tupl
     """The grids :func:`sample_node` lays on ``box`` for ``grasp_type``, one row per face:
     ``(patch index into SURFACES, copies, (range_a, divisor_a), (range_b, divisor_b))``; the row
     makes ``copies * size_a * size_b`` samples per roll, where ``size = 2 m + 1`` of
-    :func:`_grid` over ``[-range, range]`` with step ``interval / divisor``."""
+    :func:`centred_grid` over ``[-range, range]`` with step ``interval / divisor``."""
     gt = grasp_type_name(grasp_type)
     h = box.half_extents
     one = (0.0, 1.0)  # a single grid point
@@ -86,7 +86,8 @@ def _patch_grids(box: OrientedBox, grasp_type: str) -> list[tuple[int, int, tupl
 
 
 def _grid_sizes(half_range: np.ndarray, step: np.ndarray) -> np.ndarray:
-    """``2 m + 1`` of :func:`_grid`, element-wise (float64, exact for the sizes that matter)."""
+    """``2 m + 1`` of :func:`centred_grid`, element-wise (float64, exact for the sizes that
+    matter)."""
     return 2.0 * np.maximum(np.round(half_range / step - 0.5), 0.0) + 1.0
 
 
@@ -185,8 +186,8 @@ def sample_node(
             a = FACE_AXIS[f]
             r_ax, u_ax, n_ax = FACE_RIGHT[f], FACE_UP[f], FACE_NORMAL[f]
             hr, hu = float(np.abs(r_ax) @ h), float(np.abs(u_ax) @ h)
-            tr = _grid(np.arctan2(hr, h[a]), step / max(radius, GEOM_EPS))
-            tu = _grid(np.arctan2(hu, h[a]), step / max(radius, GEOM_EPS))
+            tr = centred_grid(np.arctan2(hr, h[a]), step / max(radius, GEOM_EPS))
+            tu = centred_grid(np.arctan2(hu, h[a]), step / max(radius, GEOM_EPS))
             TR, TU = np.meshgrid(tr, tu, indexing="ij")
             tan_r, tan_u = np.tan(TR.ravel()), np.tan(TU.ravel())
             d = n_ax + tan_r[:, None] * r_ax + tan_u[:, None] * u_ax  # (m, 3) unnormalised
@@ -209,12 +210,12 @@ def sample_node(
             aim.append(np.zeros((len(d), 3)))
     elif gt == "cylindrical":
         radius = float(np.hypot(h[1], h[2]))
-        xs = _grid(h[0], step)
+        xs = centred_grid(h[0], step)
         for f in range(2, 6):  # side faces: radial approach towards the axis
             a = FACE_AXIS[f]
             u_ax, n_ax = FACE_UP[f], FACE_NORMAL[f]
             hu = float(np.abs(u_ax) @ h)
-            tu = _grid(np.arctan2(hu, h[a]), step / max(radius, GEOM_EPS))
+            tu = centred_grid(np.arctan2(hu, h[a]), step / max(radius, GEOM_EPS))
             X, TU = np.meshgrid(xs, tu, indexing="ij")
             x, tan_u = X.ravel(), np.tan(TU.ravel())
             d = n_ax + tan_u[:, None] * u_ax
@@ -250,7 +251,7 @@ def sample_node(
             a = FACE_AXIS[f]
             r_ax, n_ax = FACE_RIGHT[f], FACE_NORMAL[f]
             hr = float(np.abs(r_ax) @ h)
-            tr = _grid(np.arctan2(hr, h[a]), step / max(radius, GEOM_EPS))
+            tr = centred_grid(np.arctan2(hr, h[a]), step / max(radius, GEOM_EPS))
             tan_r = np.tan(tr)
             d = n_ax + tan_r[:, None] * r_ax
             d = d / np.linalg.norm(d, axis=1, keepdims=True)
