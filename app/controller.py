@@ -605,4 +605,13 @@ class Controller:
         return result
 
 
-__all__ = ["ALL", "Controller", "DEFAULT_MAX_UPLOAD_BYTES"]
+__all__ = [
+    "ALL",
+    "Controller",
+    "DEFAULT_MAX_UPLOAD_BYTES",
+    "N_POINTS_RANGE",
+    "SEED_RANGE",
+    "SPEED_RANGE",
+    "Superseded",
+    "coerce_param",
+]

@@ -518,4 +518,4 @@ def node_info(s: AppState) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["Gui", "grasp_table", "node_info"]
+__all__ = ["Gui", "accepted_range", "grasp_table", "node_info"]

@@ -123,6 +123,7 @@ def ghost_colors(grasp_type: str, faces: np.ndarray) -> np.ndarray:
 
 
 def attr_or_none(obj: Any, name: str) -> Any:
+    """``obj.<name>``, or ``None`` when ``obj`` is ``None`` or has no such attribute."""
     return None if obj is None else getattr(obj, name, None)
 
 
@@ -206,6 +207,7 @@ def friction_cone_segments(
 
 
 def pregrasp_of(state: AppState, grasp: Any) -> Any:
+    """The pool's pre-grasp that ``grasp`` was planned from, or ``None``."""
     pool = attr_or_none(state.result, "pool")
     i = getattr(grasp, "pregrasp", None)
     if i is None:
