@@ -97,7 +97,15 @@ def main() -> None:
         )
         if args.model_error:
             cobj = object_from_cloud(cloud.points, result.normals, sp.object)
-            errors.append((path.stem, obj, model_error(obj, mesh), cobj, model_error(cobj, mesh)))
+            errors.append(
+                (
+                    path.stem,
+                    obj,
+                    model_error(obj, mesh, 20000, 20000),
+                    cobj,
+                    model_error(cobj, mesh, 20000, 20000),
+                )
+            )
     print(
         f"\nbest grasp lifted on {n_best}/{len(paths)} objects; top-{args.top}: {n_ok}/{n_all} "
         f"= {n_ok / max(n_all, 1):.0%}; CPU per grasp median {np.median(cpu):.3f} s, "

@@ -61,6 +61,9 @@ class SimulationParams:
     """Metres: torsional friction of the contacts (a soft finger pad)."""
     impratio: float = 10.0
     """MuJoCo's friction-to-normal impedance ratio (elliptic cones; > 1 resists slip better)."""
+    multiccd: bool = False
+    """Several contact points per pair of convex shapes (MuJoCo's multiccd); off: one point per
+    pair (about twice as fast on wrap grasps, see ``docs/simulation.md``)."""
     noslip_iterations: int = 5
     """MuJoCo's no-slip solver iterations (0 = off): removes the slow creep of soft frictional
     contacts under a sustained load."""

@@ -193,7 +193,7 @@ def scene_xml(
   <option timestep="{_f(params.timestep)}" gravity="{_v(g)}" integrator="implicitfast"
           cone="elliptic" impratio="{_f(params.impratio)}"
           noslip_iterations="{int(params.noslip_iterations)}">
-    <flag multiccd="enable" filterparent="disable"/>
+    <flag multiccd="{"enable" if params.multiccd else "disable"}" filterparent="disable"/>
   </option>
   <default>
     <geom friction="{fr}" condim="{condim}" solref="{_f(params.contact_timeconst)} 1"/>
