@@ -206,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
     tail = (
         f", best {gs.grasps[best].grasp_type} epsilon {gs.grasps[best].epsilon:.4f}"
         if best is not None
-        else ", no grasp kept"
+        else f", {gs.best_reason}"
     )
     print(
         f"wrote {written}: {len(result.pool or ())} pre-grasps, {len(gs.ranking)} grasps kept{tail}"
@@ -235,6 +235,8 @@ def summary(result: PipelineResult, timings: dict[str, float], top: int) -> str:
         f"planned: {len(gs.ranking)} kept, {gs.n_force_closure} force closure"
         + (f"; rejected {_counts(gs.rejected)}" if any(gs.rejected.values()) else ""),
     ]
+    if gs.best is None:  # "no force-closure grasp: ..." (the ranking below keeps epsilon 0)
+        lines.append(gs.best_reason)
     best = gs.top(top)
     if best:
         lines.append(f"best {len(best)} grasps (#1 = best; by epsilon, then volume):")
