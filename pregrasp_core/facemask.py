@@ -29,7 +29,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -134,7 +134,7 @@ class FaceMaskParams:
     """Height of the support plane along ``up`` (metres); ``None`` = the lowest cloud point."""
     support_tolerance: float = SUPPORT_PENETRATION_TOL
     """Metres: a face's slab must reach deeper than this below the plane to be blocked by it."""
-    rule: str = "subface"
+    rule: Literal["face", "subface"] = "subface"
     """Which sub-faces may carry pre-grasps. ``"face"``: the paper's rule, whole faces blocked
     by the boxes in front of them (and the support plane), a sub-face usable when its face and
     every adjacent face it borders are free. ``"subface"`` (default): the same sub-faces, each

@@ -51,6 +51,8 @@ FLAGS: dict[str, tuple[list[str], str, object]] = {
     "--max-backoff": (["0.05"], "params.sampling.max_backoff", 0.05),
     "--backoff-step": (["0.025"], "params.sampling.backoff_step", 0.025),
     "--no-fallback": ([], "params.sampling.fallback", False),
+    "--no-pinch": ([], "params.sampling.pinch", False),
+    "--rule": (["face"], "params.facemask.rule", "face"),
     "--clearance": (["0.003"], "params.planner.approach_clearance", 0.003),
     "--max-approach": (["0.12"], "params.planner.max_approach", 0.12),
     "--max-lift": (["0.02"], "params.planner.max_lift", 0.02),
@@ -77,6 +79,7 @@ FLAGS: dict[str, tuple[list[str], str, object]] = {
 # the other spelling of a bool flag: its own value
 FLAGS["--support"] = ([], "params.facemask.support", True)
 FLAGS["--fallback"] = ([], "params.sampling.fallback", True)
+FLAGS["--pinch"] = ([], "params.sampling.pinch", True)
 
 COMMANDS = {"decompose": decompose, "pregrasps": pregrasps, "plan": plan, "view": view}
 
@@ -191,12 +194,12 @@ def test_every_pipeline_flag_reaches_the_result_file(tmp_path, capsys):
     file's ``parameters`` section (the file the planner's run wrote)."""
     argv = ["plan", str(LEMON), "--points", "2500", "-o", str(tmp_path / "r.json")]
     for flag in PIPELINE_FLAGS:
-        if flag not in ("--support", "--fallback"):  # their --no- forms are set here
+        if flag not in ("--support", "--fallback", "--pinch"):  # their --no- forms are set here
             argv += [flag, *FLAGS[flag][0]]
     assert main(argv) == 0, capsys.readouterr().err
     doc = json.loads((tmp_path / "r.json").read_text())
     for flag in PIPELINE_FLAGS:
-        if flag in ("--support", "--fallback"):
+        if flag in ("--support", "--fallback", "--pinch"):
             continue
         _, place, expected = FLAGS[flag]
         got: Any = doc["parameters"]
