@@ -45,7 +45,7 @@ class SimulationParams:
     ``lift_height - max_slip``."""
     finger_kp: float = 10.0
     """N m/rad: stiffness of the flexion joints' position servos."""
-    finger_torque: tuple[float, float] = (0.8, 0.5)
+    finger_torque: tuple[float, float] = (1.2, 0.8)
     """N m: torque limits of the (proximal, distal) flexion servos (the grip strength)."""
     finger_damping: float = 0.05
     """N m s/rad: damping of every finger joint."""

@@ -17,7 +17,8 @@
 * **Contacts.** Every hand link collides with the object, the support and the other fingers,
   except a link with its parent link (they touch at their joint); the palm collides with the
   finger links, so the palm stops a curling finger. Friction: the planner's ``mu``; elliptic
-  friction cones with ``impratio``; ``multiccd`` for several contact points per convex pair.
+  friction cones with ``impratio``; one contact point per convex pair unless
+  ``SimulationParams.multiccd``.
 """
 
 from __future__ import annotations
