@@ -161,7 +161,7 @@ def build_pool(
         if not todo:
             break
     if params.pinch:
-        pinches = _pinch_pool(tree, traversal.candidates, masks, hand, params, dropped)
+        pinches = _pinch_pool(pts, tree, traversal.candidates, masks, hand, params, dropped)
         kept.append(_clear_the_hand(pinches, hand, pts, kd, masks.support, params, dropped))
     pool = _concat_pools(kept, joint_names)
     order = np.lexsort((np.arange(len(pool)), pool.node))  # group by node, stable
@@ -219,6 +219,7 @@ def _node_pool(
 
 
 def _pinch_pool(
+    points: np.ndarray,
     tree: BoxTree,
     candidates: Sequence[int],
     masks: FaceMasks,
@@ -230,7 +231,8 @@ def _pinch_pool(
     its centre sub-face usable, as a pool (the others are counted ``blocked_subface``)."""
     pools = []
     for i in candidates:  # loop over the candidate nodes
-        got = pinch_samples(hand, tree.nodes[i].box, masks.support, params)
+        nd = tree.nodes[i]
+        got = pinch_samples(hand, nd.box, masks.support, params, points[nd.indices])
         if got is None:
             continue
         # a pinch needs its face's centre sub-face (3 x 3 grid) usable

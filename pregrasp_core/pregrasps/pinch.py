@@ -208,6 +208,7 @@ def _face_pinches(
     kinds: tuple[str, ...],
     every_kind: bool,
     params: SamplingParams,
+    points: np.ndarray | None = None,
 ) -> list[tuple[np.ndarray, np.ndarray, str, float, float]]:
     """Pinches approaching ``box`` along ``-d`` (d: unit, world, about the outward normal of
     ``face``), closing across each box axis of ``closing_axes`` (projected perpendicular to
@@ -233,7 +234,19 @@ def _face_pinches(
             chosen = chosen[:1]
         for kind in chosen:
             out += _placed(
-                hand, box, kind, width, length, c_dir, x_dir, d, z_top, z_bottom, floor, params
+                hand,
+                box,
+                kind,
+                width,
+                length,
+                c_dir,
+                x_dir,
+                d,
+                z_top,
+                z_bottom,
+                floor,
+                params,
+                points,
             )
     return out
 
@@ -251,6 +264,7 @@ def _placed(
     z_bottom: float,
     floor: float | None,
     params: SamplingParams,
+    points: np.ndarray | None,
 ) -> list[tuple[np.ndarray, np.ndarray, str, float, float]]:
     """The pinches of one kind across ``c_dir`` (hand y), ``x_dir`` (hand x) and approach
     ``-d``, both rolls, at positions along the part (tip) or about its centre (tripod).
@@ -259,31 +273,48 @@ def _placed(
     part's middle height (or higher, when the fingers are too short for it) and the approach
     is unlimited (it ends on the part or the table); without one (across a thin part) they
     start ``standoff`` outside the part's near side and go at most to its middle, so that the
-    fingertips close on the part and not on what lies beyond it."""
+    fingertips close on the part and not on what lies beyond it. ``points`` (N, 3), the part's
+    points: the three-finger tip from above opens for the part's width under its fingers at
+    each position (not the box's), when given."""
     out: list[tuple[np.ndarray, np.ndarray, str, float, float]] = []
     if kind == "tripod":  # the tripod encloses the whole cross-section (its diagonal)
         width = float(np.hypot(width, length))
     gt, spread = KINDS[kind]
-    got = pinch_preshape(hand, kind, 0.5 * width)
-    if got is None:
-        return out
-    q_pinch, depth = got
     c = pinch_center(hand, kind)
     if kind == "tip":
         half_run = max(0.5 * length - 0.5 * TIP_MIN_LENGTH, 0.0)
         offsets = centred_grid(half_run, params.interval)  # along the hand's x, symmetric
     else:
         offsets = np.zeros(1)
-    if floor is not None:
-        z_tip = max(0.5 * (z_top + z_bottom), z_top + params.standoff - depth)
-        limit = np.inf
-    else:
-        z_tip = z_top + params.standoff
-        limit = params.standoff + min(0.5 * (z_top - z_bottom), 0.5 * float(box.extents[2]))
+    local = kind == "tip" and floor is not None and points is not None and len(points) > 0
+    if local:  # the fingers' x positions relative to the thumb's plane, and their bands
+        assert points is not None
+        fx = np.array([hand.flexion_plane(f, 0.0).origin[0] - c[0] for f in FINGERS])
+        band = 0.5 * hand.finger("thumb").width  # the slice a finger closes on
     centre = box.center - (box.center @ d) * d  # the box centre projected on d = 0
     for sign in (1.0, -1.0):  # both rolls: thumb on either side
         R = np.stack([sign * x_dir, sign * c_dir, -d], axis=1)  # columns = hand axes
         for off in offsets:  # a few positions along the part
+            half = 0.5 * width
+            if local:
+                # the part's half width under the three fingers at this position (the toy
+                # car between its wheels is narrower than its box)
+                rel = points - (centre + off * sign * x_dir)  # (N, 3)
+                xs = rel @ (sign * x_dir)
+                under = np.any(np.abs(xs[:, None] - fx[None, :]) <= band, axis=1)
+                if not under.any():
+                    continue
+                half = float(np.max(np.abs(rel[under] @ c_dir)))
+            got = pinch_preshape(hand, kind, half)
+            if got is None:
+                continue
+            q_pinch, depth = got
+            if floor is not None:
+                z_tip = max(0.5 * (z_top + z_bottom), z_top + params.standoff - depth)
+                limit = np.inf
+            else:
+                z_tip = z_top + params.standoff
+                limit = params.standoff + min(0.5 * (z_top - z_bottom), 0.5 * float(box.extents[2]))
             p_c = centre + off * sign * x_dir + z_tip * d  # where the tips' centre goes
             T = np.eye(4)
             T[:3, :3] = R
@@ -297,11 +328,13 @@ def pinch_samples(
     box: OrientedBox,
     support: SupportPlane | None,
     params: SamplingParams,
+    points: np.ndarray | None = None,
 ) -> PinchSamples | None:
     """The pinches of ``box`` (see the module docstring): from above (with a support plane,
     when the box's top face is within 30 degrees of level), across each of the two horizontal
     box axes; and for a thin part (smallest side at most ``THIN_PART``), across its thickness
-    from each face around its rim. ``None`` when there is none."""
+    from each face around its rim. ``points`` (N, 3): the part's points (the local width of
+    the pinches from above). ``None`` when there is none."""
     n_world = FACE_NORMAL @ box.rotation.T  # (6, 3) face normals, world
     found: list[tuple[np.ndarray, np.ndarray, str, float, float]] = []
     faces: list[int] = []
@@ -311,7 +344,7 @@ def pinch_samples(
         if float(n_world[top] @ up) >= MAX_TILT_COS:
             axes = tuple(a for a in range(3) if a != top // 2)
             got = _face_pinches(
-                hand, box, top, up, axes, support.height, ("tip", "tripod"), False, params
+                hand, box, top, up, axes, support.height, ("tip", "tripod"), False, params, points
             )
             found += got
             faces += [top] * len(got)
