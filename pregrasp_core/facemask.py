@@ -466,6 +466,7 @@ def compute_face_masks(
         )
     blocked = np.zeros((K, 6), dtype=bool)
     hits: list[list[list[int]]] = [[[] for _ in range(6)] for _ in range(K)]
+    near_pairs: list[tuple[np.ndarray, np.ndarray]] = []
     if cut_ids and K > 1:
         slab_c = np.empty((K, 6, 3))
         slab_h = np.empty((K, 6, 3))
@@ -494,6 +495,7 @@ def compute_face_masks(
             near = np.all(gap <= margin, axis=-1).any(axis=1) & ~related  # (r, B)
             pi, bi = np.nonzero(near)
             pn, pb = nodes[pi], cb[bi]  # (P,) node and blocker ids, by node then cut order
+            near_pairs.append((pn, pb))  # the sub-face rule's candidates (touching included)
             # The separating-axis test on the node's own three axes alone: a blocker whose
             # overlap with every slab is at most overlap_tolerance on one of them cannot block
             # (the full test's depth is the minimum over these and 12 more axes).
@@ -539,7 +541,12 @@ def compute_face_masks(
     blockers = tuple(tuple(tuple(sorted(h)) for h in node_hits) for node_hits in hits)
     covered = None
     if params.rule == "subface":
-        covered = _covered_cells(tree, cut_ids, support, params, points)
+        pn_all = np.concatenate([p[0] for p in near_pairs] + [np.zeros(0, dtype=np.int64)])
+        pb_all = np.concatenate([p[1] for p in near_pairs] + [np.zeros(0, dtype=np.int64)])
+        order = np.argsort(pn_all, kind="stable")  # by node, blockers in cut order
+        bounds = np.searchsorted(pn_all[order], np.arange(K + 1))
+        near_of = [pb_all[order[bounds[k] : bounds[k + 1]]].tolist() for k in range(K)]
+        covered = _covered_cells(tree, near_of, support, params, points)
         # a face is blocked when its own cells are covered as much as min_coverage of it
         blocked = covered.mean(axis=(2, 3)) >= params.min_coverage
     return FaceMasks(
@@ -687,12 +694,15 @@ def face_cell_coords() -> np.ndarray:
 
 def _covered_cells(
     tree: BoxTree,
-    cut: Sequence[int],
+    near: Sequence[Sequence[int]],
     support: SupportPlane | None,
     params: FaceMaskParams,
     points: np.ndarray | None,
 ) -> np.ndarray:
-    """(K, 6, G, G) bool: :attr:`FaceMasks.covered` of every node (loop over nodes)."""
+    """(K, 6, G, G) bool: :attr:`FaceMasks.covered` of every node (loop over nodes).
+
+    near: per node, the blockers whose world-axis box meets one of its slabs (the screening of
+    :func:`compute_face_masks`): no other box, nor any of its points, can be in front of it."""
     G = SUBFACE_GRID
     K = len(tree.nodes)
     out = np.zeros((K, 6, G, G), dtype=bool)
@@ -701,7 +711,7 @@ def _covered_cells(
     for nd in tree.nodes:  # loop over nodes (a small set)
         box = nd.box
         h = box.half_extents
-        others = [c for c in cut if not tree.is_related(nd.id, c)]
+        others = list(near[nd.id])
         if others and pts is not None:
             idx = np.concatenate([tree.nodes[c].indices for c in others])
             p_box = (pts[idx] - box.center) @ box.rotation  # (M, 3)
