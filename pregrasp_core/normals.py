@@ -8,8 +8,24 @@ itself included); the normal is the eigenvector of the smallest eigenvalue of th
 Orientation (PCA gives a line, not a direction), ``NormalParams.orient``:
 
 * ``"auto"`` (default): ``"reference"`` when the cloud carries normals (mesh-sampled clouds carry
-  their face normals), else ``"propagate"``.
+  their face normals), else ``"viewpoint"`` when a camera position is given (single views),
+  else ``"visibility"``.
 * ``"reference"``: the sign that agrees with the given normals (``n . n_ref >= 0``).
+* ``"viewpoint"``: every normal faces the camera at ``NormalParams.viewpoint`` (a surface a
+  camera saw faces it; ``n . (viewpoint - p) >= 0``).
+* ``"visibility"``: the cloud is looked at from ``n_views`` directions spread evenly on a sphere
+  around it (orthographic depth buffers of 2 point spacings per pixel; a point is seen from a
+  direction when it lies within one spacing of the front-most point of its pixel). A seen
+  surface faces the viewer, so each sighting votes for the sign of ``n . d`` weighted by
+  ``|n . d|``. A point is decided when its votes agree (net over total above
+  ``VISIBILITY_AGREEMENT``); the others (points no direction sees, e.g. deep in a concavity,
+  and points seen from both sides of a wall thinner than the tolerance) take the sign of their
+  decided neighbours on the same side of the surface (neighbours across a thin wall, offset
+  along the normal, are left out), grown over the k-NN graph; what stays undecided after that
+  is oriented by ``"propagate"`` seeded at the decided points. Unlike the propagation alone, no
+  single wrong step can flip a whole region: every region a viewer can see is decided by
+  what it looks like from outside. Points inside the object (a mesh made of interpenetrating
+  bodies has sampled faces inside the solid) are never seen and get the propagated sign.
 * ``"propagate"``: Hoppe et al. 1992: a minimum spanning tree over the k-NN graph with edge
   weight ``1 - |n_i . n_j| + 3 |cos(edge, n_i)|`` (the tree follows smooth surface; the second
   term, our addition, keeps it from jumping across thin walls, where neighbours sit along the
@@ -39,10 +55,31 @@ from .tolerances import GEOM_EPS
 
 logger = logging.getLogger(__name__)
 
-ORIENT_MODES = ("auto", "reference", "propagate", "centroid")
+ORIENT_MODES = ("auto", "reference", "viewpoint", "visibility", "propagate", "centroid")
 
 ACROSS_WEIGHT: float = 3.0
 """Weight of the edge-normal alignment term of the propagation graph (see the module docstring)."""
+
+VISIBILITY_PIXEL: float = 2.0
+"""Visibility orientation: depth-buffer pixel size in point spacings (the median distance to the
+4th nearest neighbour)."""
+
+VISIBILITY_DEPTH_TOL: float = 1.0
+"""Visibility orientation: a point is seen when within this many spacings of its pixel's front."""
+
+VISIBILITY_AGREEMENT: float = 0.3
+"""Visibility orientation: a point is decided when |net vote| / total vote exceeds this."""
+
+VISIBILITY_MIN_VOTE: float = 0.3
+"""Visibility orientation: ... and its total vote (sum of |n . d| over sightings) exceeds this."""
+
+SAME_SIDE_SLOPE: float = 2.5
+"""Filling undecided points: a neighbour's weight is ``1 - SAME_SIDE_SLOPE |cos|`` (clipped at
+0), cos = the angle of the offset to it with the normal: neighbours across a thin wall sit
+along the normal and get no say."""
+
+FILL_ROUNDS: int = 10
+"""Filling undecided points: rounds of growth from the decided points over the k-NN graph."""
 
 
 @dataclass(frozen=True)
@@ -53,12 +90,26 @@ class NormalParams:
     """Neighbours per point (the point itself included), >= 3."""
     orient: str = "auto"
     """One of ``ORIENT_MODES`` (see the module docstring)."""
+    viewpoint: tuple[float, float, float] | None = None
+    """Metres, the cloud's frame: the camera that saw a single-view cloud; its normals then face
+    it (``orient='auto'`` uses it when given, ``'viewpoint'`` needs it)."""
+    n_views: int = 96
+    """Visibility orientation: viewpoints on a sphere around the cloud, in [6, 1000]."""
 
     def __post_init__(self) -> None:
-        if int(self.k) != self.k or self.k < 3:
-            raise ValueError(f"k must be an integer >= 3, got {self.k}")
+        if int(self.k) != self.k or not 3 <= self.k <= 200:
+            raise ValueError(f"k must be an integer in [3, 200], got {self.k}")
         if self.orient not in ORIENT_MODES:
             raise ValueError(f"orient must be one of {ORIENT_MODES}, got {self.orient!r}")
+        if int(self.n_views) != self.n_views or not 6 <= self.n_views <= 1000:
+            raise ValueError(f"n_views must be an integer in [6, 1000], got {self.n_views}")
+        if self.viewpoint is not None:
+            vp = np.asarray(self.viewpoint, dtype=np.float64)
+            if vp.shape != (3,) or not np.all(np.isfinite(vp)):
+                raise ValueError(f"viewpoint must be 3 finite numbers, got {self.viewpoint!r}")
+            object.__setattr__(self, "viewpoint", tuple(float(v) for v in vp))
+        if self.orient == "viewpoint" and self.viewpoint is None:
+            raise ValueError("orient='viewpoint' needs a viewpoint")
 
 
 @dataclass(frozen=True)
@@ -84,8 +135,19 @@ def _pca_normals(points: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.nd
     return normals, np.clip(evals[:, 0], 0.0, None) / total
 
 
-def _orient_propagate(points: np.ndarray, normals: np.ndarray, nbr: np.ndarray) -> np.ndarray:
-    """Consistent signs (N,) of ``normals`` by MST propagation (see the module docstring)."""
+def _orient_propagate(
+    points: np.ndarray,
+    normals: np.ndarray,
+    nbr: np.ndarray,
+    seeds: np.ndarray | None = None,
+    seed_signs: np.ndarray | None = None,
+) -> np.ndarray:
+    """Consistent signs (N,) of ``normals`` by MST propagation (see the module docstring).
+
+    seeds: (S,) point indices whose signs are known (``seed_signs`` (S,) of +-1; default +1, i.e.
+    the seeds' normals are right as they are); every other point takes the sign carried along
+    the tree from its nearest seed. Without seeds, each component is seeded at its point farthest
+    from the centroid, oriented away from it."""
     n_pts, k = nbr.shape
     rows = np.repeat(np.arange(n_pts), k - 1)
     cols = nbr[:, 1:].ravel()
@@ -104,6 +166,17 @@ def _orient_propagate(points: np.ndarray, normals: np.ndarray, nbr: np.ndarray) 
     flip = np.einsum("ij,ij->i", normals[ti], normals[tj]) < 0.0
     parity_w = np.where(flip, 1.0, 2.0)
     ptree = coo_matrix((parity_w, (ti, tj)), shape=(n_pts, n_pts)).tocsr()
+    if seeds is not None:
+        sg = np.ones(len(seeds)) if seed_signs is None else np.asarray(seed_signs, np.float64)
+        dist, _, source = dijkstra(
+            ptree, directed=False, indices=seeds, min_only=True, return_predecessors=True
+        )
+        reached = source >= 0
+        sign_of = np.zeros(n_pts)
+        sign_of[seeds] = sg
+        parity = np.rint(np.where(reached, dist, 0.0)).astype(np.int64) % 2
+        out = np.where(parity == 1, -1.0, 1.0) * np.where(reached, sign_of[source], 1.0)
+        return out
     n_comp, labels = connected_components(ptree, directed=False)
     centroid = points.mean(axis=0)
     far = np.linalg.norm(points - centroid, axis=1)
@@ -121,6 +194,84 @@ def _orient_propagate(points: np.ndarray, normals: np.ndarray, nbr: np.ndarray) 
     if n_comp > 1:
         logger.info("normal propagation: %d disconnected k-NN components", n_comp)
     return signs
+
+
+def sphere_directions(n: int) -> np.ndarray:
+    """(n, 3) unit vectors spread evenly on the sphere (Fibonacci lattice), deterministic."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    phi = np.pi * (1.0 + 5.0**0.5) * i
+    r = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def _visibility_votes(
+    points: np.ndarray, normals: np.ndarray, spacing: float, n_views: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Net (N,) and total (N,) votes of the sightings (see the module docstring)."""
+    p = points - 0.5 * (points.min(axis=0) + points.max(axis=0))
+    radius = max(float(np.linalg.norm(p, axis=1).max()), GEOM_EPS)
+    pix = max(VISIBILITY_PIXEL * spacing, radius * 1e-3)
+    g = int(np.ceil(2.0 * radius / pix)) + 2  # pixels per side of every view's buffer
+    d = sphere_directions(n_views)  # (V, 3) towards the viewer
+    helper = np.where(np.abs(d[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    u = np.cross(d, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    w = np.cross(d, u)
+    ix = np.clip(((p @ u.T + radius) / pix).astype(np.int64), 0, g - 1)  # (N, V)
+    iy = np.clip(((p @ w.T + radius) / pix).astype(np.int64), 0, g - 1)
+    depth = p @ d.T  # (N, V), larger = nearer the viewer
+    cell = (np.arange(n_views)[None, :] * g + iy) * g + ix  # (N, V) pixel of each sighting
+    front = np.full(n_views * g * g, -np.inf)
+    np.maximum.at(front, cell.ravel(), depth.ravel())
+    seen = depth >= front[cell] - VISIBILITY_DEPTH_TOL * spacing  # (N, V)
+    nd = normals @ d.T  # (N, V)
+    weight = seen * np.abs(nd)
+    return (weight * np.sign(nd)).sum(axis=1), weight.sum(axis=1)
+
+
+def _same_side_weights(points: np.ndarray, normals: np.ndarray, nbr: np.ndarray) -> np.ndarray:
+    """(N, k) signed weights of each point's neighbours for sign filling: the sign of
+    ``n_i . n_j`` (a neighbour's sign in my frame) times |n_i . n_j| times the same-side factor."""
+    nn = np.einsum("nkj,nj->nk", normals[nbr], normals)  # (N, k)
+    off = points[nbr] - points[:, None, :]  # (N, k, 3)
+    length = np.linalg.norm(off, axis=2)
+    cos = np.abs(np.einsum("nkj,nj->nk", off, normals)) / np.maximum(length, GEOM_EPS)
+    side = np.clip(1.0 - SAME_SIDE_SLOPE * cos, 0.0, 1.0)
+    side[:, 0] = 0.0  # the point itself
+    return nn * side
+
+
+def _orient_visibility(
+    points: np.ndarray, normals: np.ndarray, nbr: np.ndarray, dist: np.ndarray, n_views: int
+) -> np.ndarray:
+    """Signs (N,) by visibility, filling and seeded propagation (see the module docstring)."""
+    spacing = max(float(np.median(dist[:, min(4, dist.shape[1] - 1)])), GEOM_EPS)
+    net, total = _visibility_votes(points, normals, spacing, n_views)
+    decided = (np.abs(net) > VISIBILITY_AGREEMENT * total) & (total > VISIBILITY_MIN_VOTE)
+    sign = np.where(decided, np.sign(net), 0.0)
+    if decided.all():
+        return sign
+    wts = _same_side_weights(points, normals, nbr)
+    for _ in range(FILL_ROUNDS):  # growth over the k-NN graph, decided points stay
+        grown = (sign[nbr] * wts).sum(axis=1)
+        sign = np.where(decided, sign, np.sign(grown))
+        if np.all(sign != 0.0):
+            break
+    left = sign == 0.0
+    if left.any():
+        if not decided.any():
+            return _orient_propagate(points, normals, nbr)
+        seeds = np.flatnonzero(~left)
+        prop = _orient_propagate(points, normals, nbr, seeds=seeds, seed_signs=sign[seeds])
+        sign[left] = prop[left]
+    logger.info(
+        "visibility orientation: %.1f %% decided, %.1f %% filled, %.2f %% propagated",
+        100.0 * decided.mean(),
+        100.0 * (1.0 - decided.mean() - left.mean()),
+        100.0 * left.mean(),
+    )
+    return sign
 
 
 def estimate_normals(
@@ -148,13 +299,21 @@ def estimate_normals(
         )
     mode = params.orient
     if mode == "auto":
-        mode = "reference" if ref is not None else "propagate"
+        if ref is not None:
+            mode = "reference"
+        else:
+            mode = "viewpoint" if params.viewpoint is not None else "visibility"
     if mode == "reference" and ref is None:
         raise ValueError("orient='reference' needs reference normals")
-    _, nbr = cKDTree(pts).query(pts, k=params.k)  # (N, k), itself first
+    dist, nbr = cKDTree(pts).query(pts, k=params.k)  # (N, k), itself first
     normals, curvature = _pca_normals(pts, nbr)
     if mode == "reference":
         signs = np.where(np.einsum("ij,ij->i", normals, ref) < 0.0, -1.0, 1.0)
+    elif mode == "viewpoint":
+        to_cam = np.asarray(params.viewpoint, dtype=np.float64) - pts
+        signs = np.where(np.einsum("ij,ij->i", normals, to_cam) < 0.0, -1.0, 1.0)
+    elif mode == "visibility":
+        signs = _orient_visibility(pts, normals, nbr, dist, params.n_views)
     elif mode == "centroid":
         out = pts - pts.mean(axis=0)
         signs = np.where(np.einsum("ij,ij->i", normals, out) < 0.0, -1.0, 1.0)
