@@ -308,6 +308,7 @@ def estimate_normals(
     dist, nbr = cKDTree(pts).query(pts, k=params.k)  # (N, k), itself first
     normals, curvature = _pca_normals(pts, nbr)
     if mode == "reference":
+        assert ref is not None  # checked above
         signs = np.where(np.einsum("ij,ij->i", normals, ref) < 0.0, -1.0, 1.0)
     elif mode == "viewpoint":
         to_cam = np.asarray(params.viewpoint, dtype=np.float64) - pts

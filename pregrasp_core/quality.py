@@ -1,16 +1,21 @@
 """Grasp quality: Ferrari-Canny epsilon (L1) and the volume of the grasp wrench hull.
 
-Definitions (DESIGN section 9, GraspIt-style "unit normal force" L1 metric):
+Definitions (docs/quality.md, GraspIt-style "unit normal force" L1 metric):
 
 * Contact ``i`` has a point ``p_i`` and a unit normal ``n_i`` that points **into the object**
   (the direction of the normal force the hand applies). Its friction cone is linearised with
   ``m`` edges ``f_ik = n_i + mu (cos t_k a_i + sin t_k b_i)``, ``t_k = 2 pi k / m``, where
   ``(a_i, b_i, n_i)`` is a right-handed orthonormal frame. The edges are *not* normalised: the
   normal component of every edge force is exactly 1 (this is what reproduces the oracle values
-  of DESIGN section 9 to 1e-10; normalised edges would give e.g. 0.4132 instead of 0.4619 for
+  of docs/quality.md to 1e-10; normalised edges would give e.g. 0.4132 instead of 0.4619 for
   the antipodal pair).
-* Edge wrench ``w_ik = [f_ik; (p_i - c) x f_ik / rho]`` with ``c`` the centroid of the contact
-  points and ``rho`` (the torque scale) by default the largest distance from ``c`` to a contact.
+* Edge wrench ``w_ik = [f_ik; (p_i - c) x f_ik / rho]``. GraspIt's convention (and Dex-Net's):
+  ``c`` is the centroid of the OBJECT (gravity and disturbances act there, not at the
+  contacts) and ``rho`` the largest distance from ``c`` to a point of the object, so a torque
+  is measured against the largest lever the object offers. The planner passes the cloud's
+  centroid and radius (``QualityParams.torque_origin = "object"``, the default); without a
+  ``center`` (a bare set of contacts, ``torque_origin = "contacts"``) ``c`` is the contacts'
+  centroid and ``rho`` the largest distance from it to a contact.
 * The grasp wrench space is the convex hull of all ``w_ik`` (qhull, 6D). ``epsilon`` is the
   smallest distance from the origin to a facet when the origin is strictly inside, else 0 (not
   force closure). ``volume`` is the 6D volume of the hull (0 when it is not full-dimensional).
@@ -44,6 +49,9 @@ logger = logging.getLogger(__name__)
 QHULL_OPTIONS = "Q0"
 """qhull options for the 6D wrench hull: no merging, exact (see the module docstring)."""
 
+TORQUE_ORIGINS: tuple[str, ...] = ("object", "contacts")
+"""Values of ``QualityParams.torque_origin``."""
+
 QHULL_FALLBACK = "QJ"
 """qhull options when ``QHULL_OPTIONS`` fails or gives an inconsistent hull: joggled input."""
 
@@ -57,7 +65,11 @@ class QualityParams:
     n_edges: int = 8
     """Number m of edges of each linearised friction cone (>= 3)."""
     torque_scale: float | None = None
-    """rho in metres; None = the largest distance from the contact centroid to a contact."""
+    """rho in metres; None = the largest distance from the torque origin to an object point
+    (to a contact when the origin is the contacts' centroid)."""
+    torque_origin: str = "object"
+    """Where torques are taken: 'object' (the object's centroid, GraspIt's convention) or
+    'contacts' (the contacts' centroid; the scores of the releases before 0.2)."""
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.mu) and self.mu >= 0.0):
@@ -66,6 +78,10 @@ class QualityParams:
             raise ValueError(f"n_edges must be an integer >= 3, got {self.n_edges}")
         if self.torque_scale is not None and not self.torque_scale > 0.0:
             raise ValueError(f"torque_scale must be > 0 or None, got {self.torque_scale}")
+        if self.torque_origin not in TORQUE_ORIGINS:
+            raise ValueError(
+                f"torque_origin must be one of {TORQUE_ORIGINS}, got {self.torque_origin!r}"
+            )
 
 
 @dataclass(frozen=True)
@@ -133,10 +149,15 @@ def contact_wrenches(
     params: QualityParams = QualityParams(),  # noqa: B008 (frozen, immutable)
     tangents: np.ndarray | None = None,
     torques: bool = True,
+    center: np.ndarray | None = None,
+    radius: float | None = None,
 ) -> np.ndarray:
     """The edge wrenches ``(K * m, 6)`` (or ``(K * m, 3)`` forces when ``torques`` is False).
 
-    points, normals: (K, 3) contact points (metres) and unit normals pointing into the object.
+    points, normals: (K, 3) contact points (metres) and unit normals pointing into the object;
+    center: (3,) the torque origin (the object's centroid), None = the contacts' centroid;
+    radius: rho when ``params.torque_scale`` is None and a center is given (the largest distance
+    from it to an object point); without a center rho is the largest distance to a contact.
     """
     p = _as_vectors(points, "points")
     n = _as_vectors(normals, "normals")
@@ -145,9 +166,16 @@ def contact_wrenches(
     f = friction_cone_edges(n, params.mu, params.n_edges, tangents)  # (K, m, 3)
     if not torques:
         return f.reshape(-1, 3)
-    c = p.mean(axis=0)
+    if center is None:
+        c = p.mean(axis=0)
+    else:
+        c = np.asarray(center, dtype=np.float64)
+        if c.shape != (3,) or not np.all(np.isfinite(c)):
+            raise ValueError(f"center must be 3 finite numbers, got {center!r}")
     r = p - c  # (K, 3)
     rho = params.torque_scale
+    if rho is None and center is not None and radius is not None:
+        rho = float(radius)
     if rho is None:
         rho = float(np.max(np.linalg.norm(r, axis=1))) if len(p) else 0.0
     rho = max(rho, GEOM_EPS)
@@ -211,12 +239,16 @@ def grasp_quality(
     params: QualityParams = QualityParams(),  # noqa: B008 (frozen, immutable)
     tangents: np.ndarray | None = None,
     torques: bool = True,
+    center: np.ndarray | None = None,
+    radius: float | None = None,
 ) -> GraspQuality:
     """Ferrari-Canny epsilon L1 and wrench-hull volume of a set of contacts.
 
     points: (K, 3) metres; normals: (K, 3) pointing into the object (normalised here);
     tangents: (K, 3) optional first cone edge direction per contact (see :func:`tangent_frames`);
-    torques: False scores the 3D force space only (the antipodal oracle of DESIGN section 9).
+    torques: False scores the 3D force space only (the antipodal oracle of docs/quality.md);
+    center, radius: the torque origin and rho (see :func:`contact_wrenches` and the module
+    docstring; :func:`object_frame` gives both for a cloud).
     """
     p = _as_vectors(points, "points")
     n = _as_vectors(normals, "normals")
@@ -228,6 +260,18 @@ def grasp_quality(
     norms = np.linalg.norm(n, axis=1)
     if np.any(~np.isfinite(norms)) or np.any(norms < GEOM_EPS) or not np.all(np.isfinite(p)):
         return GraspQuality(0.0, 0.0, k, False, "invalid contact normal or point")
-    w = contact_wrenches(p, n, params, tangents=tangents, torques=torques)
+    w = contact_wrenches(
+        p, n, params, tangents=tangents, torques=torques, center=center, radius=radius
+    )
     eps, vol, reason = hull_quality(w)
     return GraspQuality(eps, vol, k, eps > 0.0, reason)
+
+
+def object_frame(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """GraspIt's torque origin and scale of an object given by its points (N, 3): the centroid
+    and the largest distance from it to a point (metres)."""
+    pts = _as_vectors(points, "points")
+    if len(pts) == 0:
+        raise ValueError("object_frame needs at least one point")
+    c = pts.mean(axis=0)
+    return c, max(float(np.sqrt(((pts - c) ** 2).sum(axis=1).max())), GEOM_EPS)

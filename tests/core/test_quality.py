@@ -1,4 +1,4 @@
-"""Grasp quality against the oracles of DESIGN section 9 (tests/data/quality_oracles.json),
+"""Grasp quality against the analytic oracles of docs/quality.md (tests/data/quality_oracles.json),
 rigid-motion invariance, degenerate sets and an independent linear-programming check of force
 closure."""
 
@@ -22,6 +22,7 @@ from pregrasp_core.quality import (
     friction_cone_edges,
     grasp_quality,
     hull_quality,
+    object_frame,
     tangent_frames,
 )
 
@@ -323,3 +324,54 @@ def test_an_inconsistent_exact_hull_is_not_used(monkeypatch):
     eps, vol, reason = hull_quality(w)
     assert reason == "" and eps == pytest.approx(good[0], abs=1e-8)
     assert vol == pytest.approx(good[1], rel=1e-8)
+
+
+def _object_points(name: str) -> np.ndarray:
+    """Points of the oracle's object: the cube of half-edge 1 (its 8 corners and 6 face centres)
+    or the unit sphere (antipodal pairs of a Fibonacci lattice), both centred at the origin."""
+    if name.startswith("cube"):
+        corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+        return np.r_[corners, np.eye(3), -np.eye(3)]
+    i = np.arange(500) + 0.5
+    phi, th = np.arccos(1 - 2 * i / 1000), np.pi * (1 + 5**0.5) * i
+    u = np.c_[np.cos(th) * np.sin(phi), np.sin(th) * np.sin(phi), np.cos(phi)]
+    return np.r_[u, -u]
+
+
+@pytest.mark.parametrize("name", sorted(n for n in CASES if CASES[n]["torques"]))
+def test_object_centred_torques_reproduce_the_oracles(name):
+    """GraspIt's convention: torques about the object's centroid, rho = its largest radius (the
+    object's own points, not the oracle's rho): the oracle values hold."""
+    case = CASES[name]
+    center, radius = object_frame(_object_points(name))
+    assert radius == pytest.approx(case["rho"], abs=1e-9)
+    q = grasp_quality(
+        np.asarray(case["points"], float),
+        np.asarray(case["normals"], float),
+        QualityParams(mu=case["mu"], n_edges=case["m"]),
+        tangents=np.asarray(case["tangents"], float),
+        center=center,
+        radius=radius,
+    )
+    assert q.epsilon == pytest.approx(case["epsilon"], abs=1e-6)
+
+
+def test_object_centred_epsilon_is_rigid_motion_invariant_and_sees_the_centre_of_mass():
+    """Moving contacts and object together leaves epsilon unchanged; moving only the object's
+    centroid away from the contacts (a heavier far end) lowers it: the grasp then has to resist
+    gravity's torque with a longer lever (torques of the same contact forces grow)."""
+    case = CASES["sphere_four_tetrahedral"]
+    pts, nrm = np.asarray(case["points"], float), np.asarray(case["normals"], float)
+    tng = np.asarray(case["tangents"], float)
+    prm = QualityParams(mu=case["mu"], n_edges=case["m"])
+    base = grasp_quality(pts, nrm, prm, tangents=tng, center=np.zeros(3), radius=1.0)
+    R = Rotation.from_euler("zyx", [0.4, -1.1, 2.0]).as_matrix()
+    t = np.array([0.3, -0.2, 0.5])
+    moved = grasp_quality(pts @ R.T + t, nrm @ R.T, prm, tangents=tng @ R.T, center=t, radius=1.0)
+    assert moved.epsilon == pytest.approx(base.epsilon, abs=1e-9)
+    far = grasp_quality(pts, nrm, prm, tangents=tng, center=np.array([0.0, 0.0, 0.6]), radius=1.0)
+    assert 0.0 <= far.epsilon < base.epsilon
+    with pytest.raises(ValueError, match="center must be 3 finite numbers"):
+        grasp_quality(pts, nrm, prm, center=np.array([0.0, np.nan, 0.0]))
+    with pytest.raises(ValueError, match="torque_origin must be one of"):
+        QualityParams(torque_origin="palm")
