@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, TypeVar
 import numpy as np
 
 from ..normals import NormalParams, estimate_normals
-from ..quality import GraspQuality, grasp_quality
+from ..quality import GraspQuality, grasp_quality, object_frame
 from .approach import Prepared, prepare
 from .context import Context
 from .slicing import ClosedFinger, Slice, close_slices, closing_records, finger_slices
@@ -45,12 +45,16 @@ _Records = dict[int, tuple[np.ndarray, list[ClosedFinger], float]]
 back along the approach the hand closed (see :func:`_lift_retries`)."""
 
 
-def _score(prm: PlannerParams, g: Grasp) -> Grasp:
-    """``g`` with the epsilon, volume and quality detail of its contacts."""
+def _score(prm: PlannerParams, frame: tuple[np.ndarray, float] | None, g: Grasp) -> Grasp:
+    """``g`` with the epsilon, volume and quality detail of its contacts; torques about
+    ``frame`` = (the object's centroid, its largest radius), None = about the contacts."""
     pts = np.array([c.point for c in g.contacts])
     nrm = np.array([c.normal for c in g.contacts])
     tng = np.array([c.tangent for c in g.contacts])
-    qual: GraspQuality = grasp_quality(pts, nrm, prm.quality, tangents=tng)
+    center, radius = frame if frame is not None else (None, None)
+    qual: GraspQuality = grasp_quality(
+        pts, nrm, prm.quality, tangents=tng, center=center, radius=radius
+    )
     return dataclasses.replace(g, epsilon=qual.epsilon, volume=qual.volume, detail=qual.reason)
 
 
@@ -136,6 +140,9 @@ def _plan_chunks(
         )
 
     prm, clock, done = ctx.params, ctx.clock, 0
+    # GraspIt's torque origin: the object's centroid and largest radius (docs/quality.md)
+    use_object = prm.quality.torque_origin == "object" and len(ctx.points) > 0
+    frame = object_frame(ctx.points) if use_object else None
     for c0 in range(0, P, _CHUNK):  # loop over chunks of pre-grasps
         t0 = time.perf_counter()
         preps = each(functools.partial(prepare, ctx, pool), list(range(c0, min(P, c0 + _CHUNK))))
@@ -155,7 +162,7 @@ def _plan_chunks(
         t3 = time.perf_counter()
         # 5. quality of the kept grasps: one 6D hull each
         kept = [k for k, g in enumerate(chunk) if g.kept]
-        scored = each(functools.partial(_score, prm), [chunk[k] for k in kept])
+        scored = each(functools.partial(_score, prm, frame), [chunk[k] for k in kept])
         for k, g in zip(kept, scored, strict=True):
             chunk[k] = g
         t4 = time.perf_counter()

@@ -375,7 +375,8 @@ def test_empty_pool_and_determinism(hand, box_plan):
 def test_threads_change_no_result(hand):
     """More pre-grasps than one chunk (64): the per-pre-grasp phases on 3 threads give exactly
     the grasps of the single-thread run; progress ends at the pool size; every kept grasp's
-    scores are those of grasp_quality on its own contacts."""
+    scores are those of grasp_quality on its own contacts with the object's centroid and
+    radius."""
     mesh = trimesh.creation.cylinder(radius=0.03, height=0.15)
     angles = np.linspace(0.0, 2 * np.pi, 70, endpoint=False)
     Ts = [
@@ -394,6 +395,7 @@ def test_threads_change_no_result(hand):
     assert np.array_equal(one.ranking, three.ranking) and one.n_force_closure > 0
     assert len(one.ranking) > 64  # kept grasps in both chunks
     prm = PlannerParams()
+    center, radius = pts.mean(axis=0), np.linalg.norm(pts - pts.mean(axis=0), axis=1).max()
     for a, b in zip(one.grasps, three.grasps, strict=True):
         assert (a.epsilon, a.volume, a.rank, a.rejection, a.detail) == (
             b.epsilon, b.volume, b.rank, b.rejection, b.detail,
@@ -407,8 +409,10 @@ def test_threads_change_no_result(hand):
                 np.array([c.normal for c in a.contacts]),
                 prm.quality,
                 tangents=np.array([c.tangent for c in a.contacts]),
+                center=center,  # GraspIt: torques about the object's centroid, rho its radius
+                radius=radius,
             )
-            assert (a.epsilon, a.volume) == (ref.epsilon, ref.volume)
+            assert (a.epsilon, a.volume) == pytest.approx((ref.epsilon, ref.volume), rel=1e-12)
     assert set(three.phase_seconds) == {"approach_slicing", "closing", "verification", "quality"}
     with pytest.raises(ValueError, match="threads must be an integer >= 0"):
         PlannerParams(threads=-1)
