@@ -93,7 +93,7 @@ class NormalParams:
     viewpoint: tuple[float, float, float] | None = None
     """Metres, the cloud's frame: the camera that saw a single-view cloud; its normals then face
     it (``orient='auto'`` uses it when given, ``'viewpoint'`` needs it)."""
-    n_views: int = 96
+    n_views: int = 64
     """Visibility orientation: viewpoints on a sphere around the cloud, in [6, 1000]."""
 
     def __post_init__(self) -> None:
