@@ -29,7 +29,7 @@ from pregrasp_core.paths import DEFAULT_OBJECT
 from pregrasp_core.pipeline import PipelineParams
 from pregrasp_core.planner import PlannerParams
 from pregrasp_core.pregrasps import SamplingParams
-from pregrasp_core.quality import QualityParams
+from pregrasp_core.quality import TORQUE_ORIGINS, QualityParams
 from pregrasp_core.shape import ShapeParams
 
 from .options import Flag, Options
@@ -149,6 +149,7 @@ STAGE_OPTIONS: dict[str, Options[Any]] = {
                     "mu": Flag(metavar="MU"),
                     "n_edges": Flag("--cone-edges", "M"),
                     "torque_scale": Flag(metavar="RHO"),
+                    "torque_origin": Flag(choices=TORQUE_ORIGINS),
                 },
             ),
             "normals": Options(
@@ -161,11 +162,15 @@ STAGE_OPTIONS: dict[str, Options[Any]] = {
                         "--normals-orient",
                         choices=ORIENT_MODES,
                         help="How the normals are turned outwards: reference = agree with the "
-                        "normals the file carries (a mesh's faces), propagate = along a minimum "
-                        "spanning tree over the neighbours (concave shapes), centroid = away "
+                        "normals the file carries (a mesh's faces), viewpoint = face the camera "
+                        "at --viewpoint (a single view), visibility = the side seen from many "
+                        "directions around the cloud (thin walls, concave shapes), propagate = "
+                        "along a minimum spanning tree over the neighbours, centroid = away "
                         "from the centroid, auto = reference when the cloud has normals, else "
-                        "propagate.",
+                        "viewpoint when --viewpoint is given, else visibility.",
                     ),
+                    "viewpoint": Flag(metavar=("X", "Y", "Z")),
+                    "n_views": Flag("--normals-views", "N"),
                 },
             ),
         },

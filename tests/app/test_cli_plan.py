@@ -69,8 +69,9 @@ def test_json_result_has_grasps_best_and_timings(tmp_path, capsys):
 def test_json_to_stdout_and_planner_options(capsys):
     assert main(["plan", str(LEMON), *FAST, "--mu", "0.8", "--cone-edges", "6", "-o", "-"]) == 0
     doc = json.loads(capsys.readouterr().out)
-    assert doc["parameters"]["planner"]["quality"] == {"mu": 0.8, "n_edges": 6,
-                                                       "torque_scale": None}  # fmt: skip
+    assert doc["parameters"]["planner"]["quality"] == {
+        "mu": 0.8, "n_edges": 6, "torque_scale": None, "torque_origin": "object",
+    }  # fmt: skip
     assert doc["grasps"]["quality"]["n_edges"] == 6
     # the thread count is recorded and changes no grasp
     assert main(["plan", str(LEMON), *FAST, "--mu", "0.8", "--cone-edges", "6", "--threads", "1",
