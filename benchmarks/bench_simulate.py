@@ -42,7 +42,7 @@ from pregrasp_core.simulate import (  # noqa: E402
     object_from_cloud,
     object_from_mesh,
 )
-from pregrasp_core.simulate.run import _grasp_specs  # noqa: E402
+from pregrasp_core.simulate.run import grasp_specs  # noqa: E402
 
 
 def main() -> None:
@@ -80,7 +80,7 @@ def main() -> None:
         obj = object_from_mesh(mesh, sp.object)
         sim = LiftSimulator(hand, obj, result.masks.support, sp, pp.planner.quality.mu)
         build = time.process_time() - t0
-        res = [sim.run(s)[0] for s in _grasp_specs(hand, top, gs)]
+        res = [sim.run(s)[0] for s in grasp_specs(hand, top, gs)]
         cpu += [r.cpu_time for r in res]
         ok = sum(r.success for r in res)
         n_ok += ok

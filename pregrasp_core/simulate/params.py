@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -188,7 +188,7 @@ class SimulationResult:
     phase_times: dict[str, float] = field(default_factory=dict)
     """Simulated seconds of each phase: ``approach``, ``close``, ``lift``, ``hold``."""
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, object]:
         """JSON-ready dict (arrays as lists, every field by name)."""
         return {
             "success": self.success,

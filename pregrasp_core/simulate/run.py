@@ -29,7 +29,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -46,7 +46,7 @@ if TYPE_CHECKING:
     from ..hand import Hand
     from ..io import PointCloud
     from ..pipeline import PipelineResult
-    from ..planner import Grasp
+    from ..planner import Grasp, GraspSet
 
 logger = logging.getLogger(__name__)
 
@@ -420,7 +420,7 @@ def simulate_grasp(
 
 def _pipeline_parts(
     result_or_cloud: PipelineResult | PointCloud,
-) -> tuple[PointCloud, np.ndarray | None, SupportPlane | None, float | None, Any]:
+) -> tuple[PointCloud, np.ndarray | None, SupportPlane | None, float | None, GraspSet | None]:
     """(cloud, normals, support, mu, grasp set) of a pipeline result or a bare cloud."""
     from ..io import PointCloud
 
@@ -478,7 +478,11 @@ def object_model(
     return object_from_cloud(cloud.points, normals, params.object)
 
 
-def _grasp_specs(hand: Hand, grasps: Sequence[Grasp | int], grasp_set: Any) -> list[GraspSpec]:
+def grasp_specs(
+    hand: Hand, grasps: Sequence[Grasp | int], grasp_set: GraspSet | None
+) -> list[GraspSpec]:
+    """The simulator's description of each grasp (pose at the pre-grasp and after the approach,
+    preshape and closed joints); ints index ``grasp_set``; rejected grasps are an error."""
     specs = []
     for g in grasps:
         if isinstance(g, int | np.integer):
@@ -526,7 +530,7 @@ def simulate_grasps(
     """
     sim = simulator(result_or_cloud, hand, params, mesh, support)
     _, _, _, _, gs = _pipeline_parts(result_or_cloud)
-    return [sim.run(spec)[0] for spec in _grasp_specs(hand, grasps, gs)]
+    return [sim.run(spec)[0] for spec in grasp_specs(hand, grasps, gs)]
 
 
 def simulator(
@@ -557,5 +561,5 @@ def simulate_playback(
     params = SimulationParams() if params is None else params
     sim = simulator(result_or_cloud, hand, params, mesh)
     _, _, _, _, gs = _pipeline_parts(result_or_cloud)
-    spec = _grasp_specs(hand, [grasp], gs)[0]
+    spec = grasp_specs(hand, [grasp], gs)[0]
     return sim.run(spec, record_fps=params.record_fps if fps is None else fps)

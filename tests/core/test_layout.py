@@ -4,6 +4,7 @@ talk to each other only through public names (no ``from .x import _helper`` acro
 from __future__ import annotations
 
 import ast
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -147,3 +148,55 @@ def test_importing_the_errors_loads_no_stage():
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def any_in_public_signatures(source: str) -> list[str]:
+    """``name: annotation`` of every public function or method (module level and public
+    classes) whose parameters or return annotation mention ``Any``."""
+    found = []
+
+    def check(fn: ast.FunctionDef | ast.AsyncFunctionDef, owner: str) -> None:
+        if fn.name.startswith("_") and fn.name != "__init__":
+            return
+        args = [*fn.args.posonlyargs, *fn.args.args, *fn.args.kwonlyargs]
+        args += [a for a in (fn.args.vararg, fn.args.kwarg) if a is not None]
+        notes = [a.annotation for a in args if a.annotation is not None]
+        notes += [fn.returns] if fn.returns is not None else []
+        for note in notes:
+            text = ast.unparse(note)
+            if re.search(r"\bAny\b", text):
+                found.append(f"{owner}{fn.name}: {text}")
+
+    for node in ast.parse(source).body:
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+            check(node, "")
+        elif isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
+            for item in node.body:
+                if isinstance(item, ast.FunctionDef | ast.AsyncFunctionDef):
+                    check(item, f"{node.name}.")
+    return found
+
+
+def test_no_any_in_public_signatures_of_the_core():
+    bad = {
+        _module_name(p): hits
+        for p in _sources()
+        if (hits := any_in_public_signatures(p.read_text(encoding="utf-8")))
+    }
+    assert bad == {}
+
+
+def test_the_any_check_finds_parameters_and_returns():
+    src = (
+        "from typing import Any\n"
+        "def f(x: Any) -> int: ...\n"
+        "def g(x: int) -> dict[str, Any]: ...\n"
+        "def _h(x: Any) -> Any: ...\n"
+        "class C:\n    def m(self, y: list[Any]) -> None: ...\n"
+        "def ok(x: 'Anything') -> int: ...\n"
+    )
+    assert any_in_public_signatures(src) == [
+        "f: Any",
+        "g: dict[str, Any]",
+        "C.m: list[Any]",
+    ]
