@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Runs the whole test suite on a fresh machine: creates .venv, installs pregrasp with its test
-# extras, installs Debian's chromium for the browser tests (as root) and runs ruff and pytest.
+# extras, installs Debian's chromium for the browser tests (as root) and runs ruff (lint and
+# format), mypy and pytest.
 # Extra arguments go to pytest, e.g. `bash scripts/test.sh tests/core -x`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -21,4 +22,6 @@ fi
 # the core's matrix products are tiny: BLAS threads only slow them down (docs/benchmarks.md)
 export OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-1}" OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}"
 .venv/bin/ruff check .
+.venv/bin/ruff format --check .
+.venv/bin/python -m mypy
 .venv/bin/python -m pytest "$@"
