@@ -1,4 +1,4 @@
-"""Full pipeline time against the number of points (DESIGN, "Performance"; issue 5).
+"""Full pipeline time against the number of points (docs/design.md, "Measured, not asserted").
 
 For one object (default: the mug with a handle) sampled at 10^3 to 10^6 points, the time of
 every stage of the whole pipeline (load, decompose, classify, facemask, pool, normals, grasps),

@@ -122,7 +122,7 @@ def main() -> None:
         "the per-pre-grasp phases on T threads (PlannerParams.threads)",
     )
     ap.add_argument(
-        "--edges", type=int, default=8, help="friction cone edges m (default 8, DESIGN section 9)"
+        "--edges", type=int, default=8, help="friction cone edges m (default 8, docs/quality.md)"
     )
     args = ap.parse_args()
     pinned = pin_one_core() if args.threads == 1 else f"not pinned, {args.threads} threads"

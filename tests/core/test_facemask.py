@@ -1,4 +1,4 @@
-"""Face masks, support plane and sub-faces (DESIGN section 5, docs/conventions.md)."""
+"""Face masks, support plane and sub-faces (docs/design.md section 5, docs/conventions.md)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The three-finger hand (DESIGN section 7, docs/hand.md).
+"""The three-finger hand (docs/design.md section 7, docs/hand.md).
 
 References from outside the code under test: fingertip positions worked out by hand from the
 dimensions in docs/hand.md (palm face z = 0, Lk = 0.03, Lm = 0.05, Ld = 0.04, spread axes at
