@@ -54,3 +54,12 @@ def to_frame_t(xyz: np.ndarray, T: np.ndarray) -> np.ndarray:
     for j in range(3):  # the three output coordinates
         out[j] = d0 * R[0, j] + d1 * R[1, j] + d2 * R[2, j]
     return out
+
+
+def as_points_like(values: np.ndarray, points: np.ndarray, name: str = "normals") -> np.ndarray:
+    """``values`` (normals, colours, ...) as float64 of the shape of ``points`` (N, 3); a
+    ``ValueError`` naming ``name`` and both shapes if not."""
+    arr = np.asarray(values, dtype=np.float64)
+    if arr.shape != points.shape:
+        raise ValueError(f"{name} must have shape {points.shape} like points, got {arr.shape}")
+    return arr

@@ -51,6 +51,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra, minimum_spannin
 from scipy.spatial import cKDTree
 
 from .errors import DegenerateGeometryError
+from .geometry import as_points, as_points_like
 from .tolerances import GEOM_EPS
 
 logger = logging.getLogger(__name__)
@@ -284,14 +285,8 @@ def estimate_normals(
     points: (N, 3) metres, N > params.k; reference: (N, 3) optional normals that fix the sign
     (e.g. ``PointCloud.normals``); ``orient='auto'`` uses them when given.
     """
-    pts = np.asarray(points, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"points must have shape (N, 3), got {pts.shape}")
-    ref = None
-    if reference is not None:
-        ref = np.asarray(reference, dtype=np.float64)
-        if ref.shape != pts.shape:
-            raise ValueError(f"reference normals must have shape {pts.shape}, got {ref.shape}")
+    pts = as_points(points)
+    ref = None if reference is None else as_points_like(reference, pts, "reference normals")
     if len(pts) < params.k:
         raise DegenerateGeometryError(
             f"normal estimation needs at least k = {params.k} points, the cloud has {len(pts)}; "

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
+from ..geometry import as_points, as_points_like
 from ..normals import NormalParams, estimate_normals
 from ..quality import GraspQuality, grasp_quality, object_frame
 from .approach import Prepared, prepare
@@ -206,12 +207,8 @@ def plan_grasps(
     ``SupportPlane`` (normal, height) or None; progress: called as ``progress(done, total)``.
     """
     prm = PlannerParams() if params is None else params
-    pts = np.asarray(points, dtype=np.float64)
-    nrm = np.asarray(normals, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"points must have shape (N, 3), got {pts.shape}")
-    if nrm.shape != pts.shape:
-        raise ValueError(f"normals must have shape {pts.shape}, got {nrm.shape}")
+    pts = as_points(points)
+    nrm = as_points_like(normals, pts)
     P = len(pool)
     joint_names = tuple(hand.joint_names)
     if P and np.shape(pool.q)[1] != len(joint_names):

@@ -42,6 +42,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from ..errors import DegenerateGeometryError, InputError
+from ..geometry import as_points, as_points_like
 from ..tolerances import GEOM_EPS
 
 if TYPE_CHECKING:
@@ -255,12 +256,8 @@ def object_from_cloud(
 ) -> ObjectModel:
     """The collision model of a surface point cloud with outward unit normals (world frame)."""
     params = ObjectModelParams() if params is None else params
-    pts = np.asarray(points, dtype=np.float64)
-    nrm = np.asarray(normals, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"points must have shape (N, 3), got {pts.shape}")
-    if nrm.shape != pts.shape:
-        raise ValueError(f"normals must have shape {pts.shape} like points, got {nrm.shape}")
+    pts = as_points(points)
+    nrm = as_points_like(normals, pts)
     if pts.shape[0] < 4:
         raise DegenerateGeometryError(
             f"a collision model needs at least 4 cloud points, got {pts.shape[0]}"
