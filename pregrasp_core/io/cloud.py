@@ -197,6 +197,15 @@ class RawCloud:
 # Validation shared by every reader
 
 
+def describe_error(exc: BaseException, limit: int = 160) -> str:
+    """``"TypeName: message"`` of a parser's exception on one line, at most ``limit`` characters
+    of message (error messages quote it and must stay one line)."""
+    text = " ".join(str(exc).split())
+    if len(text) > limit:
+        text = text[: limit - 3] + "..."
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
 def add_warning(warnings: list[str], message: str) -> None:
     """Log ``message`` and append it to ``warnings``."""
     logger.warning(message)

@@ -17,6 +17,7 @@ from .cloud import (
     PointCloud,
     RawCloud,
     check_request,
+    describe_error,
     finish_cloud,
 )
 from .gltf import read_glb, read_gltf
@@ -76,12 +77,12 @@ def load_point_cloud(
     try:
         size = p.stat().st_size
     except OSError as exc:
-        raise InputError(f"{source}: cannot read the file ({exc})") from exc
+        raise InputError(f"{source}: cannot read the file ({describe_error(exc)})") from exc
     check_size(size, max_bytes, source)
     try:
         data = p.read_bytes()
     except OSError as exc:
-        raise InputError(f"{source}: cannot read the file ({exc})") from exc
+        raise InputError(f"{source}: cannot read the file ({describe_error(exc)})") from exc
     check_size(len(data), max_bytes, source)  # the file may have grown since stat
     file = FileData(data=data, source=source, path=p, max_bytes=max_bytes)
     return _load(file, ext, n_points, seed, scale)
@@ -151,7 +152,7 @@ def _load(
     except Exception as exc:  # noqa: BLE001 - a reader bug must still name the file
         logger.exception("unexpected reader failure on %s", file.source)
         raise InputError(
-            f"{file.source}: cannot read it as {fmt.upper()} ({type(exc).__name__}: {exc}); "
+            f"{file.source}: cannot read it as {fmt.upper()} ({describe_error(exc)}); "
             "check that the file is valid"
         ) from exc
     if isinstance(parsed, TriangleMesh):

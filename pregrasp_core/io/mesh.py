@@ -18,6 +18,7 @@ from .cloud import (
     FileData,
     PointCloud,
     add_warning,
+    describe_error,
     finish_cloud,
 )
 
@@ -56,7 +57,7 @@ def read_mesh(file: FileData, fmt: str) -> TriangleMesh:
             else ""
         )
         raise InputError(
-            f"{source}: cannot read it as a {fmt.upper()} mesh ({type(exc).__name__}: {exc})"
+            f"{source}: cannot read it as a {fmt.upper()} mesh ({describe_error(exc)})"
             f"{hint}; check that the file is a valid {fmt.upper()} file"
         ) from exc
     if mesh is None or len(getattr(mesh, "faces", ())) == 0:

@@ -10,7 +10,7 @@ from typing import IO
 import numpy as np
 
 from ..errors import InputError
-from .cloud import FileData, RawCloud, split_columns
+from .cloud import FileData, RawCloud, describe_error, split_columns
 
 
 def _numeric_array(arr: object, source: str, what: str) -> np.ndarray:
@@ -47,7 +47,7 @@ def check_npy_header(fp: IO[bytes], n_bytes: int, source: str, what: str) -> Non
     except InputError:
         raise
     except Exception as exc:  # noqa: BLE001 - numpy raises ValueError/EOFError/SyntaxError...
-        raise bad(f"{type(exc).__name__}: {exc}") from None
+        raise bad(describe_error(exc)) from None
     if dtype.hasobject:
         raise bad("it holds Python objects")
     need = math.prod(shape) * dtype.itemsize
@@ -69,7 +69,7 @@ def read_npy(file: FileData) -> RawCloud:
         arr = np.load(io.BytesIO(file.data), allow_pickle=False)
     except Exception as exc:  # noqa: BLE001 - numpy raises ValueError/OSError/EOFError/...
         raise InputError(
-            f"{source}: not a readable NPY file ({type(exc).__name__}: {exc}); save it with "
+            f"{source}: not a readable NPY file ({describe_error(exc)}); save it with "
             "numpy.save of a float array (object arrays are refused)"
         ) from exc
     if not isinstance(arr, np.ndarray):
@@ -92,7 +92,7 @@ def read_npz(file: FileData) -> RawCloud:
         raise
     except Exception as exc:  # noqa: BLE001 - zipfile raises BadZipFile, ValueError, ...
         raise InputError(
-            f"{source}: not a readable NPZ archive ({type(exc).__name__}: {exc}); save it with "
+            f"{source}: not a readable NPZ archive ({describe_error(exc)}); save it with "
             "numpy.savez(points=...)"
         ) from exc
     if unpacked > max_bytes:
@@ -118,7 +118,7 @@ def read_npz(file: FileData) -> RawCloud:
         raise
     except Exception as exc:  # noqa: BLE001
         raise InputError(
-            f"{source}: cannot read the NPZ arrays ({type(exc).__name__}: {exc}); save float "
+            f"{source}: cannot read the NPZ arrays ({describe_error(exc)}); save float "
             "arrays with numpy.savez (object arrays are refused)"
         ) from exc
     pts = _numeric_array(arr, source, f"array '{key}'")

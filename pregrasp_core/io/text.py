@@ -46,7 +46,7 @@ def parse_numbers(lines: list[str] | str, source: str, what: str) -> np.ndarray:
             warnings.simplefilter("ignore")  # "input contained no data" -> handled by callers
             arr = np.loadtxt(io.StringIO(text), dtype=np.float64, comments="#", ndmin=2)
     except ValueError as exc:
-        msg = str(exc)
+        msg = " ".join(str(exc).split())[:160]
         if "number of columns" in msg:
             problem = f"rows have different numbers of columns ({msg.split(';')[0]})"
         else:
