@@ -149,11 +149,14 @@ def g17(a: np.ndarray) -> list[str]:
 
 
 def ply_cloud(c: Cloud, fmt: str = "ascii", dtype: str = "f8", normals: bool = True,
-              extra: bool = False) -> bytes:  # fmt: skip
+              extra: bool = False, perm: list[int] | None = None) -> bytes:  # fmt: skip
+    """perm: the order of the properties (x y z [nx ny nz] [quality]) in the file."""
     names = ["x", "y", "z"] + (["nx", "ny", "nz"] if normals else []) + (["quality"] * extra)
     typename = {"f4": "float", "f8": "double"}[dtype]
     cols = np.hstack([c.points] + ([c.normals] if normals else []) +
                      ([np.ones((len(c.points), 1))] if extra else []))  # fmt: skip
+    if perm is not None:
+        names, cols = [names[i] for i in perm], cols[:, perm]
     head = ["ply", f"format {fmt} 1.0", "comment fuzz", f"element vertex {len(cols)}"]
     head += [f"property {typename} {n}" for n in names] + ["end_header"]
     out = ("\n".join(head) + "\n").encode()
@@ -179,7 +182,16 @@ def ply_mesh(m: Mesh, fmt: str = "ascii") -> bytes:
 
 
 def pcd(c: Cloud, mode: str = "ascii", normals: bool = True, rgb: bool = False,
-        size: int = 4) -> bytes:  # fmt: skip
+        size: int = 4, perm: list[int] | None = None) -> bytes:  # fmt: skip
+    """perm: the order of the fields (x y z [normal_x normal_y normal_z] [rgb]) in the file."""
+    if perm is not None:  # each field as a column of its own, written in the order perm gives
+        cols = [c.points[:, i] for i in range(3)] + (
+            [c.normals[:, i] for i in range(3)] if normals else [])  # fmt: skip
+        names = ["x", "y", "z"] + (["normal_x", "normal_y", "normal_z"] if normals else [])
+        specs = [(nm, f"<f{size}", col) for nm, col in zip(names, cols, strict=True)]
+        if rgb:
+            specs.append(("rgb", "<u4", np.full(len(c.points), 255)))
+        return _pcd_columns([specs[i] for i in perm], mode)
     fields = ["x", "y", "z"] + (["normal_x", "normal_y", "normal_z"] if normals else [])
     sizes, types = [str(size)] * len(fields), ["F"] * len(fields)
     if rgb:
@@ -198,6 +210,24 @@ def pcd(c: Cloud, mode: str = "ascii", normals: bool = True, rgb: bool = False,
     rec = np.zeros(n, dtype=dt)
     for i, f in enumerate(fields[: floats.shape[1]]):
         rec[f] = floats[:, i]
+    return out + rec.tobytes()
+
+
+def _pcd_columns(specs: list[tuple[str, str, np.ndarray]], mode: str) -> bytes:
+    """A PCD of fields (name, numpy type, (N,) values) in the given order."""
+    n = len(specs[0][2])
+    head = ["VERSION 0.7", "FIELDS " + " ".join(nm for nm, _, _ in specs),
+            "SIZE " + " ".join(t[2:] for _, t, _ in specs),
+            "TYPE " + " ".join({"f": "F", "u": "U"}[t[1]] for _, t, _ in specs),
+            "COUNT " + " ".join("1" for _ in specs), f"WIDTH {n}", "HEIGHT 1",
+            f"POINTS {n}", f"DATA {mode}"]  # fmt: skip
+    out = ("\n".join(head) + "\n").encode()
+    if mode == "ascii":
+        cols = np.column_stack([v.astype(np.float64) for _, _, v in specs])
+        return out + ("\n".join(g17(cols)) + "\n").encode()
+    rec = np.zeros(n, dtype=[(nm, t) for nm, t, _ in specs])
+    for nm, _, v in specs:
+        rec[nm] = v
     return out + rec.tobytes()
 
 
@@ -304,18 +334,31 @@ class Reader:
     """Draws a valid file to be broken."""
 
 
-def _ply_ascii(d: st.DataObject):
-    c = d.draw(clouds)
-    nrm, extra = d.draw(st.booleans()), d.draw(st.booleans())
-    return ply_cloud(c, "ascii", normals=nrm, extra=extra), lambda x: check_cloud(x, c.points)
+def _perm(d: st.DataObject, permute: bool, n: int) -> list[int] | None:
+    return d.draw(st.permutations(range(n))) if permute else None
 
 
-def _ply_binary(d: st.DataObject):
-    c = d.draw(clouds)
-    fmt = d.draw(st.sampled_from(["binary_little_endian", "binary_big_endian"]))
-    dtype, nrm = d.draw(st.sampled_from(["f4", "f8"])), d.draw(st.booleans())
-    ref = f32(c.points) if dtype == "f4" else c.points
-    return ply_cloud(c, fmt, dtype, normals=nrm), lambda x: check_cloud(x, ref)
+def _ply_ascii(permute: bool):
+    def gen(d: st.DataObject):
+        c = d.draw(clouds)
+        nrm, extra = d.draw(st.booleans()), d.draw(st.booleans())
+        perm = _perm(d, permute, 3 + 3 * nrm + extra)
+        data = ply_cloud(c, "ascii", normals=nrm, extra=extra, perm=perm)
+        return data, lambda x: check_cloud(x, c.points)
+
+    return gen
+
+
+def _ply_binary(permute: bool):
+    def gen(d: st.DataObject):
+        c = d.draw(clouds)
+        fmt = d.draw(st.sampled_from(["binary_little_endian", "binary_big_endian"]))
+        dtype, nrm = d.draw(st.sampled_from(["f4", "f8"])), d.draw(st.booleans())
+        ref = f32(c.points) if dtype == "f4" else c.points
+        perm = _perm(d, permute, 3 + 3 * nrm)
+        return ply_cloud(c, fmt, dtype, normals=nrm, perm=perm), lambda x: check_cloud(x, ref)
+
+    return gen
 
 
 def _ply_mesh(d: st.DataObject):
@@ -325,7 +368,7 @@ def _ply_mesh(d: st.DataObject):
     return ply_mesh(m, fmt), lambda x: check_mesh(x, m32, 1e-6)
 
 
-def _pcd(mode: str):
+def _pcd(mode: str, permute: bool = False):
     def gen(d: st.DataObject):
         c = d.draw(clouds)
         size, nrm, rgb = (
@@ -334,7 +377,8 @@ def _pcd(mode: str):
             d.draw(st.booleans()),
         )
         ref = c.points if (mode == "ascii" or size == 8) else f32(c.points)
-        return pcd(c, mode, nrm, rgb, size), lambda x: check_cloud(x, ref)
+        perm = _perm(d, permute, 3 + 3 * nrm + rgb)
+        return pcd(c, mode, nrm, rgb, size, perm), lambda x: check_cloud(x, ref)
 
     return gen
 
@@ -378,12 +422,18 @@ def _base(gen):
     return lambda d: gen(d)[0]
 
 
-_VALID = {
-    "ply_ascii": ("c.ply", _ply_ascii),
-    "ply_binary": ("c.ply", _ply_binary),
+_BASES = {  # the files the breaking mutations start from: fields in the usual order
+    "ply_ascii": _ply_ascii(False),
+    "ply_binary": _ply_binary(False),
+    "pcd_ascii": _pcd("ascii"),
+    "pcd_binary": _pcd("binary"),
+}
+_VALID = {  # valid files; PLY and PCD with their properties / fields in any order
+    "ply_ascii": ("c.ply", _ply_ascii(True)),
+    "ply_binary": ("c.ply", _ply_binary(True)),
     "ply_mesh": ("m.ply", _ply_mesh),
-    "pcd_ascii": ("c.pcd", _pcd("ascii")),
-    "pcd_binary": ("c.pcd", _pcd("binary")),
+    "pcd_ascii": ("c.pcd", _pcd("ascii", True)),
+    "pcd_binary": ("c.pcd", _pcd("binary", True)),
     "xyz": ("c.xyz", _text([" ", "\t", "  "])),
     "txt": ("c.txt", _text([" ", ","])),
     "csv": ("c.csv", _text([",", ", "])),
@@ -395,7 +445,7 @@ _VALID = {
     "stl_binary": ("m.stl", _mesh(stl_binary, 1e-6)),
     "glb": ("m.glb", _mesh(glb, 1e-6)),
 }
-READERS = {k: Reader(name, gen, _base(gen)) for k, (name, gen) in _VALID.items()}
+READERS = {k: Reader(name, gen, _base(_BASES.get(k, gen))) for k, (name, gen) in _VALID.items()}
 
 
 @pytest.mark.parametrize("kind", sorted(READERS))
