@@ -144,10 +144,12 @@ def test_the_default_object_gets_a_pool_identical_for_the_same_seed(hand):
     )
     assert len(r.pool) > 0
     assert set(np.unique(r.pool.node)) <= set(r.traversal.candidates)
-    # every pre-grasp of a real object is collision-free for the hand model's own query
-    for gt in np.unique(r.pool.grasp_type):
-        sel = r.pool.grasp_type == gt
-        hits = hand.hands_hit_points(cloud.points, r.pool.T_world_hand[sel], r.pool.q[sel][0])
+    # every pre-grasp of a real object is collision-free for the hand model's own query (per
+    # preshape: the enclosing-surface samples of a type share one, a pinch has its own)
+    qs, which = np.unique(r.pool.q, axis=0, return_inverse=True)
+    for k, q in enumerate(qs):
+        sel = which.ravel() == k
+        hits = hand.hands_hit_points(cloud.points, r.pool.T_world_hand[sel], q)
         assert not hits.any()
     # the same file and seed give the same pool, bit for bit
     cloud2 = load_point_cloud(DEFAULT_OBJECT, n_points=6000, seed=0)
