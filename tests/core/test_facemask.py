@@ -401,8 +401,8 @@ def test_chunked_masks_equal_the_all_pairs_reference(seed, monkeypatch):
         ref_blocked, ref_blockers = reference_face_masks(tree, TABLE, params, cut)
         assert ref_blocked.sum() > 20  # the random boxes do block each other
         for pair_chunk, sat_chunk in ((16_384, 1024), (7, 3), (1, 1)):
-            monkeypatch.setattr(facemask, "PAIR_CHUNK", pair_chunk)
-            monkeypatch.setattr(facemask, "SAT_CHUNK", sat_chunk)
+            monkeypatch.setattr(facemask.masks, "PAIR_CHUNK", pair_chunk)
+            monkeypatch.setattr(facemask.masks, "SAT_CHUNK", sat_chunk)
             fm = compute_face_masks(tree, TABLE, params, cut=cut)
             assert np.array_equal(fm.blocked, ref_blocked)
             assert fm.blockers == ref_blockers
