@@ -21,6 +21,7 @@ time it took then; ``reused`` names the stages taken from ``previous``).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Callable
@@ -33,6 +34,7 @@ from .decomposition import BoxTree, DecompositionParams, decompose
 from .facemask import FaceMaskParams, FaceMasks, compute_face_masks, support_plane
 from .io import PointCloud
 from .limits import WorkLimits
+from .normals import NormalParams, estimate_normals
 from .planner import GraspSet, PlannerParams, cloud_normals, grasps_sections, plan_grasps
 from .pregrasps import PreGraspPool, SamplingParams, Traversal, build_pool, traverse
 from .result import JsonDocument
@@ -138,7 +140,7 @@ def run_pipeline(
     work limits of the stages (default ``WorkLimits()``; ``docs/limits.md``); a stage that would
     pass one raises ``WorkLimitError`` before its large allocations.
     """
-    params = PipelineParams() if params is None else params
+    params = with_cloud(PipelineParams() if params is None else params, cloud)
     last = _stage_index(until)
     points = np.asarray(cloud.points, dtype=np.float64)
     prev = previous
@@ -242,7 +244,7 @@ def run_pipeline(
             timings["normals"] = prev.timings.get("normals", 0.0)
         else:
             t0 = time.perf_counter()
-            out["normals"] = cloud_normals(cloud, params.planner.normals)
+            out["normals"] = view_normals(cloud, params.planner.normals)
             timings["normals"] = time.perf_counter() - t0
 
         def _plan_progress(done: int, total: int) -> None:
@@ -278,6 +280,36 @@ def run_pipeline(
         hand=hand if last >= 3 else (prev.hand if prev is not None else None),
         **out,
     )
+
+
+def with_cloud(params: PipelineParams, cloud: PointCloud) -> PipelineParams:
+    """``params`` completed by what a single view knows: the camera (``cloud.viewpoint``) as
+    the normals' viewpoint unless one is given, and the scene's table
+    (``cloud.sensor.plane``) as the support plane unless ``support_height`` is given."""
+    normals = params.planner.normals
+    if cloud.viewpoint is not None and normals.viewpoint is None:
+        x, y, z = (float(v) for v in cloud.viewpoint)
+        vp = (x, y, z)
+        planner = dataclasses.replace(
+            params.planner, normals=dataclasses.replace(normals, viewpoint=vp)
+        )
+        params = dataclasses.replace(params, planner=planner)
+    if cloud.sensor is not None and params.facemask.support_height is None:
+        params = dataclasses.replace(
+            params, facemask=cloud.sensor.face_mask_params(params.facemask)
+        )
+    return params
+
+
+def view_normals(cloud: PointCloud, params: NormalParams) -> np.ndarray:
+    """(N, 3) normals of ``cloud``; for a completed view, those of the visible points
+    (oriented as ``params`` says, toward the camera by default) and, for the assumed points,
+    their source's normal moved by the symmetry (``SensorView.full_normals``)."""
+    sv = cloud.sensor
+    if sv is None or not np.any(sv.assumed):
+        return cloud_normals(cloud, params)
+    visible = np.asarray(cloud.points)[~sv.assumed]
+    return sv.full_normals(estimate_normals(visible, params).normals)
 
 
 def _load_hand() -> Hand:

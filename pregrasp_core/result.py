@@ -126,6 +126,7 @@ def input_section(cloud: PointCloud, seed: int | None = None) -> JsonDocument:
         "has_normals": getattr(cloud, "normals", None) is not None,
         "bounds": to_jsonable(np.stack([lo, hi])),
         "warnings": list(info.get("warnings", [])),
+        **({"scene": info["scene"]} if "scene" in info else {}),
     }
 
 

@@ -22,8 +22,10 @@ from pregrasp_core.io import (
     MIN_POINTS,
     SUPPORTED_EXTENSIONS,
     PointCloud,
+    SensorOptions,
     load_point_cloud,
 )
+from pregrasp_core.io.depth_image import DEPTH_IMAGE_EXTENSIONS
 from pregrasp_core.normals import ORIENT_MODES, NormalParams
 from pregrasp_core.paths import DEFAULT_OBJECT
 from pregrasp_core.pipeline import PipelineParams
@@ -32,7 +34,7 @@ from pregrasp_core.pregrasps import SamplingParams
 from pregrasp_core.quality import TORQUE_ORIGINS, QualityParams
 from pregrasp_core.shape import ShapeParams
 
-from .options import Flag, Options
+from .options import Flag, OptionError, Options
 
 # ---------------------------------------------------------------------------------- input
 
@@ -46,7 +48,19 @@ class InputOptions:
     seed: int = 0
     """Sampling seed (>= 0); the same seed gives the same cloud."""
     scale: float | None = None
-    """Multiply the coordinates by this, e.g. 0.001 for a file in millimetres."""
+    """Multiply the coordinates by this, e.g. 0.001 for a file in millimetres; None: a cloud
+    whose size and spacing say millimetres is scaled by 0.001 with a warning."""
+    intrinsics: tuple[str, ...] | None = None
+    """A depth image's pinhole intrinsics: four numbers FX FY CX CY (pixels) or a JSON file;
+    default: NAME.json beside NAME.png / NAME.npy (an NPY is a depth map only with them)."""
+    pick: tuple[float, float, float] | None = None
+    """In a scene, keep the object cluster nearest this point (metres) instead of the largest."""
+    scene: bool | None = None
+    """Read the input as a scene: the table found by RANSAC becomes the support plane, the
+    object cluster is kept and its unseen back completed. Default: for depth images and PCD
+    files with a VIEWPOINT; --no-scene reads every point as the object."""
+    viewpoint: tuple[float, float, float] | None = None
+    """The camera position (from --viewpoint, shared with the normals' option)."""
 
     def __post_init__(self) -> None:
         if not MIN_POINTS <= self.points <= MAX_POINTS:
@@ -56,20 +70,88 @@ class InputOptions:
         if self.scale is not None and not (math.isfinite(self.scale) and self.scale > 0.0):
             raise ValueError(f"scale must be a positive finite number, got {self.scale}")
 
+        if self.intrinsics is not None and len(self.intrinsics) not in (1, 4):
+            raise OptionError(
+                "--intrinsics: give four numbers FX FY CX CY or one JSON file, got "
+                f"{' '.join(self.intrinsics)}"
+            )
+
+    def sensor(self) -> SensorOptions:
+        """The depth-camera options of ``load_point_cloud``."""
+        intr: tuple[float, ...] | str | None = None
+        if self.intrinsics is not None and len(self.intrinsics) == 1:
+            intr = self.intrinsics[0]
+        elif self.intrinsics is not None:
+            try:
+                intr = tuple(float(v) for v in self.intrinsics)
+            except ValueError:
+                raise OptionError(
+                    f"--intrinsics: give four numbers FX FY CX CY or one JSON file, got "
+                    f"{' '.join(self.intrinsics)}"
+                ) from None
+        return SensorOptions(
+            intrinsics=intr, viewpoint=self.viewpoint, scene=self.scene, pick=self.pick
+        )
+
     def load(self, path: str | Path) -> PointCloud:
         """The cloud of the file at ``path`` (``PregraspError`` naming the file if unreadable)."""
-        return load_point_cloud(path, n_points=self.points, seed=self.seed, scale=self.scale)
+        return load_point_cloud(
+            path, n_points=self.points, seed=self.seed, scale=self.scale, sensor=self.sensor()
+        )
 
 
-INPUT_OPTIONS: Options[InputOptions] = Options(
+class _InputSpec(Options[InputOptions]):
+    """The generated ``--points``, ``--seed``, ``--scale``, ``--pick``, plus ``--intrinsics``
+    (one JSON file or four numbers: no dataclass type says that), ``--scene`` / ``--no-scene``
+    (unset by default) and the normals' ``--viewpoint`` read back for the loader."""
+
+    def add_to(
+        self, parser: argparse.ArgumentParser, group: argparse._ArgumentGroup | None = None
+    ) -> None:
+        g = group if group is not None else parser.add_argument_group(self.title)
+        super().add_to(parser, g)
+        g.add_argument(
+            "--intrinsics",
+            dest=self._key("intrinsics"),
+            nargs="+",
+            metavar="V",
+            default=None,
+            help=" ".join(self._docs["intrinsics"].split()),
+        )
+        g.add_argument(
+            "--scene",
+            dest=self._key("scene"),
+            action=argparse.BooleanOptionalAction,
+            default=None,
+            help=" ".join(self._docs["scene"].split()),
+        )
+
+    def values(self, ns: argparse.Namespace) -> dict[str, Any]:
+        out = super().values(ns)
+        for name in ("intrinsics", "scene"):
+            v = getattr(ns, self._key(name), None)
+            out[name] = tuple(v) if isinstance(v, list) else v
+        vp = getattr(ns, "planner.normals.viewpoint", None)
+        out["viewpoint"] = None if vp is None else tuple(vp)
+        return out
+
+
+INPUT_OPTIONS: Options[InputOptions] = _InputSpec(
     InputOptions,
     "input",
     "input",
-    flags={"points": Flag(metavar="N"), "seed": Flag(metavar="S"), "scale": Flag(metavar="F")},
+    flags={
+        "points": Flag(metavar="N"),
+        "seed": Flag(metavar="S"),
+        "scale": Flag(metavar="F"),
+        "pick": Flag(metavar=("X", "Y", "Z")),
+    },
+    fields=("points", "seed", "scale", "pick"),
 )
-"""``--points``, ``--seed``, ``--scale`` (after the positional INPUT of :func:`add_input_args`)."""
+"""``--points``, ``--seed``, ``--scale``, ``--intrinsics``, ``--pick``, ``--scene`` (after the
+positional INPUT of :func:`add_input_args`)."""
 
-FORMATS = ", ".join(e.lstrip(".").upper() for e in SUPPORTED_EXTENSIONS)
+FORMATS = ", ".join(e.lstrip(".").upper() for e in (*SUPPORTED_EXTENSIONS, *DEPTH_IMAGE_EXTENSIONS))
 
 
 def add_input_args(

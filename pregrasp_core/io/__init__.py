@@ -19,6 +19,12 @@ Every problem with the input raises :class:`~pregrasp_core.errors.InputError` (o
 message names the file, the problem and what to do; nothing is ever unpickled or executed.
 Recoverable oddities (non-finite rows dropped, coplanar points, millimetre-looking extents,
 ignored columns) are logged with ``logging`` and listed in ``PointCloud.info["warnings"]``.
+- depth images: a 16-bit PNG in millimetres, or an NPY given intrinsics (``depth_image``),
+  read as a scene: the table becomes the support plane, the object is kept and completed
+  (``SensorOptions``; also PCD files with a ``VIEWPOINT``). A cloud recognised as millimetres
+  (``pregrasp_core.sensor.detect_units``) is scaled by 0.001 with a warning unless a scale is
+  given.
+
 See ``docs/input.md``.
 """
 
@@ -35,11 +41,13 @@ from .cloud import (
     CloudInfo,
     PointCloud,
 )
-from .load import READERS, load_point_cloud, load_point_cloud_bytes
+from .depth_image import DEPTH_IMAGE_EXTENSIONS
+from .load import READERS, SensorOptions, load_point_cloud, load_point_cloud_bytes
 
 __all__ = [
     "CLOUD_EXTENSIONS",
     "DEFAULT_MAX_BYTES",
+    "DEPTH_IMAGE_EXTENSIONS",
     "DEFAULT_N_POINTS",
     "MAX_COORDINATE",
     "MAX_POINTS",
@@ -50,6 +58,7 @@ __all__ = [
     "SUPPORTED_EXTENSIONS",
     "CloudInfo",
     "PointCloud",
+    "SensorOptions",
     "load_point_cloud",
     "load_point_cloud_bytes",
 ]

@@ -7,12 +7,15 @@ import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TypedDict
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
 from ..errors import DegenerateGeometryError, InputError
 from ..tolerances import FLAT_EXTENT, GEOM_EPS, UNIT_NORMAL_TOL
+
+if TYPE_CHECKING:
+    from ..sensor import SensorView
 
 logger = logging.getLogger(__name__)
 
@@ -72,6 +75,11 @@ class CloudInfo(TypedDict, total=False):
     """Meshes: closed surface (trimesh's ``is_watertight``)."""
     n_subsampled_from: int
     """Clouds cut to ``n_points``: the point count before."""
+    scene: dict[str, Any]
+    """Scenes (depth images, PCDs with a ``VIEWPOINT``, ``--scene``): ``n_scene`` (points of
+    the scene), ``n_table``, ``n_visible`` and ``n_assumed`` (the object's points seen and
+    added by the completion), ``viewpoint``, ``plane`` (the table: normal and height) and
+    ``completion`` (``rotation``, ``mirror`` or None)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -94,7 +102,19 @@ class PointCloud:
     ``n_read`` (rows read, or mesh vertices), ``n_dropped_nonfinite``, ``scale``, ``seed`` (of
     the sampling/subsampling; None for an array), ``warnings`` (list of str); meshes add
     ``n_faces``, ``area`` (m^2, after scaling) and ``watertight``; clouds cut to ``n_points`` add
-    ``n_subsampled_from``."""
+    ``n_subsampled_from``; scenes add ``scene`` (:class:`CloudInfo`)."""
+    viewpoint: np.ndarray | None = None
+    """(3,) the camera position (metres, world frame) of a single view, or None (a complete
+    cloud): the pipeline turns the normals toward it unless ``--viewpoint`` says otherwise."""
+    sensor: SensorView | None = None
+    """A scene's object (:class:`~pregrasp_core.sensor.SensorView`: the support plane, which
+    points are assumed, their normals), or None. Its ``points`` are this cloud's points."""
+
+    @property
+    def assumed(self) -> np.ndarray | None:
+        """(N,) bool: the points assumed by the completion of a single view (draw them in their
+        own colour), or None when every point was read."""
+        return None if self.sensor is None else self.sensor.assumed
 
     def __post_init__(self) -> None:
         pts = np.array(self.points, dtype=np.float64)  # a private copy we may freeze
@@ -110,6 +130,16 @@ class PointCloud:
                 )
             nrm.setflags(write=False)
             object.__setattr__(self, "normals", nrm)
+        if self.viewpoint is not None:
+            vp = np.array(self.viewpoint, dtype=np.float64)
+            if vp.shape != (3,) or not np.all(np.isfinite(vp)):
+                raise ValueError(f"viewpoint must be a finite 3-vector, got {self.viewpoint!r}")
+            vp.setflags(write=False)
+            object.__setattr__(self, "viewpoint", vp)
+        if self.sensor is not None and len(self.sensor.points) != len(pts):
+            raise ValueError(
+                f"sensor holds {len(self.sensor.points)} points but the cloud {len(pts)}"
+            )
 
     @property
     def n_points(self) -> int:

@@ -3,23 +3,38 @@ the reader from ``READERS``; size limits are checked before anything is parsed."
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import InputError, PregraspError
+from ..sensor import (
+    CompletionParams,
+    SensorView,
+    complete_view,
+    detect_units,
+    pcd_viewpoint,
+    prepare_view,
+)
 from .cloud import (
     DEFAULT_MAX_BYTES,
     DEFAULT_N_POINTS,
+    MIN_POINTS,
     SUPPORTED_EXTENSIONS,
     CloudInfo,
     FileData,
     PointCloud,
     RawCloud,
+    add_warning,
     check_request,
     describe_error,
     finish_cloud,
 )
+from .depth_image import DEPTH_IMAGE_EXTENSIONS, IntrinsicsArg, is_depth_input, read_depth_image
 from .gltf import read_glb, read_gltf
 from .mesh import TriangleMesh, sample_mesh
 from .numpy_format import read_npy, read_npz
@@ -59,13 +74,16 @@ def load_point_cloud(
     seed: int = 0,
     scale: float | None = None,
     max_bytes: int = DEFAULT_MAX_BYTES,
+    sensor: SensorOptions | None = None,
 ) -> PointCloud:
-    """Read a point cloud or a mesh file into a :class:`PointCloud` (see ``docs/input.md``).
+    """Read a point cloud, a mesh or a depth image into a :class:`PointCloud` (``docs/input.md``).
 
     path: the file; its extension picks the format. n_points: points sampled on a mesh, and the
     cap for a cloud (None: a cloud keeps all points, a mesh gets ``DEFAULT_N_POINTS``). seed:
-    sampling seed. scale: multiplies the coordinates (0.001 for a file in millimetres).
-    max_bytes: larger files are refused.
+    sampling seed. scale: multiplies the coordinates (0.001 for a file in millimetres); None:
+    a cloud recognised as millimetres by :func:`~pregrasp_core.sensor.detect_units` is scaled
+    by 0.001 with a warning. max_bytes: larger files are refused. sensor: intrinsics,
+    viewpoint, scene and pick of depth-camera input (:class:`SensorOptions`).
     """
     p = Path(path)
     source = str(p)
@@ -85,7 +103,7 @@ def load_point_cloud(
         raise InputError(f"{source}: cannot read the file ({describe_error(exc)})") from exc
     check_size(len(data), max_bytes, source)  # the file may have grown since stat
     file = FileData(data=data, source=source, path=p, max_bytes=max_bytes)
-    return _load(file, ext, n_points, seed, scale)
+    return _load(file, ext, n_points, seed, scale, sensor)
 
 
 def load_point_cloud_bytes(
@@ -95,11 +113,12 @@ def load_point_cloud_bytes(
     seed: int = 0,
     scale: float | None = None,
     max_bytes: int = DEFAULT_MAX_BYTES,
+    sensor: SensorOptions | None = None,
 ) -> PointCloud:
     """Like :func:`load_point_cloud` for the bytes of an uploaded file named ``filename``.
 
     The extension of ``filename`` picks the format; nothing outside ``data`` is read (a GLTF
-    must embed its buffers; use GLB).
+    must embed its buffers; use GLB; a depth image needs ``sensor.intrinsics``).
     """
     source = str(filename)
     ext = extension(source)
@@ -108,19 +127,20 @@ def load_point_cloud_bytes(
     data = bytes(data)
     check_size(len(data), max_bytes, source)
     file = FileData(data=data, source=source, path=None, max_bytes=max_bytes)
-    return _load(file, ext, n_points, seed, scale)
+    return _load(file, ext, n_points, seed, scale, sensor)
 
 
 def extension(source: str) -> str:
     """The lower-case extension of ``source`` if supported, else :class:`InputError`."""
     name = Path(source).name.lower()
     ext = Path(name).suffix
-    if ext not in SUPPORTED_EXTENSIONS:
+    if ext not in SUPPORTED_EXTENSIONS + DEPTH_IMAGE_EXTENSIONS:
         shown = ext if ext else "(none)"
         raise InputError(
             f"{source}: unknown file extension {shown}; supported: "
-            f"{', '.join(SUPPORTED_EXTENSIONS)} (point clouds: PLY, PCD, XYZ/TXT/CSV, NPY, NPZ; "
-            "meshes: OBJ, STL, OFF, GLB/GLTF, PLY with faces)"
+            f"{', '.join(SUPPORTED_EXTENSIONS + DEPTH_IMAGE_EXTENSIONS)} (point clouds: PLY, "
+            "PCD, XYZ/TXT/CSV, NPY, NPZ; meshes: OBJ, STL, OFF, GLB/GLTF, PLY with faces; depth "
+            "images: 16-bit PNG, NPY with intrinsics)"
         )
     return ext
 
@@ -136,13 +156,36 @@ def check_size(size: int, max_bytes: int, source: str) -> None:
         )
 
 
-def _load(
-    file: FileData, ext: str, n_points: int | None, seed: int, scale: float | None
-) -> PointCloud:
-    check_request(n_points, scale, file.source, seed)
+@dataclass(frozen=True)
+class SensorOptions:
+    """How depth-camera input is read (``docs/input.md``, "Depth-camera input")."""
+
+    intrinsics: IntrinsicsArg = None
+    """A depth image's intrinsics: an ``Intrinsics``, four numbers ``fx fy cx cy`` or a JSON
+    file; None = the sidecar ``NAME.json`` beside the image."""
+    viewpoint: tuple[float, float, float] | None = None
+    """The camera position (metres, after scaling); None = the PCD header's ``VIEWPOINT``, the
+    camera of a depth image, or none."""
+    scene: bool | None = None
+    """Segment the table and complete the view (:func:`~pregrasp_core.sensor.prepare_view`);
+    None = for depth images and for PCD files with a ``VIEWPOINT``."""
+    pick: tuple[float, float, float] | None = None
+    """A point near the object to keep (metres, after scaling); None = the largest cluster."""
+
+    def __post_init__(self) -> None:
+        for name in ("viewpoint", "pick"):
+            v = getattr(self, name)
+            if v is not None:
+                a = np.asarray(v, dtype=np.float64)
+                if a.shape != (3,) or not np.all(np.isfinite(a)):
+                    raise ValueError(f"{name} must be 3 finite numbers, got {v!r}")
+                object.__setattr__(self, name, tuple(float(x) for x in a))
+
+
+def _read(file: FileData, ext: str) -> RawCloud | TriangleMesh:
     fmt = ext[1:]
     try:
-        parsed = READERS[ext](file)
+        return READERS[ext](file)
     except PregraspError:
         raise
     except MemoryError:
@@ -155,9 +198,143 @@ def _load(
             f"{file.source}: cannot read it as {fmt.upper()} ({describe_error(exc)}); "
             "check that the file is valid"
         ) from exc
+
+
+def _units(points: np.ndarray, scale: float | None, seed: int, warns: list[str]) -> float | None:
+    """``scale``, or 0.001 with a warning when it is None and the points look like millimetres."""
+    if scale is not None:
+        return scale
+    finite = points[np.all(np.isfinite(points), axis=1)]
+    if len(finite) < MIN_POINTS:
+        return None  # finish_cloud reports it
+    guess = detect_units(finite, seed=seed)
+    if guess.unit != "mm":
+        return None
+    add_warning(warns, guess.notice)
+    return guess.scale
+
+
+def _load(
+    file: FileData,
+    ext: str,
+    n_points: int | None,
+    seed: int,
+    scale: float | None,
+    sensor: SensorOptions | None = None,
+) -> PointCloud:
+    check_request(n_points, scale, file.source, seed)
+    opts = SensorOptions() if sensor is None else sensor
+    fmt = ext[1:]
+    if is_depth_input(file, ext, opts.intrinsics):
+        depth = read_depth_image(file, ext, opts.intrinsics)
+        info = CloudInfo(format=fmt, kind="depth", n_read=depth.n_pixels, warnings=[])
+        s = 1.0 if scale is None else float(scale)  # a depth image is in metres by its format
+        vp = depth.viewpoint * s if opts.viewpoint is None else np.asarray(opts.viewpoint)
+        scene = finish_cloud(
+            depth.points, None, file.source, info, scale=scale, n_points=None, seed=seed
+        )
+        return _scene_or_view(scene, vp, opts, n_points, seed, opts.scene is not False)
+    parsed = _read(file, ext)
     if isinstance(parsed, TriangleMesh):
-        return sample_mesh(parsed, file.source, fmt, n_points, seed, scale)
-    info = CloudInfo(format=fmt, kind="cloud", n_read=parsed.n_read, warnings=parsed.warnings)
-    return finish_cloud(
-        parsed.points, parsed.normals, file.source, info, scale=scale, n_points=n_points, seed=seed
+        cloud = sample_mesh(parsed, file.source, fmt, n_points, seed, scale)
+        if scale is None:
+            warns: list[str] = []
+            mm = _units(np.asarray(cloud.points), None, seed, warns)
+            if mm is not None:  # same seed: the same samples, scaled
+                cloud = sample_mesh(parsed, file.source, fmt, n_points, seed, mm)
+                cloud.info["warnings"] = [*warns, *cloud.info.get("warnings", [])]
+        return _scene_or_view(cloud, opts.viewpoint, opts, n_points, seed, bool(opts.scene))
+    warns = list(parsed.warnings)
+    T_pcd = pcd_viewpoint(file.path) if ext == ".pcd" and file.path is not None else None
+    eff_scale = _units(parsed.points, scale, seed, warns)
+    info = CloudInfo(format=fmt, kind="cloud", n_read=parsed.n_read, warnings=warns)
+    cam: np.ndarray | None = None
+    if opts.viewpoint is not None:
+        cam = np.asarray(opts.viewpoint, dtype=np.float64)
+    elif T_pcd is not None:
+        cam = T_pcd[:3, 3] * (1.0 if eff_scale is None else float(eff_scale))
+    as_scene = opts.scene if opts.scene is not None else T_pcd is not None
+    cloud = finish_cloud(
+        parsed.points,
+        parsed.normals,
+        file.source,
+        info,
+        scale=eff_scale,
+        n_points=None if as_scene else n_points,
+        seed=seed,
     )
+    return _scene_or_view(cloud, cam, opts, n_points, seed, as_scene)
+
+
+def _scene_or_view(
+    cloud: PointCloud,
+    viewpoint: np.ndarray | tuple[float, float, float] | None,
+    opts: SensorOptions,
+    n_points: int | None,
+    seed: int,
+    as_scene: bool,
+) -> PointCloud:
+    """``cloud`` with its viewpoint, or, for a scene, its object (table removed, completed)."""
+    if not as_scene:
+        if opts.pick is not None:
+            raise InputError(f"{cloud.source}: --pick needs a scene (--scene)")
+        if viewpoint is None:
+            return cloud
+        return dataclasses.replace(cloud, viewpoint=np.asarray(viewpoint, dtype=np.float64))
+    if viewpoint is None:
+        raise InputError(
+            f"{cloud.source}: a scene needs the camera position: pass --viewpoint X Y Z "
+            "(metres, the cloud's frame)"
+        )
+    view = scene_object(cloud, np.asarray(viewpoint, dtype=np.float64), opts.pick, n_points, seed)
+    info = cloud.info.copy()
+    info["scene"] = {
+        "n_scene": cloud.n_points,
+        "n_table": int(np.count_nonzero(view.segmentation.table_mask)),
+        "n_visible": view.n_visible,
+        "n_assumed": int(np.count_nonzero(view.assumed)),
+        "viewpoint": [float(v) for v in view.viewpoint],
+        "plane": view.plane.to_dict(),
+        "completion": None if view.completion is None else view.completion.kind,
+    }
+    if "n_subsampled_from" in info:
+        del info["n_subsampled_from"]
+    return PointCloud(
+        points=view.points,
+        normals=None,
+        source=cloud.source,
+        info=info,
+        viewpoint=view.viewpoint,
+        sensor=view,
+    )
+
+
+def scene_object(
+    scene: PointCloud,
+    viewpoint: np.ndarray,
+    pick: tuple[float, float, float] | None,
+    n_points: int | None,
+    seed: int,
+) -> SensorView:
+    """The object of ``scene`` seen from ``viewpoint``: :func:`~pregrasp_core.sensor.prepare_view`
+    without completion, the visible object cut to ``n_points // 2`` (seeded), then completed
+    (at most doubles it), so the cloud handed on holds at most ``n_points`` points."""
+    try:
+        view = prepare_view(scene.points, viewpoint, pick=pick, complete=False)
+        obj = view.points
+        if n_points is not None and len(obj) > n_points // 2:
+            rng = np.random.default_rng(seed)
+            obj = obj[np.sort(rng.choice(len(obj), size=n_points // 2, replace=False))]
+        tol = max(0.003, 3.0 * view.segmentation.sigma)
+        done = complete_view(obj, viewpoint, view.plane, CompletionParams(tolerance=tol))
+    except PregraspError as exc:
+        raise type(exc)(
+            f"{scene.source}: the scene's table and object: {exc} (--no-scene reads the points "
+            "as one object)"
+        ) from None
+    if len(done.points) < MIN_POINTS:
+        raise InputError(
+            f"{scene.source}: the object above the table has only {len(done.points)} points; "
+            f"at least {MIN_POINTS} are needed (--pick X Y Z chooses another object)"
+        )
+    return dataclasses.replace(view, points=done.points, assumed=done.assumed, completion=done)

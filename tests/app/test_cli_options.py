@@ -29,6 +29,10 @@ FLAGS: dict[str, tuple[list[str], str, object]] = {
     "--points": (["2500"], "input.points", 2500),
     "--seed": (["3"], "input.seed", 3),
     "--scale": (["0.5"], "input.scale", 0.5),
+    "--pick": (["0.1", "0", "0.2"], "input.pick", (0.1, 0.0, 0.2)),
+    "--intrinsics": (["cam.json"], "input.intrinsics", ("cam.json",)),
+    "--scene": ([], "input.scene", True),
+    "--no-scene": ([], "input.scene", False),
     "--volume-ratio": (["0.8"], "params.decomposition.volume_ratio", 0.8),
     "--min-points": (["300"], "params.decomposition.min_points", 300),
     "--max-depth": (["4"], "params.decomposition.max_depth", 4),
@@ -144,6 +148,9 @@ def test_every_flag_reaches_its_field(name):
         got = _at(built, place)
         assert got == expected and type(got) is type(expected), (flag, got)
         for section, obj in built.items():  # nothing else moved
+            if flag == "--viewpoint" and section == "input":  # the loader's camera as well
+                assert obj.viewpoint == expected
+                obj = dataclasses.replace(obj, viewpoint=None)
             if dataclasses.is_dataclass(obj) and section != place.split(".")[0]:
                 assert obj == defaults[section], flag
 
@@ -158,8 +165,9 @@ def test_commands_take_the_flags_of_their_stages():
     assert by_cmd["plan"] == by_cmd["view"] == {*by_cmd["pregrasps"], "planner"}
     plan_pipeline = {f for f in _flags_of("plan") if f in stage}
     assert plan_pipeline == set(PIPELINE_FLAGS)
-    assert _flags_of("view") == plan_pipeline | {"--points", "--seed", "--scale", "--host",
-                                                 "--port"}  # fmt: skip
+    assert _flags_of("view") == plan_pipeline | {"--points", "--seed", "--scale", "--pick",
+                                                 "--intrinsics", "--scene", "--no-scene",
+                                                 "--host", "--port"}  # fmt: skip
 
 
 def test_help_lists_every_flag_grouped_by_stage(capsys):

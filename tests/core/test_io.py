@@ -230,7 +230,10 @@ def test_npy_and_npz_roundtrip(tmp_path):
     np.savez_compressed(tmp_path / "d.npz", whatever=pts)  # a single array, any key
     np.testing.assert_array_equal(load_point_cloud(tmp_path / "d.npz").points, pts)
     np.save(tmp_path / "i.npy", np.round(pts * 1000).astype(np.int32))  # integers are fine
-    np.testing.assert_array_equal(load_point_cloud(tmp_path / "i.npy").points, np.round(pts * 1000))
+    # scale=1: these millimetre-like integers would otherwise be recognised as millimetres
+    np.testing.assert_array_equal(
+        load_point_cloud(tmp_path / "i.npy", scale=1.0).points, np.round(pts * 1000)
+    )
 
 
 def test_bytes_loader_matches_path_loader(tmp_path):
@@ -263,7 +266,10 @@ def test_cloud_subsampled_to_n_points(tmp_path):
 def test_scale_and_millimetre_warning(tmp_path):
     pts, _ = known_cloud()
     np.save(tmp_path / "mm.npy", pts * 1000.0)  # a 100 m "object": really millimetres
-    c = load_point_cloud(tmp_path / "mm.npy")
+    c = load_point_cloud(tmp_path / "mm.npy")  # recognised (detect_units) and converted
+    assert c.info["scale"] == 0.001
+    assert any("read as millimetres and scaled by 0.001" in w for w in c.warnings)
+    c = load_point_cloud(tmp_path / "mm.npy", scale=1.0)  # told metres: kept, with a warning
     assert any("looks like millimetres; pass scale=0.001 (--scale 0.001)" in w for w in c.warnings)
     c = load_point_cloud(tmp_path / "mm.npy", scale=0.001)
     np.testing.assert_allclose(c.points, pts, rtol=1e-12, atol=1e-15)

@@ -1,0 +1,178 @@
+"""Depth-camera input through ``load_point_cloud``: depth images with intrinsics, PCD scenes with
+a ``VIEWPOINT``, ``pick``, millimetre clouds, and the pipeline's use of the viewpoint.
+
+References: the scenes are rendered by ray casting (``pregrasp_core.sensor.synthetic``) from
+trimesh boxes on the table z = 0, so the true table, the true objects and the camera are known
+outside the loader; the committed demo ``assets/objects/mug_depth.png`` was rendered the same way
+(``scripts/make_views.py --demo``) with the camera pose in ``mug_depth.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from pregrasp_core.errors import InputError
+from pregrasp_core.io import SensorOptions, load_point_cloud
+from pregrasp_core.paths import OBJECTS_DIR
+from pregrasp_core.pipeline import PipelineParams, view_normals, with_cloud
+from pregrasp_core.sensor import Intrinsics
+from pregrasp_core.sensor.synthetic import orbit_camera, render_view
+
+K = Intrinsics(300.0, 300.0, 159.5, 119.5)
+DEMO = OBJECTS_DIR / "mug_depth.png"
+
+
+def write_scene_pcd(path: Path, points: np.ndarray, T: np.ndarray) -> None:
+    """An ascii PCD of ``points`` with the camera pose ``T`` as VIEWPOINT."""
+    qx, qy, qz, qw = Rotation.from_matrix(T[:3, :3]).as_quat()
+    tx, ty, tz = T[:3, 3]
+    head = (
+        "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+        f"WIDTH {len(points)}\nHEIGHT 1\n"
+        f"VIEWPOINT {tx:.9g} {ty:.9g} {tz:.9g} {qw:.9g} {qx:.9g} {qy:.9g} {qz:.9g}\n"
+        f"POINTS {len(points)}\nDATA ascii\n"
+    )
+    body = "\n".join(" ".join(f"{v:.6f}" for v in p) for p in points)
+    path.write_text(head + body + "\n")
+
+
+def two_boxes() -> tuple[trimesh.Trimesh, np.ndarray, np.ndarray]:
+    """A large and a small box on z = 0, 15 cm apart; their centres."""
+    big = trimesh.creation.box((0.08, 0.06, 0.12))
+    big.apply_translation((0.0, 0.0, 0.06))
+    small = trimesh.creation.box((0.04, 0.04, 0.05))
+    small.apply_translation((0.0, 0.15, 0.025))
+    return (
+        trimesh.util.concatenate([big, small]),
+        np.array([0, 0, 0.06]),
+        np.array([0, 0.15, 0.025]),
+    )
+
+
+def render(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
+    T = orbit_camera(np.array([0.0, 0.07, 0.05]), 0.7, np.radians(20.0), np.radians(40.0))
+    view = render_view(mesh.vertices, mesh.faces, T, K, 320, 240, table_half=0.4)
+    pts, _ = view.points_world()
+    return pts, T
+
+
+@pytest.fixture(scope="module")
+def scene_pcd(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarray]:
+    mesh, _, _ = two_boxes()
+    pts, T = render(mesh)
+    path = tmp_path_factory.mktemp("scene") / "boxes.pcd"
+    write_scene_pcd(path, pts, T)
+    return path, T
+
+
+def test_demo_depth_png_reads_its_sidecar_and_pose() -> None:
+    cloud = load_point_cloud(DEMO)
+    doc = json.loads(DEMO.with_suffix(".json").read_text())
+    T = np.asarray(doc["T_world_camera"])
+    np.testing.assert_allclose(cloud.viewpoint, T[:3, 3])
+    sc = cloud.info["scene"]
+    assert cloud.info["kind"] == "depth" and sc["n_table"] > 50_000
+    # the demo's table is z = 0 of the JSON's world frame
+    assert abs(sc["plane"]["height"]) < 1e-3 and sc["plane"]["normal"][2] > 0.9998
+    assert cloud.assumed is not None and sc["n_assumed"] == int(cloud.assumed.sum()) > 0
+    assert sc["n_visible"] + sc["n_assumed"] == cloud.n_points
+    # table removed: the object stands on it, nothing lies below it
+    assert cloud.points[:, 2].min() > -0.003
+    assert np.count_nonzero(cloud.points[:, 2] < 0.002) < 0.05 * cloud.n_points
+
+
+def test_pcd_viewpoint_scene_removes_table_and_gives_support_plane(scene_pcd) -> None:
+    path, T = scene_pcd
+    cloud = load_point_cloud(path)
+    np.testing.assert_allclose(cloud.viewpoint, T[:3, 3], atol=1e-6)
+    assert cloud.info["scene"]["n_table"] > 10_000
+    _, big, _ = two_boxes()
+    visible = cloud.points[~cloud.assumed]
+    # the largest object is kept: the big box's visible points, none of the small one
+    assert np.all(np.abs(visible[:, 1] - big[1]) < 0.035)
+    params = with_cloud(PipelineParams(), cloud)
+    assert params.facemask.support
+    assert np.degrees(np.arccos(min(1.0, params.facemask.up[2]))) < 0.5
+    assert abs(params.facemask.support_height) < 1e-3
+    assert params.planner.normals.viewpoint == pytest.approx(tuple(T[:3, 3]))
+    # the normals of what the camera saw face it
+    n = view_normals(cloud, params.planner.normals)
+    seen = ~cloud.assumed
+    to_cam = cloud.viewpoint - cloud.points[seen]
+    assert np.all(np.einsum("ij,ij->i", n[seen], to_cam) >= 0.0)
+    # an explicit support height is kept
+    fixed = with_cloud(
+        PipelineParams(facemask=params.facemask.__class__(support_height=0.01)), cloud
+    )
+    assert fixed.facemask.support_height == 0.01
+
+
+def test_pick_selects_the_other_object(scene_pcd) -> None:
+    path, _ = scene_pcd
+    _, _, small = two_boxes()
+    cloud = load_point_cloud(path, sensor=SensorOptions(pick=tuple(small)))
+    visible = cloud.points[~cloud.assumed]
+    assert np.all(np.linalg.norm(visible[:, :2] - small[:2], axis=1) < 0.035)
+    assert visible[:, 2].max() < 0.052
+
+
+def test_no_scene_keeps_every_point_and_the_viewpoint(scene_pcd) -> None:
+    path, T = scene_pcd
+    cloud = load_point_cloud(path, n_points=None, sensor=SensorOptions(scene=False))
+    assert "scene" not in cloud.info and cloud.sensor is None
+    assert cloud.n_points == cloud.info["n_read"]
+    np.testing.assert_allclose(cloud.viewpoint, T[:3, 3], atol=1e-6)
+
+
+def test_millimetre_cloud_is_scaled_with_a_notice(tmp_path: Path) -> None:
+    metres = load_point_cloud(OBJECTS_DIR / "mug_handle.obj", n_points=5000)
+    assert metres.info["warnings"] == []
+    path = tmp_path / "mug_mm.xyz"
+    np.savetxt(path, np.asarray(metres.points) * 1000.0)
+    cloud = load_point_cloud(path)
+    assert cloud.info["scale"] == 0.001
+    assert any("millimetres" in w and "--scale" in w for w in cloud.info["warnings"])
+    np.testing.assert_allclose(cloud.points, metres.points, atol=1e-6)
+    kept = load_point_cloud(path, scale=1.0)  # an explicit scale wins
+    assert kept.info["scale"] == 1.0 and kept.extents.max() > 50.0
+
+
+def test_npy_depth_map_with_intrinsics_and_npy_cloud_without(tmp_path: Path) -> None:
+    mesh, _, _ = two_boxes()
+    T = orbit_camera(np.array([0.0, 0.07, 0.05]), 0.7, np.radians(20.0), np.radians(40.0))
+    depth = render_view(mesh.vertices, mesh.faces, T, K, 320, 240, table_half=0.4).depth
+    path = tmp_path / "frame.npy"
+    np.save(path, depth)
+    with pytest.raises(InputError, match="column count"):  # no intrinsics: a point cloud
+        load_point_cloud(path)
+    intr = (K.fx, K.fy, K.cx, K.cy)
+    cloud = load_point_cloud(path, sensor=SensorOptions(intrinsics=intr))
+    assert cloud.info["format"] == "npy" and cloud.info["kind"] == "depth"
+    np.testing.assert_allclose(cloud.viewpoint, 0.0)  # camera frame without a pose
+    # in the camera frame the table's normal points back toward the camera (up in the world)
+    n_cam = np.asarray(cloud.info["scene"]["plane"]["normal"])
+    np.testing.assert_allclose(T[:3, :3] @ n_cam, [0, 0, 1], atol=1e-3)
+
+
+def test_bad_intrinsics_name_the_flag_or_file(tmp_path: Path) -> None:
+    png = tmp_path / "alone.png"
+    shutil.copy(DEMO, png)
+    with pytest.raises(InputError, match=r"alone\.png: .*--intrinsics FX FY CX CY.*alone\.json"):
+        load_point_cloud(png)
+    with pytest.raises(InputError, match=r"alone\.png: --intrinsics: .*four numbers"):
+        load_point_cloud(png, sensor=SensorOptions(intrinsics=(420.0, 420.0, 239.5)))
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"fx": 420, "fy": 420, "cx": 239.5}')
+    with pytest.raises(InputError, match=r"bad\.json: the intrinsics lack cy"):
+        load_point_cloud(png, sensor=SensorOptions(intrinsics=bad))
+    wrong = tmp_path / "wrong.json"
+    wrong.write_text('{"fx": 420, "fy": 420, "cx": 239.5, "cy": 179.5, "width": 64, "height": 48}')
+    with pytest.raises(InputError, match=r"wrong\.json says 64 x 48"):
+        load_point_cloud(png, sensor=SensorOptions(intrinsics=wrong))
