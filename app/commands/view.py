@@ -11,7 +11,7 @@ import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
-from pregrasp_core.errors import InputError
+from pregrasp_core.errors import InputError, PregraspError
 
 from .common import ALL_STAGES, INPUT_OPTIONS, add_input_args, pipeline_options
 from .options import Flag, HelpFormatter, Options
@@ -64,6 +64,13 @@ def run(args: argparse.Namespace) -> int:
     serve_options = SERVE_OPTIONS.build(args)  # every option checked before the server starts
     params = PIPELINE_OPTIONS.build(args)
     inp = INPUT_OPTIONS.build(args)
+    unused = [f for f, v in (("--intrinsics", inp.intrinsics), ("--pick", inp.pick),
+                             ("--scene/--no-scene", inp.scene)) if v is not None]  # fmt: skip
+    if unused:  # the viewer's loader takes the file, --points, --seed and --scale only
+        raise PregraspError(
+            f"{', '.join(unused)}: not passed to the viewer yet; a depth image opens with its "
+            "sidecar NAME.json (intrinsics) and as a scene by default"
+        )
     path = None if args.input is None else Path(args.input)
     if path is not None and not path.is_file():
         raise InputError(f"{path}: no such file; pass a point cloud or mesh file")
