@@ -127,6 +127,7 @@ class Controller:
         self._req_lock = threading.Lock()  # guards the two fields below (never held long)
         self._generation = 0  # bumped by every long request: older ones stop at their next stage
         self._pending: dict[str, Any] = {}  # params/n_points/seed asked for, not yet computed
+        self._running = 0  # long actions in progress (a plan runs outside the lock)
 
     # ------------------------------------------------------------------ state
     @property
@@ -140,7 +141,7 @@ class Controller:
             return False
         try:
             with self._req_lock:
-                return not self._pending
+                return not self._pending and self._running == 0
         finally:
             self._lock.release()
 
@@ -275,6 +276,8 @@ class Controller:
     def _long(self, gen: int, fn: Callable[[int], AppState]) -> AppState:
         """Run the long action ``fn(gen)``; a superseded one returns the state as it is, a failed
         one drops the pending changes (the GUI then shows the values in use again)."""
+        with self._req_lock:
+            self._running += 1
         try:
             return fn(gen)
         except Superseded:
@@ -284,6 +287,9 @@ class Controller:
                 if self._generation == gen:
                     self._pending = {}
             raise
+        finally:
+            with self._req_lock:
+                self._running -= 1
 
     def _check(self, gen: int) -> None:
         """Raise :class:`Superseded` when a newer long request has arrived."""
@@ -453,6 +459,8 @@ class Controller:
         return self._long(gen, self._plan_now)
 
     def _plan_now(self, gen: int) -> AppState:
+        """Plan outside the lock (view actions and other browsers go on meanwhile; progress and
+        the result are committed under it, on top of the state as it is then)."""
         with self._lock:
             self._check(gen)
             s = self._state
@@ -460,31 +468,42 @@ class Controller:
                 raise InputError("load an object before planning")
             params = self.pending("params")
             self._commit(dataclasses.replace(s, busy="plan", progress=0.0), render=False)
-            t0 = time.perf_counter()
-            try:
-                result = self._run(
-                    s.result.cloud, params, previous=s.result, plan=True, gen=gen, show=True
-                )
-            finally:
-                self._state = dataclasses.replace(self._state, busy="", progress=0.0)
-            dt = time.perf_counter() - t0
-            n = len(ranked_grasps(result))
+        t0 = time.perf_counter()
+        try:
+            result = self._run(
+                s.result.cloud, params, previous=s.result, plan=True, gen=gen, show=True
+            )
+        except BaseException:
+            with self._lock:
+                self._commit(dataclasses.replace(self._state, busy="", progress=0.0), render=False)
+            raise
+        dt = time.perf_counter() - t0
+        n = len(ranked_grasps(result))
+        with self._lock:
+            if self._state.result is not s.result or self._generation != gen:
+                # the object or the thresholds changed meanwhile: this plan is stale
+                self._commit(dataclasses.replace(self._state, busy="", progress=0.0), render=False)
+                raise Superseded
             view = dataclasses.replace(
                 self._state.view, selected_grasp=0 if n else None, anim_t=0.0, playing=bool(n)
             )
-            msg = f"planned {len(result.pool)} pre-grasps: {n} grasps ({dt:.1f} s)"
-            return self._settle(
-                gen,
-                dataclasses.replace(
-                    self._state,
-                    params=params,
-                    result=result,
-                    planned=True,
-                    view=view,
-                    message=msg,
-                    error="",
-                ),
+            msg = f"planned {len(result.pool)} pre-grasps: {n} grasps kept ({dt:.1f} s)"
+            new = dataclasses.replace(
+                self._state,
+                params=params,
+                result=result,
+                planned=True,
+                view=view,
+                busy="",
+                progress=0.0,
+                message=msg,
+                error="",
             )
+            try:
+                return self._settle(gen, new)
+            except Superseded:
+                self._commit(dataclasses.replace(self._state, busy="", progress=0.0), render=False)
+                raise
 
     def _progress(self, gen: int, show: bool) -> Callable[[float], None]:
         """The pipeline's progress callback of request ``gen``: stops it when superseded and,
@@ -493,10 +512,11 @@ class Controller:
         def progress(fraction: float) -> None:
             self._check(gen)
             if show:
-                self._commit(
-                    dataclasses.replace(self._state, progress=float(np.clip(fraction, 0, 1))),
-                    render=False,
-                )
+                with self._lock:
+                    self._commit(
+                        dataclasses.replace(self._state, progress=float(np.clip(fraction, 0, 1))),
+                        render=False,
+                    )
 
         return progress
 

@@ -183,6 +183,9 @@ class Gui:
             self.phase.on_update(lambda e: self._do(e, c.set_anim_t, e.target.value))
             self.table = gui.add_markdown("")
 
+        with gui.add_folder("Legend", expand_by_default=False):
+            self.legend = gui.add_markdown(legend_markdown())
+
         with gui.add_folder("Export"):
             self.export = gui.add_button("download result (JSON)")
             self.export.on_click(lambda e: self._do(e, c.export_result, e.client))
@@ -460,9 +463,16 @@ def _rank(value: Any) -> int | None:
     return int(head) - 1
 
 
+def is_force_closure(g: Any) -> bool:
+    """Whether a grasp is force closure (its Ferrari-Canny epsilon is > 0)."""
+    return float(g.epsilon) > 0.0
+
+
 def grasp_label(k: int, g: Any) -> str:
-    """Option text of the grasp chooser: ``#rank type eps``."""
-    return f"#{k + 1} {_type_of(g)} eps {float(g.epsilon):.3f}"
+    """Option text of the grasp chooser: ``#rank type eps``, and ``NOT force closure`` when the
+    grasp would not hold the object against every disturbance (epsilon 0)."""
+    fc = "" if is_force_closure(g) else " NOT force closure"
+    return f"#{k + 1} {_type_of(g)} eps {float(g.epsilon):.3f}{fc}"
 
 
 def _type_of(g: Any) -> str:
@@ -470,26 +480,86 @@ def _type_of(g: Any) -> str:
     return str(getattr(t, "value", t))
 
 
+def force_closure_summary(s: AppState) -> str:
+    """``N force-closure of M kept`` and the planner's one-line reason for its best grasp
+    (``GraspSet.best_reason``: why there is none when no grasp is force closure), markdown."""
+    grasps = getattr(s.result, "grasps", None)
+    if not s.planned or grasps is None:
+        return ""
+    ranked = ranked_grasps(s.result)
+    n_fc = getattr(grasps, "n_force_closure", None)
+    n_fc = sum(is_force_closure(g) for g in ranked) if n_fc is None else int(n_fc)
+    line = f"**{n_fc} force-closure of {len(ranked)} kept**"
+    reason = getattr(grasps, "best_reason", "")
+    if getattr(grasps, "best", 0) is None:
+        line += " (no grasp holds the object: the hand shown does NOT hold it)"
+    return line + (f"; {md_text(reason)}" if reason else "")
+
+
 def grasp_table(s: AppState) -> str:
-    """The ranked table of the best grasps (markdown)."""
+    """The ranked table of the best grasps (markdown): force-closure grasps with their rank,
+    then the kept grasps that are not force closure, listed apart."""
     if not s.planned:
+        if s.busy == "plan":
+            return "Planning the grasps... (the progress bar shows how far)"
         return "Press **plan grasps** to rank the pre-grasps."
     ranked = ranked_grasps(s.result)
     if not ranked:
         return "No grasp survived planning: loosen the thresholds or the pool interval."
-    rows = [
-        f"ranked grasps: {len(ranked)}",
-        "",
-        "| # | type | node | contacts | epsilon | volume |",
-        "|---|---|---|---|---|---|",
-    ]
     pool = getattr(s.result, "pool", None)
-    for k, g in enumerate(ranked[:TABLE_ROWS]):
+    header = [
+        "| # | type | node | contacts | epsilon | volume | force closure |",
+        "|---|---|---|---|---|---|---|",
+    ]
+
+    def row(k: int, g: Any) -> str:
         node = "" if pool is None else int(np.asarray(pool.node)[int(g.pregrasp)])
-        rows.append(
+        fc = "yes" if is_force_closure(g) else "**NO**"
+        return (
             f"| {k + 1} | {md_text(_type_of(g))} | {node} | {len(contact_arrays(g)[0])} | "
-            f"{float(g.epsilon):.4f} | {float(getattr(g, 'volume', 0.0)):.2e} |"
+            f"{float(g.epsilon):.4f} | {float(getattr(g, 'volume', 0.0)):.2e} | {fc} |"
         )
+
+    fc_rows = [(k, g) for k, g in enumerate(ranked) if is_force_closure(g)]
+    other = [(k, g) for k, g in enumerate(ranked) if not is_force_closure(g)]
+    rows = [force_closure_summary(s), ""]
+    if fc_rows:
+        rows += ["force-closure grasps, best first:", "", *header]
+        rows += [row(k, g) for k, g in fc_rows[:TABLE_ROWS]]
+    if other:
+        shown = other[: max(TABLE_ROWS - min(len(fc_rows), TABLE_ROWS), 5)]
+        rows += ["", f"not force closure (epsilon 0, {len(other)} kept):", "", *header]
+        rows += [row(k, g) for k, g in shown]
+    return "\n".join(rows)
+
+
+LEGEND = (
+    ("part colours", "each box of the decomposition and its points share one colour"),
+    ("green faces", "free faces: a hand may approach them"),
+    ("red faces", "blocked faces: another part or the table is in front"),
+    ("white outlines", "usable sub-faces where pre-grasps are sampled (the rule in use)"),
+    ("blue ghosts", "cylindrical pre-grasps"),
+    ("orange ghosts", "spherical pre-grasps"),
+    ("purple ghosts", "three-finger-tip pre-grasps"),
+    ("teal ghosts", "two-finger-tip pre-grasps"),
+    ("ghost shade", "brighter or darker by the box face the pre-grasp was sampled from"),
+    ("yellow dots", "contacts of the chosen grasp"),
+    ("yellow cones", "their friction cones, as scored (half-angle atan mu)"),
+)
+"""(what, meaning) of each row of the legend panel."""
+
+
+def legend_markdown() -> str:
+    """The legend panel: what every colour of the scene means (markdown, text escaped)."""
+    rows = ["| colour | meaning |", "|---|---|"]
+    rows += [f"| {md_text(a)} | {md_text(b)} |" for a, b in LEGEND]
+    rows += [
+        "",
+        md_text(
+            "epsilon: the Ferrari-Canny quality, the smallest disturbance wrench the grasp "
+            "resists per unit of contact force; 0 = not force closure (it does not hold)."
+        ),
+    ]
     return "\n".join(rows)
 
 
@@ -518,4 +588,13 @@ def node_info(s: AppState) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["Gui", "accepted_range", "grasp_table", "node_info"]
+__all__ = [
+    "Gui",
+    "accepted_range",
+    "force_closure_summary",
+    "grasp_label",
+    "grasp_table",
+    "is_force_closure",
+    "legend_markdown",
+    "node_info",
+]

@@ -22,7 +22,9 @@ from .scene_data import (
     animation_pose,
     attr_or_none,
     box_edge_segments,
+    cone_edge_count,
     contact_arrays,
+    contact_tangents,
     face_layers,
     friction_coefficient,
     friction_cone_segments,
@@ -62,9 +64,9 @@ SUBFACE_RGB = (255, 255, 255)
 """Colour of the outlines of usable sub-faces (white)."""
 CONTACT_RGB = (255, 210, 0)
 """Colour of contact points and friction cones (yellow)."""
-DETAILED_GHOSTS = 40
-"""Up to this many ghosts use the hand's visual mesh; beyond, its collision boxes."""
-GHOST_OPACITY = 0.3
+DETAILED_GHOSTS = 8
+"""Up to this many ghosts use the hand's visual mesh; beyond, its collision boxes (light)."""
+GHOST_OPACITY = 0.25
 """Opacity of the pre-grasp hand ghosts."""
 BOX_OPACITY = 0.12
 """Opacity of unselected boxes (the selected one is drawn at 0.35)."""
@@ -208,7 +210,7 @@ class SceneRenderer:
         """Aim every camera at a new object and put a table grid under it."""
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         center, diag = (lo + hi) / 2.0, max(float(np.linalg.norm(hi - lo)), 1e-3)
-        eye = center + diag * np.array([1.0, -1.25, 0.8])
+        eye = center + camera_offset(diag, float(self.server.initial_camera.fov))
         cam = self.server.initial_camera
         cam.look_at, cam.position = center, eye
         for client in self.server.get_clients().values():
@@ -384,7 +386,9 @@ class SceneRenderer:
             mu = friction_coefficient(state.params)
             self._handles["cones"] = self.server.scene.add_line_segments(
                 NAMES["cones"],
-                points=friction_cone_segments(pts, nrm, mu).astype(np.float32),
+                points=friction_cone_segments(
+                    pts, nrm, mu, cone_edge_count(state.params), tangents=contact_tangents(g)
+                ).astype(np.float32),
                 colors=CONTACT_RGB,
                 thickness=1.5,
                 thickness_units="screen",
@@ -420,6 +424,20 @@ class SceneRenderer:
         frame.position = T[:3, 3]
         frame.visible = True
         urdf.update_cfg(np.asarray(q, dtype=np.float64))
+
+
+FRAME_FILL = 0.85
+"""Fraction of the camera's vertical field of view that the object's bounding sphere spans
+when the camera frames a new object."""
+VIEW_DIRECTION = np.array([1.0, -1.25, 0.8]) / np.linalg.norm([1.0, -1.25, 0.8])
+"""Unit direction from the object's centre to the camera (front right, from above)."""
+
+
+def camera_offset(diag: float, fov: float, fill: float = FRAME_FILL) -> np.ndarray:
+    """(3,) camera position relative to the object's centre: along :data:`VIEW_DIRECTION`, at
+    the distance where a sphere of diameter ``diag`` spans ``fill`` of the vertical field of
+    view ``fov`` (radians)."""
+    return VIEW_DIRECTION * (0.5 * diag / np.tan(0.5 * fill * fov))
 
 
 def _default_urdf() -> Path:

@@ -181,24 +181,45 @@ def contact_arrays(grasp: Any) -> tuple[np.ndarray, np.ndarray]:
     return pts, nrm
 
 
-def friction_cone_segments(
-    points: np.ndarray, normals: np.ndarray, mu: float, m: int = 8, height: float = CONE_HEIGHT
-) -> np.ndarray:
-    """(C (m + 1), 2, 3) line segments drawing a friction cone of half-angle atan(mu) per contact.
+def contact_tangents(grasp: Any) -> np.ndarray | None:
+    """(C, 3) first friction-cone edge directions of a grasp's contacts (``Contact.tangent``,
+    the directions the quality measure scored with), or ``None`` when a contact has none."""
+    cs = list(getattr(grasp, "contacts", ()) or ())
+    ts = [getattr(c, "tangent", None) for c in cs]
+    if not cs or any(t is None for t in ts):
+        return None
+    return np.array([np.asarray(t, dtype=np.float64).reshape(3) for t in ts])
 
-    Each cone has its apex at the contact and opens along the contact normal; its ``m`` edges
-    are ``n + mu (cos t a + sin t b)`` (the linearised cone of the quality measure), plus the axis.
+
+def cone_edge_count(params: Any, default: int = 8) -> int:
+    """The number of edges of the linearised friction cones scored
+    (``params.planner.quality.n_edges``)."""
+    q = getattr(getattr(params, "planner", None), "quality", None)
+    return int(getattr(q, "n_edges", default))
+
+
+def friction_cone_segments(
+    points: np.ndarray,
+    normals: np.ndarray,
+    mu: float,
+    m: int = 8,
+    height: float = CONE_HEIGHT,
+    tangents: np.ndarray | None = None,
+) -> np.ndarray:
+    """(C (m + 1), 2, 3) line segments drawing the linearised friction cone of each contact.
+
+    The ``m`` edges are the quality measure's own (``pregrasp_core.quality.friction_cone_edges``
+    with the contacts' ``tangents``: the first edge lies along the tangent, as scored), each
+    scaled to ``height``, plus the axis; the apex is at the contact.
     """
+    from pregrasp_core.quality import friction_cone_edges
+
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     n = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
-    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])  # (C, 3)
-    a = np.cross(n, helper)
-    a /= np.linalg.norm(a, axis=1, keepdims=True)
-    b = np.cross(n, a)
-    t = 2 * np.pi * np.arange(m) / m  # (m,)
-    edges = n[:, None] + mu * (
-        np.cos(t)[None, :, None] * a[:, None] + np.sin(t)[None, :, None] * b[:, None]
-    )
+    if len(p) == 0:
+        return np.zeros((0, 2, 3))
+    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    edges = friction_cone_edges(n, float(mu), int(m), tangents)  # (C, m, 3), normal part 1
     edges = np.concatenate([edges, n[:, None]], axis=1)  # (C, m + 1, 3)
     edges *= height / np.linalg.norm(edges, axis=2, keepdims=True)
     starts = np.broadcast_to(p[:, None], edges.shape)
@@ -276,7 +297,8 @@ def mask_matrix(masks: Any, node: int) -> np.ndarray:
 
 
 def subface_segments(state: AppState, shown: list[int], shrink: float = 0.85) -> np.ndarray:
-    """(S, 2, 3) outlines of the usable sub-faces of the shown nodes for their grasp types.
+    """(S, 2, 3) outlines of the usable sub-faces of the shown nodes for their grasp types,
+    under the rule the masks were computed with (``FaceMasks.usable``).
 
     Each usable cell is drawn shrunk by ``shrink`` about its centre (so neighbouring cells stay
     apart) and lifted off its face by twice :data:`FACE_OFFSET`.
@@ -291,7 +313,11 @@ def subface_segments(state: AppState, shown: list[int], shrink: float = 0.85) ->
     for i in shown:  # loop over the shown nodes (small set)
         node = state.tree.node(i)
         gt = shapes[i].grasp_type
-        usable = usable_subfaces(blocked_faces(res.masks, i), gt)
+        usable = (  # the rule the pool was sampled with (whole faces or covered cells)
+            res.masks.usable(i, gt)
+            if hasattr(res.masks, "usable")
+            else usable_subfaces(blocked_faces(res.masks, i), gt)
+        )
         for f, r in enumerate(subface_rectangles(node.box, gt)):  # 6 faces
             r = r[usable[f]]  # (S, 4, 3) corners of the usable cells
             if len(r):

@@ -47,12 +47,17 @@ class ViewerConfig:
     millimetres); ``None`` = as stored."""
     max_upload_bytes: int = DEFAULT_MAX_UPLOAD_BYTES
     """Largest accepted upload in bytes."""
-    max_ghosts: int = 3000
-    """Most hand ghosts drawn at once (an even subsample of the filtered pool beyond that)."""
+    max_ghosts: int = 24
+    """Most hand ghosts drawn at once (an even subsample of the filtered pool beyond that):
+    few, so every action shows within 2 s even where the browser renders WebGL in software;
+    choose which with the grasp-type and node filters."""
     animate_hz: float = 30.0
     """Rate of the animation clock (frames per second)."""
-    show_ghosts: bool = True
+    show_ghosts: bool = False
     """Whether the pre-grasp ghosts are drawn at start (the GUI toggles them)."""
+    plan_on_start: bool = False
+    """Plan the grasps in a background thread once the object is loaded (``pregrasp view``
+    does), so the first screen shows the best grasp; the progress bar shows the run."""
     show_face_masks: bool = True
     """Whether the face masks are drawn at start (the GUI toggles them)."""
     params: Any = field(default=None)
@@ -101,6 +106,13 @@ class App:
                 self.controller.act(None, self.controller.tick, now - last)
             last = now
 
+    def plan_in_background(self) -> threading.Thread:
+        """Start planning on a daemon thread (errors become notifications); returns it."""
+        c = self.controller
+        t = threading.Thread(target=lambda: c.act(None, c.plan), name="pregrasp-plan", daemon=True)
+        t.start()
+        return t
+
     def close(self) -> None:
         """Stop the animation thread (the caller stops its server)."""
         self._stop.set()
@@ -145,7 +157,10 @@ def run(config: ViewerConfig, server: Any) -> App:
     viser_hooks.install_update_guard(server, gui.on_bad_value)
     path = config.input if config.input is not None else DEFAULT_OBJECT
     controller.load_path(path, scale=config.scale)
-    return App(server, controller, scene, gui, config.animate_hz, uploads)
+    app = App(server, controller, scene, gui, config.animate_hz, uploads)
+    if config.plan_on_start:
+        app.plan_in_background()
+    return app
 
 
 def access_lines(host: str, port: int) -> list[str]:

@@ -41,8 +41,9 @@ class ViewState:
     """Node id picked by clicking its box, or ``None``."""
     show_face_masks: bool = True
     """Draw the free/blocked faces and the usable sub-faces on the shown boxes."""
-    show_ghosts: bool = True
-    """Draw the pre-grasp pool as translucent hand ghosts."""
+    show_ghosts: bool = False
+    """Draw (a capped subset of) the pre-grasp pool as translucent hand ghosts; off at start, so
+    the first screen shows the object, its boxes and the best grasp."""
     ghost_type: str = ALL
     """Grasp-type filter of the ghosts (a ``GraspType`` value or :data:`ALL`)."""
     ghost_node: int | None = None

@@ -86,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
             seed=inp.seed,
             scale=inp.scale,
             params=params,
+            plan_on_start=True,
         )
     )
     return 0

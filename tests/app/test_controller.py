@@ -127,8 +127,18 @@ def test_plan_ranks_grasps_and_animates_the_hand(app):
     eps = [float(g.epsilon) for g in ranked]
     assert eps == sorted(eps, reverse=True)
     table = app.gui.table.content
-    assert f"ranked grasps: {len(ranked)}" in table
+    n_fc = sum(e > 0 for e in eps)  # counted here from the ranked grasps' own epsilons
+    assert f"{n_fc} force-closure of {len(ranked)} kept" in table
     assert f"{eps[0]:.4f}" in table
+    assert s.result.grasps.best_reason.split(":")[0] in table  # the planner's reason shown
+    # one row per shown grasp, the force-closure column saying which hold the object
+    rows = [r for r in table.splitlines() if r.startswith("| ") and r[2].isdigit()]
+    assert sum(r.endswith("| yes |") for r in rows) == min(n_fc, 20)
+    if n_fc < len(ranked):
+        assert "not force closure (epsilon 0" in table and "**NO**" in table
+    labels = app.gui.grasp.options
+    for k, g in enumerate(ranked[: len(labels)]):
+        assert labels[k].endswith("NOT force closure") == (float(g.epsilon) == 0.0)
     assert s.view.selected_grasp == 0 and s.view.playing  # the best grasp plays at once
     _wait_closed(app)
     frame = app.scene.handle("hand_frame")
@@ -234,6 +244,64 @@ def test_friction_cone_half_angle_is_atan_mu():
     cos = np.einsum("cki,ci->ck", d, n)
     np.testing.assert_allclose(cos[:, :8], np.cos(np.arctan(0.5)), atol=1e-12)
     np.testing.assert_allclose(cos[:, 8], 1.0, atol=1e-12)
+
+
+def test_friction_cones_are_turned_by_the_contact_tangents():
+    """The first drawn edge lies in the plane of the normal and the contact's tangent, at
+    atan(mu) from the normal (the scored edge), whatever the tangent; computed here by hand."""
+    rng = np.random.default_rng(3)
+    n = rng.normal(size=(6, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    t = rng.normal(size=(6, 3))
+    p = rng.normal(size=(6, 3))
+    seg = friction_cone_segments(p, n, mu=0.4, m=6, tangents=t).reshape(6, 7, 2, 3)
+    a = t - np.sum(t * n, axis=1, keepdims=True) * n
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    want = n + 0.4 * a
+    want /= np.linalg.norm(want, axis=1, keepdims=True)
+    d = seg[:, 0, 0] - seg[:, 0, 1]  # first edge, drawn along -n
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    np.testing.assert_allclose(d, want, atol=1e-12)
+    # a quarter turn of the tangent turns the drawn cone by a quarter turn
+    b = np.cross(n, a)
+    seg_b = friction_cone_segments(p, n, mu=0.4, m=4, tangents=b).reshape(6, 5, 2, 3)
+    seg_a = friction_cone_segments(p, n, mu=0.4, m=4, tangents=a).reshape(6, 5, 2, 3)
+    np.testing.assert_allclose(seg_b[:, 0], seg_a[:, 1], atol=1e-12)
+
+
+def test_planned_grasps_draw_cones_along_their_tangents(app):
+    app.controller.plan()
+    s = app.controller.state
+    g = ranked_grasps(s.result)[0]
+    if not g.contacts:
+        pytest.skip("the best grasp has no contacts")
+    cones = app.server.scene.get_handle_by_name(NAMES["cones"])
+    m = s.params.planner.quality.n_edges
+    seg = np.asarray(cones.points, dtype=np.float64).reshape(len(g.contacts), m + 1, 2, 3)
+    for c, cone in zip(g.contacts, seg, strict=True):
+        first = cone[0, 0] - cone[0, 1]  # apex minus the end of the first edge
+        tangential = first - np.dot(first, c.normal) * np.asarray(c.normal)
+        tangential /= np.linalg.norm(tangential)
+        t = np.asarray(c.tangent) - np.dot(c.tangent, c.normal) * np.asarray(c.normal)
+        np.testing.assert_allclose(tangential, t / np.linalg.norm(t), atol=1e-4)
+
+
+def test_plan_on_start_runs_in_the_background_and_views_do_not_wait(make_app):
+    app = make_app(plan_on_start=True)
+    c = app.controller
+    waits = []
+    deadline = time.monotonic() + 120
+    while not c.idle() or not c.state.planned:
+        assert time.monotonic() < deadline, "the plan started with the app does not finish"
+        if c.state.busy == "plan":  # a view action during the plan is not blocked by it
+            t0 = time.perf_counter()
+            c.set_face_masks_visible(not c.state.view.show_face_masks)
+            waits.append(time.perf_counter() - t0)
+        time.sleep(0.05)
+    s = c.state
+    assert s.planned and s.busy == "" and s.error == ""
+    assert s.view.selected_grasp == 0  # the best grasp is shown on the first screen
+    assert waits and max(waits) < 0.5, waits
 
 
 def test_wxyz_matches_rotation():
@@ -344,6 +412,7 @@ def test_every_demo_object_loads_and_renders(app):
     """Every shipped object goes through the whole app (pipeline, scene, GUI) without error."""
     from pregrasp_core.paths import demo_objects
 
+    app.gui.show_ghosts.value = True
     for p in demo_objects():
         app.gui.demo.value = p.stem
         s = app.controller.state

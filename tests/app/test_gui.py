@@ -147,6 +147,9 @@ def test_ghost_filters(app):
     s = app.controller.state
     pool = s.result.pool
     assert len(pool) > 0
+    assert not s.view.show_ghosts and app.scene.n_ghosts_shown == 0  # off on the first screen
+    assert app.scene.max_ghosts == 24  # few when shown: light enough for software WebGL
+    app.gui.show_ghosts.value = True
     assert app.scene.n_ghosts_shown == min(len(pool), app.scene.max_ghosts)
     if len(pool) <= app.scene.max_ghosts:  # every pre-grasp drawn where the pool puts it
         got = np.concatenate([h.batched_positions for h in app.scene.ghost_handles()])
@@ -164,7 +167,8 @@ def test_ghost_filters(app):
     app.gui.ghost_type.value = ALL
     app.gui.ghost_node.value = f"node {node}"
     assert app.controller.state.view.ghost_node == node
-    assert app.scene.n_ghosts_shown == min(int((np.asarray(pool.node) == node).sum()), 3000)
+    want = int((np.asarray(pool.node) == node).sum())
+    assert app.scene.n_ghosts_shown == min(want, app.scene.max_ghosts)
     app.gui.show_ghosts.value = False
     assert app.scene.n_ghosts_shown == 0
 
@@ -255,3 +259,14 @@ def test_every_level_shows_the_cut_of_the_tree(app):
         colors = app.server.scene.get_handle_by_name(NAMES["cloud"]).colors
         for i in want:
             assert np.all(colors[labels == i] == np.array(node_color(i)))
+
+
+def test_legend_names_every_colour_of_the_scene(app):
+    from app.scene_data import GHOST_RGB
+
+    text = shown_text(app.gui.legend.content)
+    for word in ("free faces", "blocked faces", "usable sub-faces", "contacts", "friction cones"):
+        assert word in text
+    for gt in GHOST_RGB:  # one row per grasp type of the ghosts
+        assert gt.replace("_", "-") + " pre-grasps" in text
+    assert "epsilon" in text and "not force closure" in text

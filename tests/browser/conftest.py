@@ -70,9 +70,8 @@ def live_app() -> Iterator:
 
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     try:
-        # no ghosts: headless Chromium renders WebGL in software, and dozens of translucent
-        # hands make every frame slow; the ghosts are checked in tests/app
-        app = run(ViewerConfig(n_points=5000, show_ghosts=False), server)
+        # as `pregrasp view` starts: ghosts off, the best grasp planned in the background
+        app = run(ViewerConfig(n_points=5000, plan_on_start=True), server)
         try:
             yield app
         finally:

@@ -46,6 +46,71 @@ def page(browser_context, live_app):
     page.close()
 
 
+FC_TEXT = re.compile(r"^\d+ force-closure of \d+ kept$")
+"""The planner's summary line in the Planner panel."""
+
+OBJECT_LAYERS = ("cloud", "box_edges", "faces_free", "faces_blocked", "subfaces")
+"""Scene layers of the object itself (with the boxes), hidden to see the background."""
+
+
+def _canvas_png(page) -> np.ndarray:
+    import imageio.v3 as iio
+
+    for _ in range(3):  # two frames drawn after the last change
+        page.evaluate(
+            "() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))"
+        )
+    canvas = max(
+        page.locator("canvas").all(), key=lambda c: (c.bounding_box() or {}).get("width", 0)
+    )
+    return np.asarray(iio.imread(canvas.screenshot(), extension=".png"))[..., :3].astype(np.int16)
+
+
+def _set_visible(app, handles, visible: bool) -> None:
+    with app.server.atomic():
+        for h in handles:
+            h.visible = visible
+
+
+def _object_fraction(page, app) -> float:
+    """Fraction of the canvas whose pixels change when the object and its boxes are hidden
+    (the grasp's hand, which is not the object and may hide part of it, hidden in both)."""
+    hand = [h for h in (app.scene.handle(k) for k in ("hand_frame", "contacts", "cones")) if h]
+    handles = [app.scene.handle(k) for k in OBJECT_LAYERS] + list(app.scene._boxes.values())
+    handles = [h for h in handles if h is not None]
+    try:
+        _set_visible(app, hand, False)
+        page.wait_for_timeout(1500)
+        with_object = _canvas_png(page)
+        _set_visible(app, handles, False)
+        page.wait_for_timeout(1500)
+        background = _canvas_png(page)
+    finally:
+        _set_visible(app, handles + hand, True)
+    changed = np.abs(with_object - background).max(axis=2) > 12  # (H, W)
+    return float(changed.mean())
+
+
+def test_first_screen_shows_object_boxes_and_best_grasp(page, live_app, shots_dir):
+    """What a new user sees: the boxes, the best grasp planned in the background, force closure
+    stated, ghosts off, the camera framed on the object (at least a fifth of the canvas)."""
+    page.get_by_text(FC_TEXT).wait_for(timeout=LOAD_TIMEOUT_MS)
+    s = live_app.controller.state
+    assert s.planned and s.view.selected_grasp == 0 and not s.view.show_ghosts
+    ranked = ranked_grasps(s.result)
+    n_fc = sum(float(g.epsilon) > 0 for g in ranked)
+    assert page.get_by_text(FC_TEXT).inner_text() == f"{n_fc} force-closure of {len(ranked)} kept"
+    assert page.get_by_role("cell", name=f"{float(ranked[0].epsilon):.4f}").count() >= 1
+    assert not page.get_by_label("hand ghosts", exact=True).is_checked()
+    assert live_app.scene.n_ghosts_shown == 0
+    assert live_app.scene.handle("hand_frame").visible  # the best grasp's hand is drawn
+    assert _boxes_in_page(page) == _scene_box_count(live_app)
+    page.screenshot(path=str(shots_dir / "browser_first_screen.png"))
+    fraction = _object_fraction(page, live_app)
+    print(f"object covers {fraction:.1%} of the canvas")  # noqa: T201 - a figure for the log
+    assert fraction >= 0.2, f"the object covers {fraction:.1%} of the canvas"
+
+
 def test_threshold_change_changes_the_boxes(page, live_app, shots_dir):
     s0 = live_app.controller.state
     n0 = _boxes_in_page(page)
@@ -77,8 +142,14 @@ def test_threshold_change_changes_the_boxes(page, live_app, shots_dir):
 
 
 def test_plan_shows_ranked_table_and_pick_a_grasp(page, live_app, shots_dir):
+    v0 = live_app.controller.state.version
     page.get_by_role("button", name="plan grasps").click()
-    page.get_by_text(re.compile(r"^ranked grasps: \d+")).wait_for(timeout=LOAD_TIMEOUT_MS)
+    for _ in range(900):  # the plan is committed (the button is enabled again)
+        s = live_app.controller.state
+        if s.version > v0 and s.planned and live_app.controller.idle():
+            break
+        page.wait_for_timeout(100)
+    page.get_by_text(FC_TEXT).wait_for(timeout=LOAD_TIMEOUT_MS)
     s = live_app.controller.state
     ranked = ranked_grasps(s.result)
     assert ranked and s.planned
