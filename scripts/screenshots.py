@@ -72,8 +72,8 @@ def main() -> int:
 
     args.out.mkdir(parents=True, exist_ok=True)
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    # start without ghosts: software WebGL is slow with hundreds of translucent hands
-    app = run(ViewerConfig(input=args.input, n_points=args.points, show_ghosts=False), server)
+    # as `pregrasp view` starts (ghosts off); the plan runs below, where its picture is taken
+    app = run(ViewerConfig(input=args.input, n_points=args.points), server)
     c = app.controller
     try:
         with sync_playwright() as p:
@@ -107,9 +107,7 @@ def main() -> int:
 
             c.set_face_masks_visible(False)
             c.select_node(None)
-            # the whole pool is a dense cloud of hands: draw an even subsample of 24 (the app's
-            # own ghost cap), which uses the detailed hand mesh, so single hands can be told apart
-            app.scene.max_ghosts = 24
+            # the app's own ghost cap: an even subsample of 24 of the pool
             c.set_ghosts_visible(True)
             shot("pregrasps")
 
@@ -119,7 +117,8 @@ def main() -> int:
                 print("no grasp was planned: grasp.png not written", file=sys.stderr)
                 return 1
             c.set_anim_t(1.0)  # the closed hand (pauses the animation the plan started)
-            page.get_by_text(re.compile(r"^ranked grasps: \d+")).scroll_into_view_if_needed()
+            fc = re.compile(r"^\d+ force-closure of \d+ kept$")
+            page.get_by_text(fc).scroll_into_view_if_needed()
             shot("grasp")
             ctx.close()
     finally:
