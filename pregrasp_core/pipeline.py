@@ -36,6 +36,7 @@ from .io import PointCloud
 from .limits import WorkLimits
 from .normals import NormalParams, estimate_normals
 from .planner import GraspSet, PlannerParams, cloud_normals, grasps_sections, plan_grasps
+from .planner.serialize import SimulatedRanking
 from .pregrasps import PreGraspPool, SamplingParams, Traversal, build_pool, traverse
 from .result import JsonDocument
 from .result import result_document as _result_document
@@ -337,10 +338,13 @@ def result_document(
     params: PipelineParams | None = None,
     include_indices: bool = False,
     extra_timings: dict[str, float] | None = None,
+    simulation: SimulatedRanking | None = None,
 ) -> JsonDocument:
     """The ``pregrasp/1`` document of a pipeline result (tree with face masks, pool, timings).
 
-    extra_timings: stages run outside the pipeline (e.g. ``load``), listed first.
+    extra_timings: stages run outside the pipeline (e.g. ``load``), listed first. simulation:
+    the lift test of the best grasps (``result.grasps`` re-ranked by it): each simulated
+    grasp's outcome, its ``best`` and ``parameters.simulation``.
     """
     params = result.params if params is None else params
     if result.tree is None:
@@ -352,10 +356,13 @@ def result_document(
     if result.grasps is not None:
         if result.hand is None:
             raise ValueError("the result has grasps but no hand: it was not made by run_pipeline")
-        extra.update(grasps_sections(result.grasps, result.hand, params.planner))
+        extra.update(grasps_sections(result.grasps, result.hand, params.planner, simulation))
+    sections = params.as_dict()
+    if simulation is not None:
+        sections["simulation"] = simulation.params
     return _result_document(
         result.cloud,
-        params.as_dict(),
+        sections,
         timings,
         result.tree,
         result.shapes,

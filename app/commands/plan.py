@@ -5,18 +5,25 @@ One object: ``-o OUT.json`` writes the ``pregrasp/1`` result (tree, pool, grasps
 per stage); ``-o -`` prints the JSON; without ``-o`` a readable summary (parts, pool size, the
 best grasps with type, contacts and epsilon).
 
+``--simulate K`` runs the MuJoCo lift test (``pregrasp_core.simulate``, ``docs/simulation.md``)
+on the best K ranked grasps and re-ranks them (:func:`rank_by_lift`): among the simulated
+grasps those that lifted the object come first, then those that did not, then the others as the
+planner ranked them; ``best`` is the best force-closure grasp that lifted, when one did. The
+result file keeps each simulated grasp's outcome (``docs/result-schema.md``, "simulation").
+
 A folder: every mesh or cloud in it (sorted by name) is planned in turn with a text progress bar
 on stderr (files that do not read as a cloud, such as a ``manifest.csv``, are listed as
 skipped); ``--report report.csv`` writes one row per object (object, points, parts, pool, kept,
-force closure, best type, contacts, epsilon, volume, seconds, error), else the CSV goes to
-stdout; ``-o DIR`` also writes ``DIR/<object>.json`` per object. ``--jobs J`` plans J objects
-at a time in worker processes (each with a one-thread planner unless ``--threads`` says
-otherwise); ``--scheduler ADDRESS`` plans them on the workers of a running Dask distributed
-scheduler instead (see :func:`batch_executor`). Either way the workers return each object's row
-and result document and this process writes the files; the report lists the objects in name
-order whatever order they finish in. An object that fails, whatever the exception (a reader
-failing on a malformed file, the planner running out of memory), gets its error in the
-``error`` column and a line on stderr, and the batch goes on (exit 1 at the end).
+force closure, best type, contacts, epsilon, volume, seconds, error, simulated, lifted), else
+the CSV goes to stdout; ``-o DIR`` also writes ``DIR/<object>.json`` per object. ``--jobs J``
+plans J objects at a time in worker processes (each with a one-thread planner unless
+``--threads`` says otherwise); ``--scheduler ADDRESS`` plans them on the workers of a running
+Dask distributed scheduler instead (see :func:`batch_executor`). Either way the workers return
+each object's row and result document (and run its ``--simulate`` lift test) and this process
+writes the files; the report lists the objects in name order whatever order they finish in.
+An object that fails, whatever the exception (a reader failing on a malformed file, the planner
+running out of memory), gets its error in the ``error`` column and a line on stderr, and the
+batch goes on (exit 1 at the end).
 
 The options are those of :mod:`app.commands.common` for the input and the stages (generated
 from the parameter dataclasses) and :class:`PlanOutput` for what is written.
@@ -39,19 +46,25 @@ from collections.abc import Iterator
 from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
+
+import numpy as np
 
 from pregrasp_core.errors import InputError, PregraspError
 from pregrasp_core.hand import Hand, load_hand
 from pregrasp_core.io import SUPPORTED_EXTENSIONS, PointCloud
 from pregrasp_core.pipeline import PipelineParams, PipelineResult, result_document, run_pipeline
 from pregrasp_core.planner import Grasp, GraspSet, PlannerParams
+from pregrasp_core.planner.serialize import SimulatedRanking
 from pregrasp_core.result import JsonValue, to_jsonable, write_result
 
 from .common import ALL_STAGES, INPUT_OPTIONS, InputOptions, add_input_args, pipeline_options
 from .common import input_path as _input_path
 from .options import Flag, HelpFormatter, Options
 from .pregrasps import pool_stages
+
+if TYPE_CHECKING:  # importing pregrasp_core.simulate imports MuJoCo: only when --simulate runs
+    from pregrasp_core.simulate import SimulationParams, SimulationResult
 
 REPORT_COLUMNS: tuple[str, ...] = (
     "object",
@@ -66,8 +79,11 @@ REPORT_COLUMNS: tuple[str, ...] = (
     "best_volume",
     "seconds",
     "error",
+    "simulated",
+    "lifted",
 )
-"""Columns of the batch report (CSV)."""
+"""Columns of the batch report (CSV); ``simulated`` and ``lifted`` count the grasps of
+``--simulate`` (0 and 0 without it)."""
 
 
 @dataclass(frozen=True)
@@ -90,10 +106,19 @@ class PlanOutput:
     """For a folder INPUT: plan the objects on the workers of this running Dask distributed
     scheduler (e.g. tcp://10.0.0.5:8786) instead of local worker processes; needs pip install
     'pregrasp[batch]', and the input files at the same path on the workers."""
+    simulate: int = 0
+    """Test the best K ranked grasps with a MuJoCo lift (approach, close, lift 10 cm, hold 1 s;
+    docs/simulation.md) and rank those that lifted first; each outcome goes into the result
+    file. Costs about 0.1-0.2 s of CPU per grasp plus the object's collision model (0.1-10 s,
+    once per object). 0 = off."""
 
     def __post_init__(self) -> None:
         if self.top < 0:
             raise ValueError(f"top must be >= 0, got {self.top}")
+        if isinstance(self.simulate, bool) or self.simulate < 0:
+            raise ValueError(
+                f"simulate must be a number of grasps >= 0 (0 = off), got {self.simulate}"
+            )
         if self.jobs < 1:
             raise ValueError(f"jobs must be >= 1, got {self.jobs}")
         if self.scheduler is not None and not self.scheduler.strip():
@@ -131,6 +156,7 @@ OUTPUT_OPTIONS: Options[PlanOutput] = Options(
         "include_indices": Flag(store_true=True),
         "jobs": Flag(metavar="J"),
         "scheduler": Flag(metavar="ADDRESS"),
+        "simulate": Flag(metavar="K"),
     },
 )
 
@@ -142,7 +168,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="plan grasps: decomposition, pre-grasp pool, slicing planner, quality",
         description="Run the whole pipeline on INPUT (a file, or a folder of objects) and rank "
         "the grasps by Ferrari-Canny epsilon (L1), then wrench-hull volume. Writes the "
-        "pregrasp/1 JSON with -o, else prints a summary; on a folder writes a CSV report.",
+        "pregrasp/1 JSON with -o, else prints a summary; on a folder writes a CSV report. "
+        "--simulate K tests the best K grasps with a MuJoCo lift and ranks those that lifted "
+        "first.",
     )
     add_input_args(p, what="point cloud or mesh file, or a folder of them")
     PIPELINE_OPTIONS.add_to(p)
@@ -160,20 +188,125 @@ def plan_run(args: argparse.Namespace) -> PlanRun:
 
 
 def plan_loaded(
-    cloud: PointCloud, t_load: float, params: PipelineParams, hand: Hand
-) -> tuple[PipelineResult, dict[str, float]]:
-    """Plan a loaded cloud: (PipelineResult, timings with ``load`` first)."""
+    cloud: PointCloud, t_load: float, params: PipelineParams, hand: Hand, simulate: int = 0
+) -> tuple[PipelineResult, dict[str, float], LiftTest | None]:
+    """Plan a loaded cloud: (PipelineResult, timings with ``load`` first, the lift test of the
+    best ``simulate`` grasps or None). With a lift test the result's grasps are re-ranked by it
+    (:func:`rank_by_lift`) and the timings end with ``simulate``."""
     result = run_pipeline(cloud, params, hand, until="grasps")
-    return result, {"load": t_load, **result.timings}
+    if simulate > 0:
+        lift = lift_test(result, simulate, hand)
+        result = dataclasses.replace(
+            result, grasps=lift.grasps, timings={**result.timings, "simulate": lift.seconds}
+        )
+        return result, {"load": t_load, **result.timings}, lift
+    return result, {"load": t_load, **result.timings}, None
 
 
 def result_doc(
-    result: PipelineResult, timings: dict[str, float], include_indices: bool
+    result: PipelineResult,
+    timings: dict[str, float],
+    include_indices: bool,
+    lift: LiftTest | None = None,
 ) -> dict[str, Any]:
-    """The ``pregrasp/1`` document of a planned result."""
+    """The ``pregrasp/1`` document of a planned result (with the lift test's outcomes)."""
     return result_document(
-        result, include_indices=include_indices, extra_timings={"load": timings["load"]}
+        result,
+        include_indices=include_indices,
+        extra_timings={"load": timings["load"]},
+        simulation=None if lift is None else lift.section(),
     )
+
+
+# ------------------------------------------------------------------------------ lift test
+
+
+@dataclass(frozen=True)
+class LiftTest:
+    """The lift test of ``--simulate K`` on one object and the ranking it gives."""
+
+    grasps: GraspSet
+    """The planner's grasps re-ranked (:func:`rank_by_lift`): ``ranking`` and every kept
+    grasp's ``rank`` changed, nothing else."""
+    results: dict[int, SimulationResult]
+    """Index into ``grasps.grasps`` -> the outcome of that grasp's lift (the simulated ones)."""
+    best: int | None
+    """The best grasp under the re-ranking (see :func:`rank_by_lift`)."""
+    best_reason: str
+    """Why, in one sentence."""
+    params: SimulationParams
+    """The parameters of the test."""
+    seconds: float
+    """Wall-clock seconds of the test (the object's collision model and every lift)."""
+
+    @property
+    def n_lifted(self) -> int:
+        """Simulated grasps that lifted the object."""
+        return sum(r.success for r in self.results.values())
+
+    def section(self) -> SimulatedRanking:
+        """What the result file records of the test."""
+        return SimulatedRanking(
+            outcomes={i: r.to_dict() for i, r in self.results.items()},
+            best=self.best,
+            best_reason=self.best_reason,
+            params=self.params,
+        )
+
+
+def lift_test(result: PipelineResult, k: int, hand: Hand) -> LiftTest:
+    """Simulate the lift of the best ``k`` ranked grasps of ``result`` (fewer when fewer were
+    kept) with default ``SimulationParams`` and re-rank them by it."""
+    from pregrasp_core.simulate import SimulationParams, simulate_grasps
+
+    gs = _grasps(result)
+    params = SimulationParams()
+    t0 = time.perf_counter()
+    top = [int(i) for i in gs.ranking[:k]]
+    outcomes = simulate_grasps(result, top, hand, params) if top else []
+    results = dict(zip(top, outcomes, strict=True))
+    ranked, best, reason = rank_by_lift(gs, {i: r.success for i, r in results.items()})
+    return LiftTest(ranked, results, best, reason, params, time.perf_counter() - t0)
+
+
+def rank_by_lift(gs: GraspSet, lifted: dict[int, bool]) -> tuple[GraspSet, int | None, str]:
+    """The ranking of ``gs`` after a lift test: ``lifted`` maps the index (into ``gs.grasps``)
+    of each simulated grasp to whether it lifted the object.
+
+    Ranking: the simulated grasps that lifted, then the simulated grasps that did not, then the
+    grasps that were not simulated, each group in the planner's order (epsilon, then volume).
+    Best: the first force-closure grasp (epsilon > 0) of the new ranking that lifted when there
+    is one, else the planner's ``gs.best``. Returns (the re-ranked set, best, best_reason)."""
+    order = [int(i) for i in gs.ranking]
+    unknown = sorted(set(lifted) - set(order))
+    if unknown:
+        raise ValueError(f"simulated grasps {unknown} are not kept grasps of the set")
+    ok = [i for i in order if lifted.get(i) is True]
+    failed = [i for i in order if lifted.get(i) is False]
+    ranking = ok + failed + [i for i in order if i not in lifted]
+    rank_of = {i: r for r, i in enumerate(ranking)}
+    grasps = tuple(
+        dataclasses.replace(g, rank=rank_of[i]) if i in rank_of else g
+        for i, g in enumerate(gs.grasps)
+    )  # renumbers the kept grasps' records (a loop over records, not over points)
+    ranked = dataclasses.replace(gs, grasps=grasps, ranking=np.asarray(ranking, dtype=np.int64))
+    tally = f"{len(lifted)} simulated, {len(ok)} lifted"
+    fc_ok = [i for i in ok if gs.grasps[i].epsilon > 0.0]
+    if fc_ok:
+        g = gs.grasps[fc_ok[0]]
+        reason = (
+            f"force closure and lifted in simulation: the best of {len(fc_ok)} force-closure "
+            f"grasps that lifted ({tally}) has epsilon {g.epsilon:.4f} with {g.n_contacts} "
+            "contacts"
+        )
+        return ranked, fc_ok[0], reason
+    if not lifted:
+        why = "no grasp simulated (no kept grasp)"
+    elif ok:
+        why = f"no force-closure grasp lifted in simulation ({tally}); best as ranked by epsilon"
+    else:
+        why = f"no simulated grasp lifted ({tally}); best as ranked by epsilon"
+    return ranked, gs.best, f"{gs.best_reason}; {why}"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -191,27 +324,39 @@ def run(args: argparse.Namespace) -> int:
         raise PregraspError("--report is for a folder INPUT; use -o OUT.json for one object")
     t0 = time.perf_counter()
     cloud = job.input.load(path)
-    result, timings = plan_loaded(cloud, time.perf_counter() - t0, job.params, hand)
+    result, timings, lift = plan_loaded(
+        cloud, time.perf_counter() - t0, job.params, hand, out.simulate
+    )
     if out.output is None:
-        print(summary(result, timings, out.top))
+        print(summary(result, timings, out.top, lift))
         return 0
-    doc = result_doc(result, timings, out.include_indices)
+    doc = result_doc(result, timings, out.include_indices, lift)
     if out.output == "-":
         json.dump(to_jsonable(doc), sys.stdout, indent=1)
         sys.stdout.write("\n")
         return 0
     written = write_result(doc, out.output)
     gs = _grasps(result)
-    best = gs.best
+    best, reason = best_of(result, lift)
     tail = (
         f", best {gs.grasps[best].grasp_type} epsilon {gs.grasps[best].epsilon:.4f}"
         if best is not None
-        else f", {gs.best_reason}"
+        else f", {reason}"
     )
+    if lift is not None:
+        tail += f"; {len(lift.results)} simulated, {lift.n_lifted} lifted"
     print(
         f"wrote {written}: {len(result.pool or ())} pre-grasps, {len(gs.ranking)} grasps kept{tail}"
     )
     return 0
+
+
+def best_of(result: PipelineResult, lift: LiftTest | None) -> tuple[int | None, str]:
+    """(best, best_reason): the lift test's when there is one, else the planner's."""
+    if lift is not None:
+        return lift.best, lift.best_reason
+    gs = _grasps(result)
+    return gs.best, gs.best_reason
 
 
 def _grasps(result: PipelineResult) -> GraspSet:
@@ -223,10 +368,14 @@ def _grasps(result: PipelineResult) -> GraspSet:
 # ------------------------------------------------------------------------------ summary
 
 
-def summary(result: PipelineResult, timings: dict[str, float], top: int) -> str:
-    """A readable summary of a planned result."""
+def summary(
+    result: PipelineResult, timings: dict[str, float], top: int, lift: LiftTest | None = None
+) -> str:
+    """A readable summary of a planned result (``lift``: its lift test, ``result`` re-ranked by
+    it: a ``lift`` column, yes / no / - when not simulated)."""
     tree, _, _, _, pool = pool_stages(result)
     cloud, gs = result.cloud, _grasps(result)
+    best_index, best_reason = best_of(result, lift)
     lines = [
         f"object: {cloud.source} ({len(cloud.points)} points)",
         f"parts: {len(tree.leaves())} (tree of {len(tree.nodes)} nodes)",
@@ -235,21 +384,36 @@ def summary(result: PipelineResult, timings: dict[str, float], top: int) -> str:
         f"planned: {len(gs.ranking)} kept, {gs.n_force_closure} force closure"
         + (f"; rejected {_counts(gs.rejected)}" if any(gs.rejected.values()) else ""),
     ]
-    if gs.best is None:  # "no force-closure grasp: ..." (the ranking below keeps epsilon 0)
-        lines.append(gs.best_reason)
+    if lift is not None:
+        lines.append(
+            f"lift test (MuJoCo): {len(lift.results)} simulated, {lift.n_lifted} lifted "
+            f"({lift.seconds:.1f} s)"
+        )
+        lines.append(f"best: {best_reason}")
+    elif best_index is None:  # "no force-closure grasp: ..." (the ranking keeps epsilon 0)
+        lines.append(best_reason)
     best = gs.top(top)
     if best:
-        lines.append(f"best {len(best)} grasps (#1 = best; by epsilon, then volume):")
+        order = "by epsilon, then volume"
+        if lift is not None:
+            order = "simulated grasps that lifted first, then " + order
+        lines.append(f"best {len(best)} grasps (#1 = best; {order}):")
+        lift_head = f" {'lift':>4}" if lift else ""
         lines.append(
             f"  {'#':>4}  {'type':<17} {'node':>4} {'pre':>5} {'contacts':>8} "
-            f"{'epsilon':>8} {'volume':>10}  links"
+            f"{'epsilon':>8} {'volume':>10}{lift_head}  links"
         )
         for g in best:
             links = ",".join(c.link for c in g.contacts)
             rank = -1 if g.rank is None else g.rank  # kept grasps all have a rank
+            col = ""
+            if lift is not None:  # grasps[i].pregrasp == i: the key of lift.results
+                sim = lift.results.get(g.pregrasp)
+                col = f" {'-' if sim is None else 'yes' if sim.success else 'no':>4}"
             lines.append(
                 f"  {rank + 1:>4}  {g.grasp_type:<17} {int(pool.node[g.pregrasp]):>4} "
-                f"{g.pregrasp:>5} {g.n_contacts:>8} {g.epsilon:>8.4f} {g.volume:>10.3e}  {links}"
+                f"{g.pregrasp:>5} {g.n_contacts:>8} {g.epsilon:>8.4f} {g.volume:>10.3e}{col}"
+                f"  {links}"
             )
         lines.append("by grasp type (why the best has its type):")
         lines.extend("  " + line for line in type_lines(result))
@@ -315,10 +479,14 @@ def objects_in(folder: Path) -> list[Path]:
     return files
 
 
-def report_row(name: str, result: PipelineResult, seconds: float) -> Row:
-    """One CSV row of the batch report for a planned result."""
+def report_row(
+    name: str, result: PipelineResult, seconds: float, lift: LiftTest | None = None
+) -> Row:
+    """One CSV row of the batch report for a planned result (and its lift test: the best grasp
+    is then the lift test's, see :func:`rank_by_lift`)."""
     tree, _, _, _, pool = pool_stages(result)
     gs = _grasps(result)
+    best, _ = best_of(result, lift)
     row: Row = {
         "object": name,
         "points": len(result.cloud.points),
@@ -332,9 +500,11 @@ def report_row(name: str, result: PipelineResult, seconds: float) -> Row:
         "best_volume": 0.0,
         "seconds": round(seconds, 4),
         "error": "",
+        "simulated": 0 if lift is None else len(lift.results),
+        "lifted": 0 if lift is None else lift.n_lifted,
     }
-    if gs.best is not None:
-        g = gs.grasps[gs.best]
+    if best is not None:
+        g = gs.grasps[best]
         row.update(
             best_type=g.grasp_type,
             best_contacts=g.n_contacts,
@@ -409,11 +579,13 @@ def _batch_item(f: Path, job: PlanRun, hand: Hand, with_doc: bool) -> BatchItem:
     except Exception as exc:  # a reader failing on a malformed file: told, the batch goes on
         return error_row(f.name, _error_text(f, exc), time.perf_counter() - t0), True, None
     try:
-        result, timings = plan_loaded(cloud, time.perf_counter() - t0, job.params, hand)
-        row = report_row(f.name, result, time.perf_counter() - t0)
+        result, timings, lift = plan_loaded(
+            cloud, time.perf_counter() - t0, job.params, hand, job.output.simulate
+        )
+        row = report_row(f.name, result, time.perf_counter() - t0, lift)
         doc = None
         if with_doc:
-            doc = to_jsonable(result_doc(result, timings, job.output.include_indices))
+            doc = to_jsonable(result_doc(result, timings, job.output.include_indices, lift))
         return row, False, doc
     except Exception as exc:  # a failed object does not stop the batch
         return error_row(f.name, _error_text(f, exc), time.perf_counter() - t0), True, None

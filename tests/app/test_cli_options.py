@@ -80,6 +80,7 @@ FLAGS: dict[str, tuple[list[str], str, object]] = {
     "--include-indices": ([], "output.include_indices", True),
     "--jobs": (["2"], "output.jobs", 2),
     "--scheduler": (["tcp://10.0.0.5:8786"], "output.scheduler", "tcp://10.0.0.5:8786"),
+    "--simulate": (["2"], "output.simulate", 2),
     "--host": (["0.0.0.0"], "serve.host", "0.0.0.0"),
     "--port": (["9000"], "serve.port", 9000),
 }

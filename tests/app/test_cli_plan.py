@@ -101,7 +101,12 @@ def test_batch_over_a_folder_writes_a_csv_report(tmp_path, capsys):
     rows = list(csv.DictReader(report.open()))
     assert [r["object"] for r in rows] == ["a_lemon.obj", "b_box.obj", "c_empty.xyz",
                                            "d_manifest.csv"]  # fmt: skip
-    assert list(rows[0]) == list(REPORT_COLUMNS)
+    assert list(rows[0]) == list(REPORT_COLUMNS) == [
+        "object", "points", "parts", "pool", "kept", "force_closure", "best_type",
+        "best_contacts", "best_epsilon", "best_volume", "seconds", "error", "simulated", "lifted",
+    ]  # fmt: skip
+    assert rows[0]["simulated"] == rows[0]["lifted"] == "0"  # no --simulate
+    assert rows[2]["simulated"] == ""  # a skipped file
     assert rows[0]["error"] == "" and int(rows[0]["points"]) == 2500
     assert int(rows[1]["parts"]) >= 1 and rows[1]["error"] == ""
     assert rows[2]["error"].startswith("skipped:") and "c_empty.xyz" in rows[2]["error"]
