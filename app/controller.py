@@ -137,13 +137,8 @@ class Controller:
 
     def idle(self) -> bool:
         """True when no computation runs and none is pending (tests and benchmarks wait on it)."""
-        if not self._lock.acquire(blocking=False):
-            return False
-        try:
-            with self._req_lock:
-                return not self._pending and self._running == 0
-        finally:
-            self._lock.release()
+        with self._req_lock:  # not the lock: the animation's ticks hold it many times a second
+            return not self._pending and self._running == 0
 
     def subscribe(self, fn: Callable[[AppState], None]) -> None:
         """Call ``fn(state)`` after every state change (the GUI mirrors the state this way)."""
