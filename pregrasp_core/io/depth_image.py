@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..sensor.depth import Intrinsics, _image_size, depth_to_points, load_camera_pose
+from ..sensor.depth import Intrinsics, depth_to_points, image_size, load_camera_pose
 from .cloud import FileData
 
 DEPTH_IMAGE_EXTENSIONS: tuple[str, ...] = (".png",)
@@ -128,7 +128,7 @@ def read_depth_image(file: FileData, ext: str, intrinsics: IntrinsicsArg) -> Dep
     K, where, json_path = _intrinsics(file, intrinsics)
     depth = _decode(file, ext)
     if json_path is not None:
-        size = _image_size(json_path)
+        size = image_size(json_path)
         if size is not None and depth.shape != size:
             raise InputError(
                 f"{file.source}: the image is {depth.shape[1]} x {depth.shape[0]} pixels but "

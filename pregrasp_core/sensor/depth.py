@@ -127,7 +127,7 @@ def _read_json(path: str | Path) -> dict[str, object]:
     return doc
 
 
-def _image_size(path: str | Path) -> tuple[int, int] | None:
+def image_size(path: str | Path) -> tuple[int, int] | None:
     """``(height, width)`` from an intrinsics JSON file, when it gives them."""
     doc = _read_json(path)
     if "width" not in doc and "height" not in doc:
@@ -295,7 +295,7 @@ def load_depth_image(path: str | Path, intrinsics: Intrinsics | str | Path | obj
         K = intrinsics
     elif isinstance(intrinsics, (str, Path)):
         K = Intrinsics.from_json(intrinsics)
-        size = _image_size(intrinsics)
+        size = image_size(intrinsics)
     else:
         K = Intrinsics.from_values(intrinsics)
     depth = read_depth_file(path)
