@@ -21,7 +21,13 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..sensor.depth import Intrinsics, depth_to_points, image_size, load_camera_pose
+from ..sensor.depth import (
+    Intrinsics,
+    depth_from_png,
+    depth_to_points,
+    image_size,
+    load_camera_pose,
+)
 from .cloud import FileData
 
 DEPTH_IMAGE_EXTENSIONS: tuple[str, ...] = (".png",)
@@ -67,25 +73,7 @@ def _decode(file: FileData, ext: str) -> np.ndarray:
     """(H, W) float64 depth in metres, NaN where there is no return."""
     source = file.source
     if ext == ".png":
-        import imageio.v3 as iio
-
-        try:
-            img = np.asarray(iio.imread(file.data, extension=".png"))
-        except Exception as exc:  # noqa: BLE001 - imageio raises many types for a bad file
-            raise InputError(f"{source}: cannot read the PNG ({exc})") from None
-        if img.ndim != 2:
-            raise InputError(
-                f"{source}: a depth PNG must have one channel, got shape {img.shape}; save the "
-                "depth as a 16-bit grayscale PNG in millimetres"
-            )
-        if img.dtype != np.uint16:
-            raise InputError(
-                f"{source}: a depth PNG must be 16-bit (millimetres), got {img.dtype}; an 8-bit "
-                "PNG is an image, not depth"
-            )
-        depth = img.astype(np.float64) / 1000.0
-        depth[img == 0] = np.nan
-        return depth
+        return depth_from_png(file.data, source)
     try:
         arr = np.load(io.BytesIO(file.data), allow_pickle=False)
     except Exception as exc:  # noqa: BLE001 - numpy raises ValueError/OSError/EOFError/...

@@ -233,6 +233,30 @@ def depth_to_points(depth: np.ndarray, intrinsics: Intrinsics, source: str = "ar
     )
 
 
+def depth_from_png(data: bytes, source: str) -> np.ndarray:
+    """(H, W) float64 metres from the bytes of a 16-bit grayscale PNG in millimetres (0 = no
+    return -> NaN); ``InputError`` naming ``source`` for anything else."""
+    import imageio.v3 as iio
+
+    try:
+        img = np.asarray(iio.imread(data, extension=".png"))
+    except Exception as e:  # noqa: BLE001 - imageio raises many types for a bad file
+        raise InputError(f"{source}: cannot read the PNG ({e})") from None
+    if img.ndim != 2:
+        raise InputError(
+            f"{source}: a depth PNG must have one channel, got shape {img.shape}; save the "
+            "depth as a 16-bit grayscale PNG in millimetres"
+        )
+    if img.dtype != np.uint16:
+        raise InputError(
+            f"{source}: a depth PNG must be 16-bit (millimetres), got {img.dtype}; an 8-bit "
+            "PNG is an image, not depth"
+        )
+    depth = img.astype(np.float64) / 1000.0
+    depth[img == 0] = np.nan
+    return depth
+
+
 def read_depth_file(path: str | Path) -> np.ndarray:
     """The depth image of ``path`` (H, W) float64 in metres, NaN where there is no return."""
     p = Path(path)
@@ -247,25 +271,7 @@ def read_depth_file(path: str | Path) -> np.ndarray:
     if p.stat().st_size == 0:
         raise InputError(f"{p}: the file is empty")
     if ext == ".png":
-        import imageio.v3 as iio
-
-        try:
-            img = np.asarray(iio.imread(p))
-        except Exception as e:  # imageio raises many types for a bad file
-            raise InputError(f"{p}: cannot read the PNG ({e})") from None
-        if img.ndim != 2:
-            raise InputError(
-                f"{p}: a depth PNG must have one channel, got shape {img.shape}; save the depth "
-                "as a 16-bit grayscale PNG in millimetres"
-            )
-        if img.dtype != np.uint16:
-            raise InputError(
-                f"{p}: a depth PNG must be 16-bit (millimetres), got {img.dtype}; an 8-bit PNG "
-                "is an image, not depth"
-            )
-        depth = img.astype(np.float64) / 1000.0
-        depth[img == 0] = np.nan
-        return depth
+        return depth_from_png(p.read_bytes(), str(p))
     try:
         arr = np.load(p, allow_pickle=False)
     except ValueError as e:
