@@ -155,12 +155,15 @@ def test_batch_on_worker_processes_gives_the_same_report(tmp_path, capsys):
     assert reports[1][2]["error"].startswith("skipped:")
 
 
-def test_progress_bar_redraws_in_place_on_a_terminal():
-    class Tty(io.StringIO):
-        def isatty(self):
-            return True
+class _Tty(io.StringIO):
+    """A text stream that says it is a terminal (the progress bar redraws in place there)."""
 
-    s = Tty()
+    def isatty(self):
+        return True
+
+
+def test_progress_bar_redraws_in_place_on_a_terminal():
+    s = _Tty()
     bar = ProgressBar(4, stream=s, width=8)
     bar.update(2, "x")
     bar.update(4, "y")
@@ -291,11 +294,7 @@ def test_batch_reports_any_exception_and_goes_on(tmp_path, capsys, monkeypatch, 
 
 
 def test_progress_bar_note_keeps_the_bar_below_it():
-    class Tty(io.StringIO):
-        def isatty(self):
-            return True
-
-    s = Tty()
+    s = _Tty()
     bar = ProgressBar(2, stream=s, width=4)
     bar.update(1, "a")
     bar.note("pregrasp plan: error: b: broken")
