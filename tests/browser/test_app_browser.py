@@ -176,7 +176,10 @@ def test_plan_shows_ranked_table_and_pick_a_grasp(page, live_app, shots_dir):
         page.wait_for_timeout(100)
     frame = live_app.scene.handle("hand_frame")
     assert frame.visible
-    assert abs(frame.position - ranked[1].T_world_hand[:3, 3]).max() < 1e-6
+    # against the result the scene drew: a plan committed after the table was read (the
+    # start-up plan finishing late) may rank slightly different poses
+    shown = ranked_grasps(live_app.scene.rendered.result)
+    assert abs(frame.position - shown[1].T_world_hand[:3, 3]).max() < 1e-6
     page.screenshot(path=str(shots_dir / "browser_grasp.png"))
 
 
