@@ -26,7 +26,7 @@ from ..hand import grasp_type_name
 from ..shape import GRASP_TYPES, NodeShape, ShapeParams
 from .collision import CellCache, collision_batch_bytes, hand_hits_points, hand_min_height
 from .params import MAX_POOL_SAMPLES, POOL_BYTES_PER_SAMPLE, SAMPLING_BOUNDS, SamplingParams
-from .pinch import PINCH_SURFACE, pinch_samples
+from .pinch import PINCH_SURFACE, pinch_count_bound, pinch_samples
 from .pool import DROP_REASONS, PreGraspPool
 from .surfaces import sample_node, total_samples
 from .traversal import Traversal, grip_width, traverse
@@ -72,13 +72,20 @@ def check_pool_size(
     jobs: Sequence[tuple[OrientedBox, str]],
     params: SamplingParams,
     max_samples: int = MAX_POOL_SAMPLES,
+    pinch_boxes: Sequence[OrientedBox] = (),
 ) -> int:
     """The number of samples sampling every ``(box, grasp_type)`` of ``jobs`` at
-    ``params.interval`` makes (:func:`~.surfaces.total_samples`, nothing allocated); raises
-    ``PregraspError`` when it exceeds ``max_samples``, with the memory it would take and the
-    smallest interval that fits."""
+    ``params.interval`` makes (:func:`~.surfaces.total_samples`, nothing allocated), plus a
+    bound on the pinches of ``pinch_boxes`` when ``params.pinch``
+    (:func:`~.pinch.pinch_count_bound`); raises ``PregraspError`` when it exceeds
+    ``max_samples``, with the memory it would take and the smallest interval that fits."""
     interval = params.interval
-    n = int(total_samples(jobs, [interval])[0])
+    pinch_boxes = list(pinch_boxes) if params.pinch else []
+
+    def count(intervals: Sequence[float]) -> np.ndarray:
+        return total_samples(jobs, intervals) + pinch_count_bound(pinch_boxes, intervals)
+
+    n = int(count([interval])[0])
     if n <= max_samples:
         return n
     head = (
@@ -91,7 +98,7 @@ def check_pool_size(
     e0 = int(np.floor(np.log10(interval)))
     grid = [float(f"{k}e{e - 1}") for e in range(e0, 1) for k in range(10, 100)]
     grid = [v for v in grid if interval < v <= hi] + [hi]
-    fits = np.flatnonzero(total_samples(jobs, grid) <= max_samples)  # falls as interval grows
+    fits = np.flatnonzero(count(grid) <= max_samples)  # falls as interval grows
     if len(fits) == 0:
         raise PregraspError(
             f"{head}, even at the largest interval ({hi:g} m): the object is too large for its "
@@ -148,7 +155,8 @@ def build_pool(
     todo = list(traversal.candidates)
     for attempt in range(len(GRASP_TYPES)):  # own type, then up to 3 fallbacks
         jobs = [(tree.nodes[i], queue[i][attempt]) for i in todo if attempt < len(queue[i])]
-        check_pool_size([(nd.box, gt) for nd, gt in jobs], params, max_samples)
+        pinch_boxes = [tree.nodes[i].box for i in traversal.candidates] if attempt == 0 else []
+        check_pool_size([(nd.box, gt) for nd, gt in jobs], params, max_samples, pinch_boxes)
         pools = [_node_pool(nd, gt, masks, hand, params, dropped, max_samples) for nd, gt in jobs]
         got = _clear_the_hand(
             _concat_pools(pools, joint_names), hand, pts, kd, masks.support, params, dropped

@@ -41,7 +41,7 @@ from ..box import OrientedBox
 from ..facemask import FACE_NORMAL, SupportPlane
 from ..geometry import box_corners
 from .params import SamplingParams
-from .surfaces import SURFACES, centred_grid
+from .surfaces import SURFACES, centred_grid, grid_sizes
 
 if TYPE_CHECKING:
     from ..hand import Hand
@@ -367,3 +367,20 @@ def pinch_samples(
         approach_limit=np.array([t[4] for t in found]),
         face=np.array(faces, dtype=np.int64),
     )
+
+
+def pinch_count_bound(boxes: list[OrientedBox], intervals: list[float] | np.ndarray) -> np.ndarray:
+    """(K,) float64: an upper bound on the pinches :func:`pinch_samples` makes over ``boxes``
+    at each of the K sampling ``intervals`` (nothing allocated), for the pool's size check.
+
+    Per box, with n the three-finger tip's positions along the box's longest side: from above,
+    2 closing axes x 2 rolls x n; a thin part adds 4 rim faces x 2 kinds x 2 rolls x n. (The
+    tripod makes one position, the tip at most n; which face is on top is not needed.)"""
+    iv = np.atleast_1d(np.asarray(intervals, dtype=np.float64))  # (K,)
+    if not boxes:
+        return np.zeros(len(iv))
+    ext = np.array([b.extents for b in boxes], dtype=np.float64)  # (B, 3)
+    half_run = np.maximum(0.5 * ext.max(axis=1) - 0.5 * TIP_MIN_LENGTH, 0.0)  # (B,)
+    n = grid_sizes(half_run[:, None], iv[None, :])  # (B, K)
+    per_position = 4.0 + 16.0 * (ext[:, 2] <= THIN_PART)  # (B,)
+    return (per_position[:, None] * n).sum(axis=0)

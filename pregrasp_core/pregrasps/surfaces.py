@@ -85,7 +85,7 @@ def _patch_grids(box: OrientedBox, grasp_type: str) -> list[tuple[int, int, tupl
     return rows
 
 
-def _grid_sizes(half_range: np.ndarray, step: np.ndarray) -> np.ndarray:
+def grid_sizes(half_range: np.ndarray, step: np.ndarray) -> np.ndarray:
     """``2 m + 1`` of :func:`centred_grid`, element-wise (float64, exact for the sizes that
     matter)."""
     return 2.0 * np.maximum(np.round(half_range / step - 0.5), 0.0) + 1.0
@@ -119,8 +119,8 @@ def total_samples(
     chunk = max(1, (1 << 16) // len(rows))  # intervals at once: (T, chunk) arrays stay small
     for k in range(0, len(iv), chunk):  # one pass unless both T and K are large
         at = iv[None, k : k + chunk]
-        size_a = _grid_sizes(g[:, 0:1], at / g[:, 1:2])  # (T, chunk)
-        size_b = _grid_sizes(g[:, 2:3], at / g[:, 3:4])
+        size_a = grid_sizes(g[:, 0:1], at / g[:, 1:2])  # (T, chunk)
+        size_b = grid_sizes(g[:, 2:3], at / g[:, 3:4])
         out[k : k + chunk] = 2.0 * (copies * size_a * size_b).sum(axis=0)
     return out
 

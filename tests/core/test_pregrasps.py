@@ -6,6 +6,7 @@ import json
 import re
 import time
 import tracemalloc
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -638,3 +639,40 @@ def test_collision_batches_give_the_unbatched_answer(hand, monkeypatch, margin):
     monkeypatch.setattr(collision, "PAIR_BATCH", 64)
     ours = hand_hits_points(hand, T, gts, q, pts, margin=margin)
     assert np.array_equal(ours, ref) and 10 < ours.sum() < G - 10
+
+
+@pytest.mark.parametrize(
+    "extents",
+    [(0.03, 0.03, 0.03), (0.02, 0.02, 0.01), (0.12, 0.02, 0.025), (0.10, 0.06, 0.004)],
+    ids=["cube", "brick", "bar", "plate"],
+)
+def test_pinch_count_bound_bounds_the_pinches_made(hand, extents):
+    """The pool's size check counts pinches by a bound: never fewer than pinch_samples makes,
+    on parts standing on the table at several tilts and intervals (a plate is a thin part:
+    pinches around its rim too)."""
+    from pregrasp_core.pregrasps.pinch import pinch_count_bound, pinch_samples
+
+    ext = np.asarray(extents, dtype=np.float64)
+    for yaw in (0.0, 0.7):
+        R = Rotation.from_euler("z", yaw).as_matrix()
+        box = OrientedBox(np.array([0.0, 0.0, 0.5 * ext[2]]), R, ext)
+        for interval in (0.004, 0.01, 0.02):
+            got = pinch_samples(hand, box, SupportPlane(UP, 0.0), SamplingParams(interval=interval))
+            made = 0 if got is None else len(got.T_world_hand)
+            bound = float(pinch_count_bound([box], [interval])[0])
+            assert made <= bound
+            assert bound <= 8 * max(made, 1)  # a bound, not a blanket
+
+
+def test_the_pool_size_check_counts_pinches(hand, default_object):
+    """With pinches on, the limit applies to surfaces plus pinches."""
+    r = default_object
+    params = SamplingParams()
+    trav = traverse(r.tree, r.shapes, hand, params)
+    jobs = [(r.tree.nodes[i].box, r.shapes[i].grasp_type.value) for i in trav.candidates]
+    boxes = [r.tree.nodes[i].box for i in trav.candidates]
+    surfaces = check_pool_size(jobs, replace(params, pinch=False), pinch_boxes=boxes)
+    both = check_pool_size(jobs, replace(params, pinch=True), pinch_boxes=boxes)
+    assert both > surfaces
+    with pytest.raises(PregraspError, match="more than the limit"):
+        check_pool_size(jobs, replace(params, pinch=True), both - 1, boxes)
