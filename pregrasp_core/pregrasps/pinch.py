@@ -32,6 +32,7 @@ about the line through them free, ``docs/quality.md``), which is why every pinch
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
