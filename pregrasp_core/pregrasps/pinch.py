@@ -370,7 +370,9 @@ def pinch_samples(
     )
 
 
-def pinch_count_bound(boxes: list[OrientedBox], intervals: list[float] | np.ndarray) -> np.ndarray:
+def pinch_count_bound(
+    boxes: Sequence[OrientedBox], intervals: Sequence[float] | np.ndarray
+) -> np.ndarray:
     """(K,) float64: an upper bound on the pinches :func:`pinch_samples` makes over ``boxes``
     at each of the K sampling ``intervals`` (nothing allocated), for the pool's size check.
 
