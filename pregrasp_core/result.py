@@ -95,6 +95,113 @@ def to_jsonable(obj: object) -> JsonValue:
     raise TypeError(f"cannot write a {type(obj).__name__} to the result JSON: {obj!r}")
 
 
+_encode_str = json.encoder.encode_basestring_ascii
+_float_repr = float.__repr__
+_int_repr = int.__repr__
+
+
+def _finite_repr(x: float) -> str:
+    """A float as ``json.dumps`` writes it, non-finite as ``null`` (what :func:`to_jsonable`
+    makes of it)."""
+    return _float_repr(x) if math.isfinite(x) else "null"
+
+
+def dumps_result(obj: object) -> str:
+    """``json.dumps(to_jsonable(obj), indent=1, allow_nan=False)``, the same text, written in
+    one pass without the intermediate plain-JSON copy.
+
+    The standard library writes indented JSON with its pure-Python encoder, one generator step
+    per value; a result file holds ~10^5 numbers, most of them in short lists of floats, which
+    are written here as one ``join`` each. Values as :func:`to_jsonable` converts them (the
+    same ``TypeError`` for anything else)."""
+    out: list[str] = []
+    _dump(obj, "\n", out)
+    return "".join(out)
+
+
+def _dump(obj: object, nl: str, out: list[str]) -> None:
+    """Append the indented JSON of ``obj`` to ``out``; ``nl``: newline + the indent of the
+    level ``obj`` sits at (one space per level, as ``indent=1``)."""
+    t = type(obj)
+    if t is float:
+        out.append(_finite_repr(obj))  # type: ignore[arg-type]
+    elif t is str:
+        out.append(_encode_str(obj))  # type: ignore[arg-type]
+    elif t is int:
+        out.append(_int_repr(obj))
+    elif obj is None:
+        out.append("null")
+    elif t is bool:
+        out.append("true" if obj else "false")
+    elif t is list or t is tuple:
+        _dump_list(obj, nl, out)  # type: ignore[arg-type]
+    elif t is dict:
+        _dump_dict(obj, nl, out)  # type: ignore[arg-type]
+    elif isinstance(obj, np.ndarray) and obj.ndim:
+        _dump_list(obj.tolist(), nl, out, obj.dtype.kind == "f")
+    elif isinstance(obj, str):  # str subclasses (str enums: json writes their text)
+        out.append(_encode_str(obj))
+    else:  # the rest (enums, numpy scalars, dataclasses, mappings, paths) as to_jsonable does
+        value = to_jsonable(obj) if not _container(obj) else _shallow(obj)
+        _dump(value, nl, out)
+
+
+def _container(obj: object) -> bool:
+    """A dataclass instance or a mapping (converted one level at a time by :func:`_shallow`)."""
+    return (dataclasses.is_dataclass(obj) and not isinstance(obj, type)) or isinstance(obj, Mapping)
+
+
+def _shallow(obj: object) -> dict[str, object]:
+    """A dataclass instance or a mapping as a dict of its fields or items (values as they
+    are: converted by :func:`_dump` on the way)."""
+    if isinstance(obj, Mapping):
+        return {str(k): v for k, v in obj.items()}
+    return {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}  # type: ignore[arg-type]
+
+
+def _dump_list(
+    items: list[object] | tuple[object, ...], nl: str, out: list[str], floats: bool = False
+) -> None:
+    """Append a list; ``floats``: every item is a float or a (nested) list of floats (a float
+    array's ``tolist()``)."""
+    if not items:
+        out.append("[]")
+        return
+    inner = nl + " "
+    sep = "," + inner
+    if floats or all(type(x) is float for x in items):
+        if type(items[0]) is float:
+            out.append("[" + inner + sep.join(map(_finite_repr, items)) + nl + "]")  # type: ignore[arg-type]
+            return
+    elif all(type(x) is int for x in items):
+        out.append("[" + inner + sep.join(map(_int_repr, items)) + nl + "]")
+        return
+    out.append("[" + inner)
+    for k, x in enumerate(items):  # loop over the items (nested lists, objects)
+        if k:
+            out.append(sep)
+        if floats:
+            _dump_list(x, inner, out, True)  # type: ignore[arg-type]
+        else:
+            _dump(x, inner, out)
+    out.append(nl + "]")
+
+
+def _dump_dict(d: dict[object, object], nl: str, out: list[str]) -> None:
+    """Append an object (keys as ``str``, like :func:`to_jsonable`)."""
+    if not d:
+        out.append("{}")
+        return
+    inner = nl + " "
+    first = True
+    out.append("{")
+    for k, v in d.items():  # loop over the keys
+        out.append((inner if first else "," + inner) + _encode_str(str(k)) + ": ")
+        first = False
+        _dump(v, inner, out)
+    out.append(nl + "}")
+
+
 def _json_object(value: JsonValue) -> JsonDocument:
     """``value`` (a JSON object) as a dict; ``TypeError`` when it is another JSON value."""
     if not isinstance(value, dict):
@@ -262,7 +369,7 @@ def write_result(doc: Mapping[str, object], path: str | os.PathLike[str]) -> Pat
     folder = out.parent if str(out.parent) else Path(".")
     if not folder.is_dir():
         raise InputError(f"{out}: folder {folder} does not exist; create it or choose another path")
-    text = json.dumps(to_jsonable(doc), indent=1, allow_nan=False)
+    text = dumps_result(doc)
     tmp_name = None
     try:
         with tempfile.NamedTemporaryFile(

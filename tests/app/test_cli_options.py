@@ -392,3 +392,31 @@ def test_decompose_and_pregrasps_keep_their_flags(name, before, capsys):
     listed = set(capsys.readouterr().out.replace(",", " ").replace("[", " ").split())
     assert set(before.split()) <= listed
     assert "-o" in listed
+
+
+def test_the_chosen_command_alone_is_imported_and_parsed():
+    """``pregrasp plan ...`` builds the parser of ``plan`` only and does not import the other
+    commands' modules (the viewer's, the decomposition's); a line without a known command gets
+    every command's parser (for the help and the error)."""
+    import subprocess
+    import sys
+
+    from app.cli import chosen_command
+
+    assert chosen_command(["-v", "plan", "x.ply"]) == "plan"
+    assert chosen_command(["view"]) == "view"
+    assert chosen_command(["--help"]) is None and chosen_command(["nope", "plan"]) is None
+    actions = build_parser("plan")._actions
+    sub = next(a for a in actions if isinstance(a, argparse._SubParsersAction))
+    assert list(sub.choices) == ["plan"]
+    code = (
+        "import sys; from app.cli import main\n"
+        "try:\n    main(['plan', '--help'])\nexcept SystemExit:\n    pass\n"
+        "print(sorted(m for m in sys.modules if m.startswith('app.')))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout
+    loaded = out.strip().splitlines()[-1]
+    assert "'app.commands.plan'" in loaded
+    assert "'app.commands.view'" not in loaded and "'app.commands.decompose'" not in loaded

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 import json
 import math
 from pathlib import Path
@@ -15,6 +17,7 @@ from pregrasp_core.io import PointCloud
 from pregrasp_core.result import (
     CORE_SECTIONS,
     SCHEMA,
+    dumps_result,
     read_result,
     result_document,
     to_jsonable,
@@ -164,6 +167,45 @@ def test_to_jsonable():
     assert to_jsonable(np.arange(6).reshape(2, 3)) == [[0, 1, 2], [3, 4, 5]]
     with pytest.raises(TypeError, match="cannot write a object"):
         to_jsonable(object())
+
+
+class _Word(str, enum.Enum):
+    A = "a"
+
+
+class _Count(enum.IntEnum):
+    B = 3
+
+
+@dataclasses.dataclass
+class _Pair:
+    x: float
+    y: np.ndarray
+
+
+def test_dumps_result_is_the_standard_encoders_text(parts):
+    """The one-pass writer gives the text of ``json.dumps(to_jsonable(...), indent=1)`` (the
+    standard library's encoder is the reference), for a real document and every value kind."""
+    mixed = {
+        "floats": [1.0, math.nan, 2.5e-17, -0.0, 1e300],
+        "empty": np.zeros((2, 0)),
+        "ints": np.array([[1, 2], [3, 4]], dtype=np.int32),
+        "bools": np.array([True, False]),
+        "str_enum": _Word.A,
+        "int_enum": _Count.B,
+        7: [(), {}, [], None, True, np.float32(0.1), np.int64(4), np.bool_(False)],
+        "dataclass": _Pair(math.inf, np.arange(3.0)),
+        "path": Path("a/b.json"),
+        "nan_matrix": np.array([[np.nan, 1.0], [2.0, -np.inf]]),
+        "list": [1, 2.0, "x", [1.5, [2.5]], ShapeClass.TWO_D],
+        "tuple": (1.5, 2.5),
+        "text": 'caf\u00e9 \u2028 "q" \\ \n',
+        "nested": {"a": {"b": {}}, "c": [[[]]]},
+    }
+    for doc in (_doc(parts, include_indices=True), mixed, [], {}, 1.0, "x", None):
+        assert dumps_result(doc) == json.dumps(to_jsonable(doc), indent=1, allow_nan=False)
+    with pytest.raises(TypeError, match="cannot write a object"):
+        dumps_result({"k": [object()]})
 
 
 def test_write_and_read_errors(tmp_path):
