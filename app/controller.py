@@ -28,6 +28,7 @@ from pregrasp_core.paths import demo_objects
 
 from .scene import SceneRenderer
 from .scene_data import ranked_grasps
+from .simulate_view import LiftRunner, lift_restart, lift_tick
 from .state import ALL, AppState, ObjectSource, ViewState, n_splits
 
 logger = logging.getLogger(__name__)
@@ -128,6 +129,8 @@ class Controller:
         self._generation = 0  # bumped by every long request: older ones stop at their next stage
         self._pending: dict[str, Any] = {}  # params/n_points/seed asked for, not yet computed
         self._running = 0  # long actions in progress (a plan runs outside the lock)
+        self.lift = LiftRunner(self)
+        """Runs the "simulate lift" button's MuJoCo lift on a worker thread (app.simulate_view)."""
 
     # ------------------------------------------------------------------ state
     @property
@@ -138,7 +141,7 @@ class Controller:
     def idle(self) -> bool:
         """True when no computation runs and none is pending (tests and benchmarks wait on it)."""
         with self._req_lock:  # not the lock: the animation's ticks hold it many times a second
-            return not self._pending and self._running == 0
+            return not self._pending and self._running == 0 and not self.lift.running
 
     def subscribe(self, fn: Callable[[AppState], None]) -> None:
         """Call ``fn(state)`` after every state change (the GUI mirrors the state this way)."""
@@ -162,6 +165,14 @@ class Controller:
         for fn in self._listeners:
             fn(state)
         return state
+
+    def update(self, change: Callable[[AppState], AppState]) -> AppState:
+        """Commit ``change(state)`` under the lock (nothing when it returns the state itself):
+        for helpers that compute outside the lock (``app.simulate_view``)."""
+        with self._lock:
+            s = self._state
+            new = change(s)
+            return s if new is s else self._commit(new)
 
     def act(self, client: Any, fn: Callable[..., Any], *args: Any) -> Any:
         """Run ``fn(*args)``; on failure notify ``client`` (or every browser) and keep serving.
@@ -524,15 +535,21 @@ class Controller:
                 if not 0 <= int(rank) < n:
                     raise ValueError(f"grasp rank must be in [0, {n - 1}], got {rank}")
                 rank = int(rank)
-            return self._set_view(selected_grasp=rank, anim_t=0.0, playing=rank is not None)
+            return self._set_view(
+                selected_grasp=rank, anim_t=0.0, playing=rank is not None, show_lift=False
+            )
 
     def set_anim_t(self, t: Any) -> AppState:
         """Set the animation phase (0 pre-grasp, 0.5 approached, 1 closed); pauses it."""
-        return self._set_view(anim_t=float(np.clip(_number(t, "phase"), 0.0, 1.0)), playing=False)
+        t = float(np.clip(_number(t, "phase"), 0.0, 1.0))
+        return self._set_view(anim_t=t, playing=False, show_lift=False)
 
     def play(self) -> AppState:
         """Start the animation (from the pre-grasp if it was at the end)."""
         with self._lock:
+            lift = lift_restart(self._state)  # a shown simulated lift plays instead
+            if lift is not None:
+                return self._set_view(**lift)
             t = self._state.view.anim_t
             return self._set_view(playing=True, anim_t=0.0 if t >= 1.0 else t)
 
@@ -553,8 +570,16 @@ class Controller:
             v = self._state.view
             if not v.playing or v.selected_grasp is None:
                 return self._state
+            lift = lift_tick(self._state, dt)  # a shown simulated lift: real time x speed
+            if lift is not None:
+                return self._set_view(**lift)
             t = v.anim_t + dt * v.speed / 2.0
             return self._set_view(anim_t=min(t, 1.0), playing=t < 1.0)
+
+    def simulate(self, client: Any = None) -> AppState:
+        """Simulate the chosen grasp's lift in MuJoCo on a worker thread (outside the lock) and
+        play it; the outcome goes to the panel and the grasp table (``app.simulate_view``)."""
+        return self.lift.start(client)
 
     # ------------------------------------------------------------------ export
     def result_json(self) -> bytes:

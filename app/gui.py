@@ -25,6 +25,7 @@ from .controller import N_POINTS_RANGE, SEED_RANGE, SPEED_RANGE, Controller
 from .safe_text import md_text
 from .scene import SceneRenderer
 from .scene_data import contact_arrays, ghost_selection, mask_matrix, ranked_grasps
+from .simulate_view import current_lift, lift_markdown, lift_outcomes, outcome_cell
 from .state import ALL, AppState, n_splits
 from .viser_hooks import push_value
 
@@ -181,6 +182,9 @@ class Gui:
             self.speed.on_update(lambda e: self._do(e, c.set_speed, e.target.value))
             self.phase = gui.add_slider("phase", min=0.0, max=1.0, step=0.01, initial_value=1.0)
             self.phase.on_update(lambda e: self._do(e, c.set_anim_t, e.target.value))
+            self.simulate = gui.add_button("simulate lift", disabled=True)
+            self.simulate.on_click(lambda e: self._do(e, c.simulate, e.client))
+            self.lift_info = gui.add_markdown("")
             self.table = gui.add_markdown("")
 
         with gui.add_folder("Legend", expand_by_default=False):
@@ -407,6 +411,13 @@ class Gui:
         self._set("node_info", self.node_info, "content", node_info(s))
         self._sync_pool(s)
         self._set("table", self.table, "content", grasp_table(s))
+        lift = current_lift(s)
+        running = lift is not None and lift.running is not None
+        no_grasp = not s.planned or s.view.selected_grasp is None
+        self._set("simulate.disabled", self.simulate, "disabled", busy or running or no_grasp)
+        label = "simulating..." if running else "simulate lift"
+        self._set("simulate.label", self.simulate, "label", label)
+        self._set("lift_info", self.lift_info, "content", lift_markdown(s))
 
     def _sync_pool(self, s: AppState) -> None:
         pool = getattr(s.result, "pool", None)
@@ -507,17 +518,20 @@ def grasp_table(s: AppState) -> str:
     if not ranked:
         return "No grasp survived planning: loosen the thresholds or the pool interval."
     pool = getattr(s.result, "pool", None)
+    lifts = lift_outcomes(s)  # a "lift" column once a grasp of this plan was simulated
     header = [
-        "| # | type | node | contacts | epsilon | volume | force closure |",
-        "|---|---|---|---|---|---|---|",
+        "| # | type | node | contacts | epsilon | volume | force closure |"
+        + (" lift |" if lifts else ""),
+        "|---|---|---|---|---|---|---|" + ("---|" if lifts else ""),
     ]
 
     def row(k: int, g: Any) -> str:
         node = "" if pool is None else int(np.asarray(pool.node)[int(g.pregrasp)])
         fc = "yes" if is_force_closure(g) else "**NO**"
+        lift = f" {md_text(outcome_cell(lifts.get(int(g.pregrasp))))} |" if lifts else ""
         return (
             f"| {k + 1} | {md_text(_type_of(g))} | {node} | {len(contact_arrays(g)[0])} | "
-            f"{float(g.epsilon):.4f} | {float(getattr(g, 'volume', 0.0)):.2e} | {fc} |"
+            f"{float(g.epsilon):.4f} | {float(getattr(g, 'volume', 0.0)):.2e} | {fc} |{lift}"
         )
 
     fc_rows = [(k, g) for k, g in enumerate(ranked) if is_force_closure(g)]

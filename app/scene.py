@@ -37,6 +37,7 @@ from .scene_data import (
     selected_grasp,
     wxyz_from_matrices,
 )
+from .simulate_view import lift_frame
 from .state import AppState
 
 logger = logging.getLogger(__name__)
@@ -56,6 +57,11 @@ NAMES = {
 }
 """Fixed scene names of everything the renderer draws."""
 
+LIFT_HIDDEN = (
+    "box_edges", "selected_edges", "faces_free", "faces_blocked", "subfaces", "contacts", "cones"
+)  # fmt: skip
+"""Layers hidden (with the boxes and ghosts) while a simulated lift is shown: they are drawn
+where the object rested, not where the simulation moves it."""
 FREE_RGB = (60, 200, 90)
 """Colour of free faces (green)."""
 BLOCKED_RGB = (220, 60, 60)
@@ -97,6 +103,7 @@ class SceneRenderer:
         self._handles: dict[str, Any] = {}  # fixed name -> handle
         self._ghost_meshes: dict[tuple, Any] = {}  # (preshape q, detailed) -> hand mesh
         self._urdf: Any = None
+        self._lift_key: tuple | None = None  # (playback, frame) drawn last; None: no lift
         self.n_ghosts_shown = 0
         """Number of ghost instances currently in the scene."""
         self.n_contacts_shown = 0
@@ -140,6 +147,8 @@ class SceneRenderer:
                 self._draw_all(state)
             else:
                 self._draw_changes(last, state)
+            if state.result is not None:
+                self._draw_lift(state)
         self._last = state
 
     def _draw_all(self, state: AppState) -> None:
@@ -406,6 +415,29 @@ class SceneRenderer:
             self._urdf = ViserUrdf(self.server, urdf_path, root_node_name=NAMES["hand"])
         return self._urdf
 
+    def _draw_lift(self, state: AppState) -> None:
+        """A shown simulated lift (``app.simulate_view``): the cloud posed by the object's
+        simulated motion, the hand at the frame's pose, the object's overlays (boxes, faces,
+        contacts, ghosts: drawn where the object rested) hidden; otherwise all as planned."""
+        frame = lift_frame(state)
+        shown = frame is None
+        overlays = [self._handles.get(k) for k in LIFT_HIDDEN] + list(self._boxes.values())
+        overlays += self.ghost_handles()
+        for h in overlays:
+            if h is not None:
+                h.visible = shown
+        key = None if frame is None else (id(frame.playback), frame.index)
+        if key == self._lift_key:
+            return
+        was_lift, self._lift_key = self._lift_key is not None, key
+        cloud = self._handles.get("cloud")
+        if cloud is not None:
+            T = np.eye(4) if frame is None else frame.T_world_object
+            cloud.wxyz = wxyz_from_matrices(T[None, :3, :3])[0]
+            cloud.position = T[:3, 3]
+        if frame is not None or was_lift:
+            self._pose_hand(state)
+
     def _hide_hand(self) -> None:
         frame = self._handles.get("hand_frame")
         if frame is not None:
@@ -416,8 +448,11 @@ class SceneRenderer:
         if g is None or self.hand is None:
             self._hide_hand()
             return
-        pre = pregrasp_of(state, g)
-        T, q = animation_pose(g, pre, state.view.anim_t)
+        frame = lift_frame(state)
+        if frame is not None:
+            T, q = frame.T_world_hand, frame.q
+        else:
+            T, q = animation_pose(g, pregrasp_of(state, g), state.view.anim_t)
         urdf = self._ensure_urdf()
         frame = self._handles["hand_frame"]
         frame.wxyz = wxyz_from_matrices(T[None, :3, :3])[0]

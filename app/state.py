@@ -56,7 +56,13 @@ class ViewState:
     playing: bool = False
     """Whether the animation clock advances by itself."""
     speed: float = 1.0
-    """Animation speed: full cycles (pre-grasp to closed) per 2 seconds."""
+    """Animation speed: full cycles (pre-grasp to closed) per 2 seconds; a simulated lift
+    plays at this many times real time."""
+    show_lift: bool = False
+    """Whether the scene shows the chosen grasp's simulated lift (``AppState.lift``) instead of
+    its planned closing; the phase slider and choosing a grasp turn it off."""
+    lift_t: float = 0.0
+    """Playback clock of the shown lift: seconds of simulated time."""
 
 
 @dataclass(frozen=True)
@@ -84,6 +90,9 @@ class AppState:
     """Progress of ``busy`` in [0, 1]."""
     message: str = ""
     """The last status line (what was loaded or computed, and how long it took)."""
+    lift: Any = None
+    """``app.simulate_view.LiftView``: the lift tests run on the current grasps (outcomes and
+    the last recorded lift), or ``None``; stale (ignored) once the grasps change."""
     error: str = ""
     """The last error message shown to the user ("" after a successful action)."""
     version: int = 0
