@@ -24,10 +24,18 @@ import numpy as np
 from pregrasp_core import io as pio
 from pregrasp_core import pipeline as ppl
 from pregrasp_core.errors import InputError, PregraspError
+from pregrasp_core.limits import MAX_SCALE, MIN_SCALE, check_real
 from pregrasp_core.paths import demo_objects
 
 from .scene import SceneRenderer
-from .scene_data import ranked_grasps
+from .scene_data import (
+    kept_cluster,
+    parse_scale,
+    pickable,
+    ranked_grasps,
+    ray_pick,
+    unit_fix,
+)
 from .simulate_view import LiftRunner, lift_restart, lift_tick
 from .state import ALL, AppState, ObjectSource, ViewState, n_splits
 
@@ -213,13 +221,16 @@ class Controller:
                 logger.debug("could not notify client", exc_info=True)
 
     # ------------------------------------------------------------------ loading
-    def load_path(self, path: str | Path, scale: float | None = None) -> AppState:
-        """Load a point cloud or mesh file (coordinates times ``scale`` if given) and run the
+    def load_path(
+        self, path: str | Path, scale: float | None = None, sensor: Any = None
+    ) -> AppState:
+        """Load a point cloud, mesh or depth image (coordinates times ``scale`` if given; the
+        depth-camera options ``sensor``, a ``pregrasp_core.io.SensorOptions``) and run the
         pipeline up to the pool."""
         p = Path(path)
         demo = p.resolve() in {d.resolve() for d in demo_objects()}
         name = p.stem if demo else p.name
-        return self._load(ObjectSource(name=name, path=str(p), scale=scale))
+        return self._load(ObjectSource(name=name, path=str(p), scale=scale, sensor=sensor))
 
     def load_demo(self, name: str) -> AppState:
         """Load the demo object ``name`` (file stem or file name in ``assets/objects/``).
@@ -258,6 +269,73 @@ class Controller:
         seed = _number(seed, "seed", integer=True)
         _in_range(seed, *SEED_RANGE, "seed")
         return self._request(seed=int(seed))
+
+    def set_scale(self, value: Any) -> AppState:
+        """Read the current object again with its coordinates times ``value``: a factor in
+        [``MIN_SCALE``, ``MAX_SCALE``] (``pregrasp_core.limits``), a unit (``m``, ``cm``,
+        ``mm``) or ``auto`` (the loader's millimetre rule), as ``--scale`` does."""
+        scale = parse_scale(value)
+        if scale is not None:
+            scale = check_real("scale", scale, MIN_SCALE, MAX_SCALE, what="a positive factor")
+        src = self._state.source
+        if src is None:
+            raise InputError("load an object before setting its scale")
+        if scale == src.scale:
+            return self._state
+        return self._load(dataclasses.replace(src, scale=scale))
+
+    def fix_units(self) -> AppState:
+        """Apply the fix of the loader's unit hint (:func:`~app.scene_data.unit_fix`): metres
+        for a cloud it read as millimetres, millimetres for one it only warned about."""
+        fix = unit_fix(self._state.cloud, getattr(self._state.source, "scale", None))
+        if fix is None:
+            raise InputError("no unit hint to act on: set the scale field instead")
+        return self.set_scale(fix[0])
+
+    def pick_ray(self, origin: Any, direction: Any) -> AppState:
+        """A click in the scene (a ray from the camera): keep the object cluster under it as the
+        object (:meth:`pick_at` at the scene point the ray hits, :func:`~app.scene_data.ray_pick`
+        over the clusters above the table)."""
+        sensor = getattr(self._state.cloud, "sensor", None)
+        if sensor is None:
+            raise InputError(
+                "picking needs a depth-camera scene (a depth image, a PCD with a VIEWPOINT, or "
+                "pregrasp view FILE --scene --viewpoint X Y Z)"
+            )
+        seg = sensor.segmentation
+        i = ray_pick(seg.points, origin, direction, candidates=pickable(sensor))
+        if i is None:
+            raise InputError("no object of the scene under the click: click one of its points")
+        return self.pick_at(seg.points[i])
+
+    def pick_at(self, point: Any) -> AppState:
+        """Keep the scene's cluster nearest ``point`` (metres) as the object, as ``--pick X Y Z``
+        does, and plan its grasps; the status line and a notification say which cluster."""
+        p = np.asarray(point, dtype=np.float64).reshape(-1)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ValueError(f"pick must be 3 finite numbers, got {point!r}")
+        src = self._state.source
+        if src is None or getattr(self._state.cloud, "sensor", None) is None:
+            raise InputError("picking needs a depth-camera scene loaded")
+        base = src.sensor if src.sensor is not None else pio.SensorOptions()
+        sensor = dataclasses.replace(base, pick=(float(p[0]), float(p[1]), float(p[2])))
+        self._load(dataclasses.replace(src, sensor=sensor))
+        sv = getattr(self._state.cloud, "sensor", None)
+        if self._state.source is None or self._state.source.sensor != sensor or sv is None:
+            return self._state  # superseded by a newer request
+        kept = kept_cluster(sv)
+        where = ", ".join(f"{v:.3f}" for v in p)
+        notice = f"kept the cluster nearest ({where}) m" + (
+            ""
+            if kept is None
+            else f": cluster {kept[0] + 1} of {kept[2]} by size, {kept[1]} points seen"
+        )
+        self.notify(None, "Object picked", notice)
+        self.plan()
+        with self._lock:
+            return self._commit(
+                dataclasses.replace(self._state, message=f"{notice}; {self._state.message}")
+            )
 
     # ------------------------------------------------------------------ long actions
     def pending(self, key: str) -> Any:
@@ -321,11 +399,15 @@ class Controller:
                 source.name,
                 n_points=n_points,
                 seed=seed,
+                scale=source.scale,
                 max_bytes=self.max_upload_bytes,
+                sensor=source.sensor,
             )
         if source.path is None:
             raise InputError(f"{source.name}: nothing to load (no file and no data)")
-        return pio.load_point_cloud(source.path, n_points=n_points, seed=seed, scale=source.scale)
+        return pio.load_point_cloud(
+            source.path, n_points=n_points, seed=seed, scale=source.scale, sensor=source.sensor
+        )
 
     def _load(self, source: ObjectSource, gen: int | None = None) -> AppState:
         if gen is None:

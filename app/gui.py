@@ -18,13 +18,23 @@ from typing import Any
 
 import numpy as np
 
+from pregrasp_core.limits import MAX_SCALE, MIN_SCALE
 from pregrasp_core.paths import demo_objects
 from pregrasp_core.shape import GRASP_TYPES
 
 from .controller import N_POINTS_RANGE, SEED_RANGE, SPEED_RANGE, Controller
 from .safe_text import md_text
 from .scene import SceneRenderer
-from .scene_data import contact_arrays, ghost_selection, mask_matrix, ranked_grasps
+from .scene_data import (
+    UNITS,
+    assumed_contacts,
+    contact_arrays,
+    ghost_selection,
+    mask_matrix,
+    ranked_grasps,
+    unit_fix,
+    unit_label,
+)
 from .simulate_view import current_lift, lift_markdown, lift_outcomes, outcome_cell
 from .state import ALL, AppState, n_splits
 from .viser_hooks import push_value
@@ -139,7 +149,17 @@ class Gui:
                 "seed", c.state.seed, min=SEED_RANGE[0], max=SEED_RANGE[1], step=1
             )
             self.seed.on_update(lambda e: self._debounced(e, "seed", c.set_seed, e.target.value))
+            self.units = gui.add_dropdown("units", (*UNITS, "custom"), initial_value="auto")
+            self.units.on_update(lambda e: self._do(e, self._units, e.target.value))
+            self.scale = gui.add_number(
+                "scale (x coords)", 1.0, min=MIN_SCALE, max=MAX_SCALE, step=0.001
+            )
+            self.scale.on_update(lambda e: self._debounced(e, "scale", c.set_scale, e.target.value))
+            self.units_fix = gui.add_button("read as metres", visible=False)
+            self.units_fix.on_click(lambda e: self._do(e, c.fix_units))
+            self.pick_mode = gui.add_checkbox("click picks the object", False, disabled=True)
             self.status = gui.add_markdown("")
+        server.scene.on_click()(self._scene_click)
 
         self.params: dict[tuple[str, str], Any] = {}
         """GUI handle of each pipeline parameter, keyed by (section, field)."""
@@ -213,6 +233,16 @@ class Gui:
     def _upload(self, handle: Any) -> Any:
         value = handle.value
         return self.controller.load_upload(str(value.name), bytes(value.content))
+
+    def _units(self, value: Any) -> Any:
+        if value == "custom":  # keep the factor in use, as typed in the scale field
+            return self.controller.set_scale(self.scale.value)
+        return self.controller.set_scale(value)
+
+    def _scene_click(self, event: Any) -> None:
+        """A click in the 3D scene: with "click picks the object" on, keep the cluster under it."""
+        if self.pick_mode.value and not getattr(self._local, "syncing", False):
+            self._do(event, self.controller.pick_ray, event.ray_origin, event.ray_direction)
 
     def _ghost_type(self, value: Any) -> Any:
         if value not in (ALL, *GRASP_TYPES):
@@ -318,6 +348,12 @@ class Gui:
             ("n_points", self.n_points, s.n_points),
             ("seed", self.seed, s.seed),
         ]
+        if s.source is not None and s.cloud is not None:
+            applied = float((s.cloud.info or {}).get("scale", 1.0) or 1.0)
+            out += [
+                ("units", self.units, unit_label(s.source.scale)),
+                ("scale", self.scale, applied if s.source.scale is None else s.source.scale),
+            ]
         for (sec, name), h in self.params.items():
             v = getattr(getattr(s.params, sec), name)
             out.append((f"param.{sec}.{name}", h, v.value if isinstance(v, enum.Enum) else v))
@@ -375,6 +411,12 @@ class Gui:
         busy = bool(s.busy)
         for key, h in (("plan", self.plan), ("export", self.export), ("upload", self.upload)):
             self._set(f"{key}.disabled", h, "disabled", busy or s.result is None)
+        fix = unit_fix(s.cloud, getattr(s.source, "scale", None))
+        self._set("units_fix.visible", self.units_fix, "visible", fix is not None)
+        if fix is not None:
+            self._set("units_fix.label", self.units_fix, "label", fix[1])
+        scene = getattr(s.cloud, "sensor", None) is not None
+        self._set("pick_mode.disabled", self.pick_mode, "disabled", not scene)
         self._set("progress.visible", self.progress, "visible", busy)
         self._set("progress.value", self.progress, "value", round(100.0 * s.progress, 1))
         self._set("plan.label", self.plan, "label", "planning..." if busy else "plan grasps")
@@ -398,11 +440,8 @@ class Gui:
         self._sync_grasp_options(s)
         with self._timers_lock:  # a control whose edit waits for its debounce keeps the edit
             waiting = {id(self.params[k]) for k in self._timers if k in self.params}
-            waiting |= {
-                id(h)
-                for k, h in (("n_points", self.n_points), ("seed", self.seed))
-                if k in self._timers
-            }
+            numbers = (("n_points", self.n_points), ("seed", self.seed), ("scale", self.scale))
+            waiting |= {id(h) for k, h in numbers if k in self._timers}
         with self._values_lock:
             for key, h, v in self._input_values(s):
                 if id(h) not in waiting:
@@ -529,8 +568,10 @@ def grasp_table(s: AppState) -> str:
         node = "" if pool is None else int(np.asarray(pool.node)[int(g.pregrasp)])
         fc = "yes" if is_force_closure(g) else "**NO**"
         lift = f" {md_text(outcome_cell(lifts.get(int(g.pregrasp))))} |" if lifts else ""
+        n_assumed = int(np.count_nonzero(assumed_contacts(g, s.cloud)))
+        contacts = f"{len(contact_arrays(g)[0])}" + (f" ({n_assumed} assumed)" if n_assumed else "")
         return (
-            f"| {k + 1} | {md_text(_type_of(g))} | {node} | {len(contact_arrays(g)[0])} | "
+            f"| {k + 1} | {md_text(_type_of(g))} | {node} | {contacts} | "
             f"{float(g.epsilon):.4f} | {float(getattr(g, 'volume', 0.0)):.2e} | {fc} |{lift}"
         )
 
@@ -559,6 +600,10 @@ LEGEND = (
     ("ghost shade", "brighter or darker by the box face the pre-grasp was sampled from"),
     ("yellow dots", "contacts of the chosen grasp"),
     ("yellow cones", "their friction cones, as scored (half-angle atan mu)"),
+    ("pink points", "the unseen back of a single depth view, assumed by symmetry (completion)"),
+    ("orange dots and cones", "contacts on assumed (pink) points: the grasp rests on a guess"),
+    ("grey points", "the table of a depth-camera scene (removed from the object)"),
+    ("brown points", "other objects of the scene: tick 'click picks the object', click one"),
 )
 """(what, meaning) of each row of the legend panel."""
 

@@ -20,8 +20,10 @@ import viser
 
 from .scene_data import (
     animation_pose,
+    assumed_contacts,
     attr_or_none,
     box_edge_segments,
+    cloud_point_colors,
     cone_edge_count,
     contact_arrays,
     contact_tangents,
@@ -34,6 +36,7 @@ from .scene_data import (
     node_colors,
     pool_types,
     pregrasp_of,
+    scene_backdrop,
     selected_grasp,
     wxyz_from_matrices,
 )
@@ -44,6 +47,7 @@ logger = logging.getLogger(__name__)
 
 NAMES = {
     "cloud": "/object/cloud",
+    "scene": "/object/scene",
     "boxes": "/boxes",
     "box_edges": "/box_edges",
     "faces_free": "/facemasks/free",
@@ -70,6 +74,11 @@ SUBFACE_RGB = (255, 255, 255)
 """Colour of the outlines of usable sub-faces (white)."""
 CONTACT_RGB = (255, 210, 0)
 """Colour of contact points and friction cones (yellow)."""
+ASSUMED_CONTACT_RGB = (255, 90, 0)
+"""Colour of the contacts (and their cones) on points assumed by a single view's completion
+(orange): the grasp rests there on guessed geometry."""
+SCENE_POINTS = 30000
+"""Most points of a depth-camera scene (table, other objects) drawn behind the object."""
 DETAILED_GHOSTS = 8
 """Up to this many ghosts use the hand's visual mesh; beyond, its collision boxes (light)."""
 GHOST_OPACITY = 0.25
@@ -108,6 +117,10 @@ class SceneRenderer:
         """Number of ghost instances currently in the scene."""
         self.n_contacts_shown = 0
         """Number of contact points currently in the scene."""
+        self.n_assumed_contacts_shown = 0
+        """Of those, the contacts on assumed points (drawn in :data:`ASSUMED_CONTACT_RGB`)."""
+        self.n_scene_points_shown = 0
+        """Points of the depth-camera scene (table, other objects) drawn behind the object."""
         self.n_faces_shown = (0, 0)
         """(free, blocked) face quads currently in the scene."""
         server.scene.set_up_direction("+z")
@@ -213,7 +226,25 @@ class SceneRenderer:
             precision="float32",
             point_shape="rounded",
         )
+        self._draw_scene(state, max(diag * 0.004, 1e-4))
         self._frame_object(np.asarray(state.cloud.points, dtype=np.float64))
+
+    def _draw_scene(self, state: AppState, point_size: float) -> None:
+        """The depth-camera scene around the object (table grey, other objects brown), or
+        nothing for a cloud that is not a scene's object."""
+        pts, cols = scene_backdrop(getattr(state.cloud, "sensor", None), SCENE_POINTS)
+        self.n_scene_points_shown = len(pts)
+        if not len(pts):
+            self._remove("scene")
+            return
+        self._handles["scene"] = self.server.scene.add_point_cloud(
+            NAMES["scene"],
+            points=pts.astype(np.float32),
+            colors=cols,
+            point_size=point_size,
+            precision="float32",
+            point_shape="rounded",
+        )
 
     def _frame_object(self, pts: np.ndarray) -> None:
         """Aim every camera at a new object and put a table grid under it."""
@@ -238,10 +269,11 @@ class SceneRenderer:
         self._handles["cloud"].colors = self._cloud_colors(state)
 
     def _cloud_colors(self, state: AppState) -> np.ndarray:
-        """(N, 3) uint8: each point in the colour of the shown box holding it."""
+        """(N, 3) uint8: each point in the colour of the shown box holding it; the points
+        assumed by a single view's completion in their own colour."""
         labels = state.tree.point_labels(state.shown_nodes())  # (N,) node id per point
         ids, inverse = np.unique(labels, return_inverse=True)
-        return node_colors(ids)[inverse]
+        return cloud_point_colors(node_colors(ids)[inverse], getattr(state.cloud, "assumed", None))
 
     def _draw_boxes(self, state: AppState) -> None:
         tree = state.tree
@@ -378,16 +410,20 @@ class SceneRenderer:
         for key in ("contacts", "cones"):
             self._remove(key)
         self.n_contacts_shown = 0
+        self.n_assumed_contacts_shown = 0
         g = selected_grasp(state)
         if g is None:
             self._hide_hand()
             return
         pts, nrm = contact_arrays(g)
         if len(pts):
+            on_assumed = assumed_contacts(g, state.cloud)
+            cols = np.where(on_assumed[:, None], ASSUMED_CONTACT_RGB, CONTACT_RGB).astype(np.uint8)
+            m = cone_edge_count(state.params)
             self._handles["contacts"] = self.server.scene.add_point_cloud(
                 NAMES["contacts"],
                 points=pts.astype(np.float32),
-                colors=CONTACT_RGB,
+                colors=cols,
                 point_size=0.006,
                 point_shape="circle",
                 precision="float32",
@@ -395,14 +431,15 @@ class SceneRenderer:
             mu = friction_coefficient(state.params)
             self._handles["cones"] = self.server.scene.add_line_segments(
                 NAMES["cones"],
-                points=friction_cone_segments(
-                    pts, nrm, mu, cone_edge_count(state.params), tangents=contact_tangents(g)
-                ).astype(np.float32),
-                colors=CONTACT_RGB,
+                points=friction_cone_segments(pts, nrm, mu, m, tangents=contact_tangents(g)).astype(
+                    np.float32
+                ),
+                colors=np.repeat(np.repeat(cols, m + 1, axis=0)[:, None], 2, axis=1),
                 thickness=1.5,
                 thickness_units="screen",
             )
             self.n_contacts_shown = len(pts)
+            self.n_assumed_contacts_shown = int(np.count_nonzero(on_assumed))
 
     def _ensure_urdf(self) -> Any:
         if self._urdf is None and self.hand is not None:

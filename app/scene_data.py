@@ -328,3 +328,165 @@ def subface_segments(state: AppState, shown: list[int], shrink: float = 0.85) ->
         return np.zeros((0, 2, 3))
     r = np.concatenate(rects)  # (S, 4, 3)
     return np.stack([r, np.roll(r, -1, axis=1)], axis=2).reshape(-1, 2, 3)
+
+
+# ---------------------------------------------------------------------- depth-camera scenes
+ASSUMED_RGB = (240, 120, 200)
+"""Colour of the points assumed by the completion of a single view (pink): the unseen back."""
+TABLE_RGB = (120, 120, 120)
+"""Colour of the scene's table points (grey), drawn behind the object."""
+OTHER_RGB = (175, 140, 100)
+"""Colour of the scene's points that are neither the table nor the kept object (brown)."""
+MIN_PICK_CLUSTER = 10
+"""Clusters of fewer points (the table's noise tail, specks) are not offered to a click."""
+PICK_ANGLE = 0.02
+"""Radians (about 1.1 degrees): a click picks a point seen at most this far from its ray."""
+
+PICK_DEPTH = 0.02
+"""Metres: the points a click ray meets within this depth of the nearest one are its front
+surface (an object behind it is never picked through it)."""
+
+UNITS: dict[str, float | None] = {"auto": None, "m": 1.0, "cm": 0.01, "mm": 0.001}
+"""The scale field's units: the factor to metres (``auto`` = the loader's millimetre rule)."""
+
+
+def cloud_point_colors(part_colors: np.ndarray, assumed: np.ndarray | None) -> np.ndarray:
+    """(N, 3) uint8: the points in their part's colour, the assumed ones in :data:`ASSUMED_RGB`."""
+    out = np.array(part_colors, dtype=np.uint8, copy=True)
+    if assumed is not None:
+        out[np.asarray(assumed, dtype=bool)] = ASSUMED_RGB
+    return out
+
+
+def assumed_contacts(grasp: Any, cloud: Any) -> np.ndarray:
+    """(C,) bool: which contacts of ``grasp`` touch a point assumed by the completion
+    (``Contact.point_index`` into the cloud's ``assumed`` mask); all False for a complete cloud."""
+    cs = list(getattr(grasp, "contacts", ()) or ())
+    mask = getattr(cloud, "assumed", None)
+    if mask is None or not cs:
+        return np.zeros(len(cs), dtype=bool)
+    mask = np.asarray(mask, dtype=bool)
+    idx = np.array([int(c.point_index) for c in cs], dtype=np.int64)
+    ok = (idx >= 0) & (idx < len(mask))
+    return np.where(ok, mask[np.clip(idx, 0, len(mask) - 1)], False)
+
+
+def scene_backdrop(sensor: Any, max_points: int = 30000) -> tuple[np.ndarray, np.ndarray]:
+    """The scene around a depth-camera object: ``(points (K, 3), colours (K, 3) uint8)`` of the
+    scene's points that are not the kept object (the table grey, the rest brown), an even
+    subsample of at most ``max_points``; empty arrays when there is no scene."""
+    seg = attr_or_none(sensor, "segmentation")
+    if seg is None:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.uint8)
+    idx = np.flatnonzero(~np.asarray(seg.object_mask, dtype=bool))
+    if len(idx) > max_points:
+        idx = idx[np.linspace(0, len(idx) - 1, max_points).astype(np.int64)]
+    cols = np.empty((len(idx), 3), dtype=np.uint8)
+    table = np.asarray(seg.table_mask, dtype=bool)[idx]
+    cols[table], cols[~table] = TABLE_RGB, OTHER_RGB
+    return np.asarray(seg.points, dtype=np.float64)[idx], cols
+
+
+def ray_pick(
+    points: np.ndarray,
+    origin: Any,
+    direction: Any,
+    candidates: np.ndarray | None = None,
+    max_angle: float = PICK_ANGLE,
+    depth: float = PICK_DEPTH,
+) -> int | None:
+    """The index of the point a click ray hits, or ``None`` when no point is near the ray.
+
+    Among the ``candidates`` (bool mask; default all) seen within ``max_angle`` radians of the
+    ray from ``origin`` along ``direction``, the front surface is the nearest one's depth plus
+    ``depth`` metres; of the points on it, the one seen closest to the ray (the point under the
+    cursor, not one of an object behind it).
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    o = np.asarray(origin, dtype=np.float64).reshape(3)
+    d = np.asarray(direction, dtype=np.float64).reshape(3)
+    norm = float(np.linalg.norm(d))
+    if not (np.all(np.isfinite(o)) and np.isfinite(norm) and norm > 0.0) or len(p) == 0:
+        return None
+    d = d / norm
+    rel = p - o
+    t = rel @ d  # (N,) depth along the ray
+    perp = np.linalg.norm(rel - t[:, None] * d, axis=1)
+    ok = (t > 0.0) & (perp <= np.tan(max_angle) * np.maximum(t, 0.0))
+    if candidates is not None:
+        ok &= np.asarray(candidates, dtype=bool)
+    if not np.any(ok):
+        return None
+    hits = np.flatnonzero(ok)
+    front = hits[t[hits] <= t[hits].min() + depth]
+    return int(front[np.argmin(perp[front] / t[front])])
+
+
+def pickable(sensor: Any) -> np.ndarray | None:
+    """(N,) bool over the scene's points that a click may pick: those of clusters above the
+    table of at least :data:`MIN_PICK_CLUSTER` points; ``None`` when there is no scene."""
+    seg = attr_or_none(sensor, "segmentation")
+    if seg is None:
+        return None
+    labels = np.asarray(seg.cluster_labels, dtype=np.int64)
+    counts = np.bincount(labels[labels >= 0], minlength=1)
+    big = np.zeros(len(labels), dtype=bool)
+    big[labels >= 0] = counts[labels[labels >= 0]] >= MIN_PICK_CLUSTER
+    return big
+
+
+def kept_cluster(sensor: Any) -> tuple[int, int, int] | None:
+    """``(label, its points, clusters found)`` of the cluster the scene's object was built on
+    (clusters are numbered 0, 1, ... by decreasing size), or ``None`` without a scene."""
+    seg = attr_or_none(sensor, "segmentation")
+    if seg is None:
+        return None
+    labels = np.asarray(seg.cluster_labels, dtype=np.int64)
+    mine = labels[np.asarray(seg.object_mask, dtype=bool) & (labels >= 0)]
+    if len(mine) == 0:
+        return None
+    k = int(np.bincount(mine).argmax())
+    return k, int(np.count_nonzero(labels == k)), int(labels.max()) + 1
+
+
+def parse_scale(value: Any) -> float | None:
+    """The scale field's value as a factor: a unit of :data:`UNITS` (``auto`` = ``None``) or a
+    number; ``ValueError`` otherwise (the bounds are checked by the caller)."""
+    text = str(value).strip().lower()
+    if text in UNITS:
+        return UNITS[text]
+    if isinstance(value, bool):
+        raise ValueError(f"scale must be a number or one of {list(UNITS)}, got {value!r}")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"scale must be a number or one of {list(UNITS)}, got {value!r}") from None
+
+
+def unit_label(scale: float | None) -> str:
+    """The unit the scale field shows for ``scale`` (``custom`` for another factor)."""
+    for name, s in UNITS.items():
+        if s == scale:
+            return name
+    return "custom"
+
+
+def unit_fix(cloud: Any, scale: float | None) -> tuple[float, str] | None:
+    """The one-click fix of the loader's unit hint, ``(scale, button label)``, or ``None``.
+
+    With no scale given (``scale`` None) the loader either scaled a cloud it recognised as
+    millimetres by 0.001 (``info["scale"]``): the fix reads it as metres; or left a cloud longer
+    than ``MILLIMETRE_EXTENT`` as it was, with the hint that it looks like millimetres: the fix
+    reads it as millimetres.
+    """
+    from pregrasp_core.io import MILLIMETRE_EXTENT
+
+    if cloud is None or scale is not None:
+        return None
+    applied = float((getattr(cloud, "info", {}) or {}).get("scale", 1.0) or 1.0)
+    if applied == 0.001:
+        return 1.0, "read as metres (scale 1)"
+    extent = float(np.max(np.ptp(np.asarray(cloud.points), axis=0)))
+    if applied == 1.0 and extent > MILLIMETRE_EXTENT:
+        return 0.001, "read as millimetres (scale 0.001)"
+    return None

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pregrasp_core.io import SensorOptions
 from pregrasp_core.paths import DEFAULT_OBJECT
 
 from . import viser_hooks
@@ -45,6 +46,10 @@ class ViewerConfig:
     scale: float | None = None
     """Multiplies the coordinates of the object opened at start (0.001 for a file in
     millimetres); ``None`` = as stored."""
+    sensor: SensorOptions | None = None
+    """Depth-camera options of the object opened at start (``--intrinsics``, ``--pick``,
+    ``--scene``, ``--viewpoint``; ``pregrasp_core.io.SensorOptions``); ``None`` = the loader's
+    defaults (a depth image with its sidecar JSON, as a scene)."""
     max_upload_bytes: int = DEFAULT_MAX_UPLOAD_BYTES
     """Largest accepted upload in bytes."""
     max_ghosts: int = 24
@@ -156,7 +161,7 @@ def run(config: ViewerConfig, server: Any) -> App:
     uploads = viser_hooks.install_upload_guard(server, lambda: controller.max_upload_bytes)
     viser_hooks.install_update_guard(server, gui.on_bad_value)
     path = config.input if config.input is not None else DEFAULT_OBJECT
-    controller.load_path(path, scale=config.scale)
+    controller.load_path(path, scale=config.scale, sensor=config.sensor)
     app = App(server, controller, scene, gui, config.animate_hz, uploads)
     if config.plan_on_start:
         app.plan_in_background()

@@ -28,7 +28,11 @@ class ObjectSource:
     data: bytes | None = field(default=None, repr=False)
     """Raw bytes of an uploaded file (parsed by ``pregrasp_core.io`` only, never executed)."""
     scale: float | None = None
-    """Multiplies the coordinates when read (``pregrasp view --scale``); ``None`` = as stored."""
+    """Multiplies the coordinates when read (``pregrasp view --scale``, the scale field);
+    ``None`` = as stored, or by 0.001 when the loader recognises millimetres."""
+    sensor: Any = None
+    """Depth-camera options of the loader (``pregrasp_core.io.SensorOptions``: intrinsics,
+    viewpoint, scene, pick), or ``None`` for its defaults."""
 
 
 @dataclass(frozen=True)

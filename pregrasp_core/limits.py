@@ -45,6 +45,14 @@ separating-axis test)."""
 MAX_HEIGHT: float = 1.0e6
 """Metres: bound of ``|FaceMaskParams.support_height|`` (finite and far from float overflow)."""
 
+MIN_SCALE: float = 1.0e-6
+"""Lower bound of the input's ``scale`` (``--scale``, the viewer's scale field): a factor of a
+micrometre per unit; smaller ones only turn a cloud into one point (identical points)."""
+
+MAX_SCALE: float = 1.0e6
+"""Upper bound of the input's ``scale``: beyond any unit a file is written in (kilometres need
+1,000); a larger factor only pushes a cloud toward ``MAX_COORDINATE`` (1e9 m)."""
+
 MAX_GRID: int = 64
 """Upper bound of the MVBB's ``kernel_grid`` and ``polish_grid`` (columns per side): the kernel
 keeps up to ``6 * grid**2`` points (24,576 at 64), which every polish step projects."""

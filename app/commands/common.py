@@ -9,7 +9,6 @@ the input from :class:`InputOptions`, the pipeline from the core's parameter dat
 from __future__ import annotations
 
 import argparse
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,6 +25,7 @@ from pregrasp_core.io import (
     load_point_cloud,
 )
 from pregrasp_core.io.depth_image import DEPTH_IMAGE_EXTENSIONS
+from pregrasp_core.limits import MAX_SCALE, MIN_SCALE, check_real
 from pregrasp_core.normals import ORIENT_MODES, NormalParams
 from pregrasp_core.paths import DEFAULT_OBJECT
 from pregrasp_core.pipeline import PipelineParams
@@ -67,8 +67,8 @@ class InputOptions:
             raise ValueError(f"points must be in [{MIN_POINTS}, {MAX_POINTS}], got {self.points}")
         if self.seed < 0:
             raise ValueError(f"seed must be >= 0, got {self.seed}")
-        if self.scale is not None and not (math.isfinite(self.scale) and self.scale > 0.0):
-            raise ValueError(f"scale must be a positive finite number, got {self.scale}")
+        if self.scale is not None:
+            check_real("scale", self.scale, MIN_SCALE, MAX_SCALE, what="a positive factor")
 
         if self.intrinsics is not None and len(self.intrinsics) not in (1, 4):
             raise OptionError(

@@ -1,7 +1,9 @@
 """`pregrasp view [INPUT] [--host H] [--port P] [pipeline options]`: the browser inspection app.
 
-It takes every pipeline option ``pregrasp plan`` takes (from the same definition,
-:func:`app.commands.common.pipeline_options`): the app starts with those parameters, and its
+It takes every input and pipeline option ``pregrasp plan`` takes (from the same definitions,
+:data:`app.commands.common.INPUT_OPTIONS` and :func:`app.commands.common.pipeline_options`),
+the depth-camera ones included (``--intrinsics``, ``--pick``, ``--scene``, ``--viewpoint``): the
+app opens the input as ``pregrasp plan`` reads it and starts with those parameters, and its
 widgets change them from there.
 """
 
@@ -11,7 +13,7 @@ import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
-from pregrasp_core.errors import InputError, PregraspError
+from pregrasp_core.errors import InputError
 
 from .common import ALL_STAGES, INPUT_OPTIONS, add_input_args, pipeline_options
 from .options import Flag, HelpFormatter, Options
@@ -64,13 +66,7 @@ def run(args: argparse.Namespace) -> int:
     serve_options = SERVE_OPTIONS.build(args)  # every option checked before the server starts
     params = PIPELINE_OPTIONS.build(args)
     inp = INPUT_OPTIONS.build(args)
-    unused = [f for f, v in (("--intrinsics", inp.intrinsics), ("--pick", inp.pick),
-                             ("--scene/--no-scene", inp.scene)) if v is not None]  # fmt: skip
-    if unused:  # the viewer's loader takes the file, --points, --seed and --scale only
-        raise PregraspError(
-            f"{', '.join(unused)}: not passed to the viewer yet; a depth image opens with its "
-            "sidecar NAME.json (intrinsics) and as a scene by default"
-        )
+    sensor = inp.sensor()  # --intrinsics, --pick, --scene, --viewpoint, as `pregrasp plan`
     path = None if args.input is None else Path(args.input)
     if path is not None and not path.is_file():
         raise InputError(f"{path}: no such file; pass a point cloud or mesh file")
@@ -85,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
             n_points=inp.points,
             seed=inp.seed,
             scale=inp.scale,
+            sensor=sensor,
             params=params,
             plan_on_start=True,
         )

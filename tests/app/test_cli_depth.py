@@ -86,8 +86,3 @@ def test_bad_intrinsics_name_the_flag_or_file(tmp_path: Path, capsys) -> None:
     assert "--intrinsics: give four numbers" in capsys.readouterr().err
     assert main(["decompose", str(png), "--intrinsics", str(tmp_path / "none.json")]) != 0
     assert "none.json: intrinsics file not found" in capsys.readouterr().err
-
-
-def test_view_refuses_the_flags_its_loader_does_not_take(capsys) -> None:
-    assert main(["view", str(DEMO), "--pick", "0", "0", "0"]) != 0
-    assert "--pick: not passed to the viewer yet" in capsys.readouterr().err

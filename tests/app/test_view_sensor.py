@@ -1,0 +1,324 @@
+"""The depth-camera workflow in the viewer, without a browser: ``pregrasp view`` takes the sensor
+flags of ``pregrasp plan``, the demo depth image opens as the mug on its table, the scale field
+(units, the one-click fix of the loader's unit hint, bounds), picking an object by a click, and
+the assumed points and the contacts on them in their own colours.
+
+The scene of the pick tests is rendered by ray casting (``pregrasp_core.sensor.synthetic``) from
+two trimesh boxes on the table z = 0, so which points belong to which box is known outside the
+app; the assumed points are checked against the depth image's own points.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from viser._gui_handles import GuiEvent
+from viser._scene_handles import SceneClickEvent
+
+from app.cli import build_parser, main
+from app.commands import plan
+from app.gui import LEGEND, grasp_table
+from app.scene import ASSUMED_CONTACT_RGB, CONTACT_RGB, NAMES
+from app.scene_data import (
+    ASSUMED_RGB,
+    OTHER_RGB,
+    TABLE_RGB,
+    assumed_contacts,
+    ranked_grasps,
+    ray_pick,
+    unit_fix,
+)
+from pregrasp_core.errors import InputError
+from pregrasp_core.io import PointCloud, SensorOptions, load_point_cloud
+from pregrasp_core.paths import OBJECTS_DIR
+from pregrasp_core.sensor import Intrinsics, load_camera_pose, load_depth_image
+from pregrasp_core.sensor.synthetic import orbit_camera, render_view
+from tests.core.test_depth_input import two_boxes, write_scene_pcd
+
+DEMO = OBJECTS_DIR / "mug_depth.png"
+
+
+def _demo_world_points() -> np.ndarray:
+    """The demo depth image's points in its world frame (the JSON's camera pose), read by the
+    sensor package directly (not through the loader)."""
+    depth = load_depth_image(DEMO, DEMO.with_suffix(".json"))
+    T = load_camera_pose(DEMO.with_suffix(".json"))
+    assert T is not None
+    return depth.points @ T[:3, :3].T + T[:3, 3]
+
+
+def _wait_idle(controller, timeout: float = 120.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not controller.idle():
+        assert time.monotonic() < deadline, "the app did not finish its work"
+        time.sleep(0.05)
+
+
+# ---------------------------------------------------------------------- command line
+def test_view_takes_the_sensor_flags_of_plan(monkeypatch, tmp_path: Path) -> None:
+    """`pregrasp view` builds the loader's SensorOptions from the same flags as `pregrasp plan`
+    (one definition) and hands them to the viewer (the server is not started)."""
+    import app.server
+
+    seen: list[app.server.ViewerConfig] = []
+    monkeypatch.setattr(app.server, "serve", seen.append)
+    flags = ["--intrinsics", "420", "421", "239.5", "179.5", "--pick", "0", "0.15", "0.02",
+             "--no-scene", "--viewpoint", "0.4", "-0.3", "0.5", "--scale", "0.5"]  # fmt: skip
+    assert main(["view", str(DEMO), "--port", "0", *flags]) == 0
+    (config,) = seen
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    planned = plan.plan_run(sub.choices["plan"].parse_args([str(DEMO), *flags])).input.sensor()
+    assert config.sensor == planned
+    assert config.sensor == SensorOptions(
+        intrinsics=(420.0, 421.0, 239.5, 179.5),
+        viewpoint=(0.4, -0.3, 0.5),
+        scene=False,
+        pick=(0.0, 0.15, 0.02),
+    )
+    assert config.scale == 0.5 and config.input == DEMO
+
+
+def test_view_bad_sensor_flag_is_a_clean_error(capsys) -> None:
+    assert main(["view", str(DEMO), "--intrinsics", "420", "420", "239.5"]) != 0
+    assert "--intrinsics: give four numbers" in capsys.readouterr().err
+    assert main(["view", str(DEMO), "--scale", "1e9"]) != 0
+    assert "--scale: must be a positive factor in [1e-06, 1e+06]" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------- the depth demo
+@pytest.fixture(scope="module")
+def demo_app():
+    """The app as `pregrasp view assets/objects/mug_depth.png` starts it (planned on start)."""
+    import viser
+
+    from app.server import ViewerConfig, run
+
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    app = run(ViewerConfig(input=DEMO, plan_on_start=True), server)
+    try:
+        _wait_idle(app.controller)
+        yield app
+    finally:
+        app.close()
+        server.stop()
+
+
+def test_depth_demo_opens_as_the_mug_without_its_table(demo_app) -> None:
+    s = demo_app.controller.state
+    assert s.error == "" and s.planned and s.view.selected_grasp == 0
+    world = _demo_world_points()
+    cloud = s.cloud
+    # the table (z = 0 in the demo's world frame) is gone: every point of the object lies on
+    # or above it, and the object is the mug_handle mesh's size (0.111 x 0.080 x 0.100 m)
+    assert cloud.points[:, 2].min() > -0.003
+    assert 0.095 < np.ptp(cloud.points[:, 2]) < 0.105
+    assert np.ptp(cloud.points[:, :2], axis=0).max() < 0.13
+    n_table = int(np.count_nonzero(np.abs(world[:, 2]) < 0.003))
+    assert n_table > 0.9 * len(world)  # the frame is mostly table ...
+    assert cloud.info["scene"]["n_table"] > 0.95 * n_table  # ... and the loader found it
+    # the scene behind the object: the table in grey
+    h = demo_app.server.scene.get_handle_by_name(NAMES["scene"])
+    assert h is not None and demo_app.scene.n_scene_points_shown == len(h.points)
+    cols = np.asarray(h.colors)
+    on_table = np.abs(np.asarray(h.points, dtype=np.float64)[:, 2]) < 0.003
+    assert np.mean(np.all(cols[on_table] == TABLE_RGB, axis=1)) > 0.99
+    assert not np.any(np.all(cols == ASSUMED_RGB, axis=1))
+    assert "mug_depth.png" in s.message or "planned" in s.message
+
+
+def test_assumed_points_and_their_contacts_have_their_own_colours(demo_app) -> None:
+    s = demo_app.controller.state
+    cloud = s.cloud
+    assumed = np.asarray(cloud.assumed)
+    assert 0 < assumed.sum() < len(assumed)
+    # outside reference: a visible point is a point of the depth image, an assumed one is not
+    tree = cKDTree(_demo_world_points())
+    d, _ = tree.query(cloud.points)
+    assert np.all(d[~assumed] < 1e-9) and np.all(d[assumed] > 1e-7)
+    cols = np.asarray(demo_app.server.scene.get_handle_by_name(NAMES["cloud"]).colors)
+    assert np.all(cols[assumed] == ASSUMED_RGB)
+    assert not np.any(np.all(cols[~assumed] == ASSUMED_RGB, axis=1))
+    # the shown grasp's contacts: orange where they touch a point the camera did not see
+    g = ranked_grasps(s.result)[s.view.selected_grasp]
+    dc, _ = tree.query(np.array([c.point for c in g.contacts]))
+    unseen = dc > 1e-7
+    np.testing.assert_array_equal(assumed_contacts(g, cloud), unseen)
+    assert unseen.any()  # the demo's best grasp wraps the mug: a finger on its back
+    contacts = demo_app.server.scene.get_handle_by_name(NAMES["contacts"])
+    ccols = np.asarray(contacts.colors)
+    np.testing.assert_array_equal(ccols[unseen], np.tile(ASSUMED_CONTACT_RGB, (unseen.sum(), 1)))
+    np.testing.assert_array_equal(ccols[~unseen], np.tile(CONTACT_RGB, ((~unseen).sum(), 1)))
+    assert demo_app.scene.n_assumed_contacts_shown == int(unseen.sum())
+    assert f"({int(unseen.sum())} assumed)" in grasp_table(s)
+    colours = " ".join(a for a, _ in LEGEND)
+    assert "pink points" in colours and "orange dots" in colours and "grey points" in colours
+
+
+# ---------------------------------------------------------------------- picking
+@pytest.fixture(scope="module")
+def boxes_scene(tmp_path_factory) -> tuple[Path, np.ndarray, np.ndarray, np.ndarray]:
+    """A PCD scene (VIEWPOINT = the camera) of two boxes on a table: (path, camera position,
+    big box centre, small box centre)."""
+    mesh, big_c, small_c = two_boxes()
+    T = orbit_camera(np.array([0.0, 0.07, 0.05]), 0.7, np.radians(20.0), np.radians(40.0))
+    view = render_view(mesh.vertices, mesh.faces, T, Intrinsics(300, 300, 159.5, 119.5), 320,
+                       240, table_half=0.4)  # fmt: skip
+    pts, _ = view.points_world()
+    path = tmp_path_factory.mktemp("scene") / "two_boxes.pcd"
+    write_scene_pcd(path, pts, T)
+    return path, T[:3, 3].copy(), big_c, small_c
+
+
+def _click(cam: np.ndarray, target: np.ndarray) -> SceneClickEvent:
+    d = target - cam
+    return SceneClickEvent(
+        client=None,  # type: ignore[arg-type]
+        client_id=0,
+        ray_origin=tuple(cam),
+        ray_direction=tuple(d / np.linalg.norm(d)),
+        screen_pos=(0.5, 0.5),
+        modifier=None,
+    )
+
+
+def test_a_click_picks_the_cluster_under_it_and_replans(make_app, boxes_scene) -> None:
+    path, cam, big_c, small_c = boxes_scene
+    app = make_app(input=path, n_points=3000)
+    c, gui = app.controller, app.gui
+    s0 = c.state
+    assert s0.error == "" and s0.cloud.sensor is not None
+    assert s0.cloud.points[:, 1].max() < 0.06  # the largest cluster: the big box
+    assert not gui.pick_mode.disabled
+    # the small box seen from the camera: brown behind the object (another object of the scene)
+    cols = np.asarray(app.server.scene.get_handle_by_name(NAMES["scene"]).colors)
+    pts = np.asarray(app.server.scene.get_handle_by_name(NAMES["scene"]).points)
+    on_small = np.all(np.abs(pts - small_c) <= [0.021, 0.021, 0.026], axis=1)
+    on_small &= pts[:, 2] > 0.005  # above the table's band (its foot lies in the band)
+    assert on_small.sum() > 50 and np.all(cols[on_small] == OTHER_RGB)
+    top = small_c + [0, 0, 0.025]  # the top face of the small box, which the camera sees
+    gui._scene_click(_click(cam, top))  # pick mode off: a click only looks
+    assert c.state.result is s0.result
+    gui.pick_mode.value = True
+    gui._scene_click(_click(cam, top))
+    s = c.state
+    assert s.error == "" and s.planned and s.result is not s0.result
+    lo, hi = s.cloud.points.min(axis=0), s.cloud.points.max(axis=0)
+    assert lo[1] > 0.12 and hi[2] < 0.06  # the small box (and its completion)
+    assert np.allclose(s.source.sensor.pick, top, atol=0.01)
+    assert "kept the cluster nearest" in s.message and "cluster 2 of" in s.message
+    assert "planned" in s.message
+    # the big box again, by a click on its front
+    c.pick_ray(cam, (big_c + [0, 0, 0.06]) - cam)
+    assert c.state.cloud.points[:, 1].max() < 0.06 and "cluster 1 of" in c.state.message
+
+
+def test_a_click_beside_every_object_changes_nothing(make_app, boxes_scene) -> None:
+    path, cam, _, _ = boxes_scene
+    app = make_app(input=path, n_points=3000)
+    c = app.controller
+    s0 = c.state
+    away = np.array([0.0, 0.07, 0.6]) - cam  # up into the empty air above the table
+    with pytest.raises(InputError, match="no object of the scene under the click"):
+        c.pick_ray(cam, away)
+    with pytest.raises(InputError, match="no object"):  # the bare table is not an object
+        c.pick_ray(cam, np.array([0.3, -0.3, 0.0]) - cam)
+    assert c.state.result is s0.result
+
+
+def test_picking_needs_a_scene(app) -> None:
+    assert app.gui.pick_mode.disabled  # the default mug is a complete cloud
+    with pytest.raises(InputError, match="picking needs a depth-camera scene"):
+        app.controller.pick_ray((0.3, 0.3, 0.3), (-1, -1, -1))
+
+
+def test_ray_pick_takes_the_nearest_point_along_the_ray() -> None:
+    pts = np.array([[0, 0, 1.0], [0, 0, 2.0], [0.0, 0.5, 1.0], [0, 0, -1.0]])
+    assert ray_pick(pts, (0, 0, 0), (0, 0, 5)) == 0  # front-most of the two on the ray
+    assert ray_pick(pts, (0, 0, 0), (0, 0, 1), candidates=np.array([0, 1, 1, 1], bool)) == 1
+    assert ray_pick(pts, (0, 0, 0), (0, 1, 2)) == 2  # 0.46 rad off the axis: only point 2
+    assert ray_pick(pts, (0, 0, 0), (1, 0, 0)) is None
+    assert ray_pick(pts, (0, 0, 0), (0, 0, 0)) is None
+    assert ray_pick(pts, (0, 0, 0), (np.nan,) * 3) is None
+    assert ray_pick(pts, (0, 0, 0), (0, 0, -1)) == 3  # behind the camera is never hit
+    # the front surface (within 2 cm of the nearest hit): the point seen closest to the ray,
+    # never one of an object behind it even when that one lies exactly on the ray
+    front = np.array([[0.012, 0, 1.0], [0.004, 0, 1.015], [0, 0, 1.5]])
+    assert ray_pick(front, (0, 0, 0), (0, 0, 1)) == 1
+
+
+# ---------------------------------------------------------------------- scale
+@pytest.fixture(scope="module")
+def bottle_mm(tmp_path_factory) -> tuple[Path, PointCloud]:
+    ref = load_point_cloud(OBJECTS_DIR / "bottle.obj", n_points=3000)
+    path = tmp_path_factory.mktemp("mm") / "bottle_mm.xyz"
+    np.savetxt(path, np.asarray(ref.points) * 1000.0, fmt="%.6f")
+    return path, ref
+
+
+def test_scale_field_units_and_the_one_click_fix(make_app, bottle_mm) -> None:
+    path, ref = bottle_mm
+    app = make_app(input=path, n_points=3000)
+    c, gui = app.controller, app.gui
+    s = c.state
+    # the loader recognised millimetres: the fix reads the file as metres instead
+    np.testing.assert_allclose(s.cloud.extents, ref.extents, atol=1e-6)
+    assert (gui.units.value, gui.scale.value) == ("auto", 0.001)
+    assert gui.units_fix.visible and gui.units_fix.label == "read as metres (scale 1)"
+    for cb in gui.units_fix._impl.update_cb:  # what a click on the button runs
+        cb(GuiEvent(client=None, client_id=None, target=gui.units_fix))
+    s = c.state
+    assert s.source.scale == 1.0 and s.error == ""
+    np.testing.assert_allclose(s.cloud.extents, 1000 * ref.extents, rtol=1e-6)
+    assert (gui.units.value, gui.scale.value, gui.units_fix.visible) == ("m", 1.0, False)
+    gui.units.value = "cm"
+    np.testing.assert_allclose(c.state.cloud.extents, 10 * ref.extents, rtol=1e-6)
+    assert (gui.units.value, gui.scale.value) == ("cm", 0.01)
+    gui.scale.value = 0.0005  # a factor of one's own
+    np.testing.assert_allclose(c.state.cloud.extents, 0.5 * ref.extents, rtol=1e-6)
+    assert gui.units.value == "custom"
+    gui.units.value = "auto"  # the loader's rule again
+    np.testing.assert_allclose(c.state.cloud.extents, ref.extents, atol=1e-6)
+    assert c.state.source.scale is None
+
+
+def test_scale_is_bounded_and_a_bad_value_keeps_the_object(make_app, bottle_mm) -> None:
+    path, _ = bottle_mm
+    app = make_app(input=path, n_points=3000)
+    c = app.controller
+    s0 = c.state
+    with pytest.raises(ValueError, match=r"scale must be a positive factor in \[1e-06, 1e\+06\]"):
+        c.set_scale(1e7)
+    with pytest.raises(ValueError, match="scale must be"):
+        c.set_scale(0.0)
+    with pytest.raises(ValueError, match="scale must be a number or one of"):
+        c.set_scale("furlong")
+    c.act(None, c.set_scale, float("nan"))  # through the GUI's path: a notification
+    assert "scale must be" in c.state.error and c.state.result is s0.result
+
+
+def test_the_unit_fix_of_a_long_metre_cloud_reads_millimetres() -> None:
+    """A 6-unit cloud sampled too densely for the millimetre rule keeps metres with the loader's
+    hint (longer than MILLIMETRE_EXTENT): the fix offers millimetres."""
+    rng = np.random.default_rng(0)
+    pts = rng.random((20000, 3)) * [6.0, 0.5, 0.5]
+    cloud = load_point_cloud_array(pts)
+    assert any("looks like millimetres" in w for w in cloud.info["warnings"])
+    assert unit_fix(cloud, None) == (0.001, "read as millimetres (scale 0.001)")
+    assert unit_fix(cloud, 1.0) is None  # a scale given by the user is not second-guessed
+    small = load_point_cloud_array(pts * 0.01)
+    assert unit_fix(small, None) is None
+
+
+def load_point_cloud_array(pts: np.ndarray) -> PointCloud:
+    import io as _io
+
+    from pregrasp_core.io import load_point_cloud_bytes
+
+    buf = _io.BytesIO()
+    np.save(buf, pts)
+    return load_point_cloud_bytes(buf.getvalue(), "cloud.npy", n_points=None)
