@@ -9,10 +9,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..geometry import box_corners, to_frame, to_frame_t
+from ..geometry import box_corners, to_frame
 from ..tolerances import GEOM_EPS
-from .boxes import sweep_pairs
 from .context import Context, View
+from .kernels import kernels
 from .slicing import Slice, finger_slices
 from .types import Grasp
 
@@ -49,30 +49,12 @@ def _approach(ctx: Context, T0: np.ndarray, q: np.ndarray, c0: np.ndarray) -> tu
     cm, cp = c0 - rad, c0 + rad  # (C, 3) the cells' balls' bounds
     # two passes: a short first window (most approaches end within a few centimetres); a hit
     # beyond it may hide an earlier one by a point it did not gather, so then the full window
+    cells, half = ctx.cells, ctx.half + c
     for window in (min(APPROACH_WINDOW, S_eff), S_eff):
         top = whi[:, 2] + window
-        ci, il = np.nonzero(
-            (cp[:, 2:3] >= wlo[:, 2])
-            & (cm[:, 2:3] <= top)
-            & (cp[:, 0:1] >= wlo[:, 0])
-            & (cm[:, 0:1] <= whi[:, 0])
-            & (cp[:, 1:2] >= wlo[:, 1])
-            & (cm[:, 1:2] <= whi[:, 1])
-        )  # (cell, link) pairs: the cell's ball meets the link's window
-        pid, k = ctx.cells.expand(ci)
-        il = il[k]
-        ps = to_frame_t(ctx.xyz[:, pid], T0)
-        px, py, pz = ps
-        hit = np.flatnonzero(
-            (pz >= wlo[il, 2])
-            & (pz <= top[il])
-            & (px >= wlo[il, 0])
-            & (px <= whi[il, 0])
-            & (py >= wlo[il, 1])
-            & (py <= whi[il, 1])
-        )  # (K,) the candidate pairs: the point is in the link's window
-        if len(hit):
-            s_obj = sweep_pairs(px[hit], py[hit], pz[hit], il[hit], Tb, ctx.half + c)[0]
+        s_obj = kernels().approach(
+            ctx.xyz, cells.order, cells.start, cells.count, cm, cp, T0, wlo, whi, top, Tb, half
+        )  # the cells' balls that meet a link's window, then the exact window test and sweep
         if s_obj <= window or window >= S_eff:
             break
     s = min(s_obj, s_sup)

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from ..geometry import to_frame_t
+from .kernels import kernels
 
 if TYPE_CHECKING:
     from ..hand import Finger, FingerClosing, FlexionPlane
@@ -81,22 +81,16 @@ def finger_slices(
         & (np.abs(c @ nrm - shift) <= half_w + 1e-9 + rad)
         & (d2 <= (np.hypot(r_all, half_w) + 1e-9 + rad) ** 2)
     )  # (C, F)
-    _, p = view.points(ctx, ctx.cells.points_of(np.flatnonzero(cand.any(axis=1))))
-    # the band test (the offsets along the flexion planes' normals, with a margin far above
-    # their rounding; the exact slice test follows)
-    along = p[0, :, None] * nrm[0] + p[1, :, None] * nrm[1] + p[2, :, None] * nrm[2]  # (M, F)
-    near_band = np.abs(along - shift) <= half_w + 1e-9
+    cells = ctx.cells
+    uv, first, n_slice = kernels().slices(
+        ctx.xyz, cells.order, cells.start, cells.count, cand.any(axis=1), view.T0, view.r,
+        view.z_lo, view.z_hi, np.array(view.dz, dtype=np.float64), nrm, shift, half_w + 1e-9,
+        np.array([pl.T_hand_plane for pl in planes]), np.array([0.5 * f.width for f in fingers]),
+        np.array([(r + 1e-9) ** 2 for r in r_all]), prm.slice_resolution,
+    )  # fmt: skip
     for j, (f, plane) in enumerate(zip(fingers, planes, strict=True)):  # <= 3 fingers
-        band = near_band[:, j]
-        # the 2D coordinates and offsets (FlexionPlane.to_plane) of the points in the band
-        uvn = to_frame_t(p[:, band], plane.T_hand_plane)
-        p2, off = uvn[:2].T, uvn[2]
-        r_f = r_all[j]
-        in_slice = (np.abs(off) <= 0.5 * f.width) & (
-            p2[:, 0] ** 2 + p2[:, 1] ** 2 <= (r_f + 1e-9) ** 2
-        )
-        p_slice = thin_2d(p2[in_slice], prm.slice_resolution)
-        table = _support_line_2d(ctx, T, plane, 0.5 * f.width, r_f)
+        p_slice = uv[first[j] : first[j + 1]]
+        table = _support_line_2d(ctx, T, plane, 0.5 * f.width, r_all[j])
         out.append(
             Slice(
                 f,
@@ -104,7 +98,7 @@ def finger_slices(
                 q0[list(f.flex_index)],
                 len(p_slice),
                 len(table) > 0,
-                int(np.count_nonzero(in_slice)),
+                int(n_slice[j]),
             )
         )
     return out

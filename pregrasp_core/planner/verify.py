@@ -11,6 +11,7 @@ import numpy as np
 
 from .boxes import box_signed_distance
 from .context import Context, View
+from .kernels import kernels
 from .types import Contact, FingerTrace, Grasp
 
 if TYPE_CHECKING:
@@ -220,46 +221,12 @@ def _link_distances(
     blo, bhi = lo - reach, hi + reach  # (L, 3)
     c, ok = view.cells(ctx)
     rad = ctx.cells.radius[:, None]
-    cm, cp = c - rad, c + rad
-    ci, il = np.nonzero(
-        ok[:, None]
-        & (cp[:, 0:1] >= blo[:, 0])
-        & (cm[:, 0:1] <= bhi[:, 0])
-        & (cp[:, 1:2] >= blo[:, 1])
-        & (cm[:, 1:2] <= bhi[:, 1])
-        & (cp[:, 2:3] >= blo[:, 2])
-        & (cm[:, 2:3] <= bhi[:, 2])
-    )  # (cell, link) pairs: the cell's ball meets the link's grown AABB
-    pid, k = ctx.cells.expand(ci)
-    seen, p = view.points(ctx, pid)
-    pid, il = pid[seen], il[k[seen]]
-    x, y, z = p
-    inside = np.flatnonzero(
-        (x >= blo[il, 0])
-        & (x <= bhi[il, 0])
-        & (y >= blo[il, 1])
-        & (y <= bhi[il, 1])
-        & (z >= blo[il, 2])
-        & (z <= bhi[il, 2])
-    )
-    il, pid = il[inside], pid[inside]
-    # the exact distance to each pair's box, in its frame
-    Tl = Tb[il]  # (K, 4, 4)
-    v0, v1, v2 = x[inside] - Tl[:, 0, 3], y[inside] - Tl[:, 1, 3], z[inside] - Tl[:, 2, 3]
-    half = ctx.half[il]
-    qd = [
-        np.abs(v0 * Tl[:, 0, j] + v1 * Tl[:, 1, j] + v2 * Tl[:, 2, j]) - half[:, j]
-        for j in range(3)  # the box's three axes
-    ]
-    out = [np.maximum(qj, 0.0) for qj in qd]
-    d = np.sqrt(out[0] ** 2 + out[1] ** 2 + out[2] ** 2) + np.minimum(
-        np.maximum(np.maximum(qd[0], qd[1]), qd[2]), 0.0
-    )
-    near = np.flatnonzero(d <= reach)
-    near = near[np.lexsort((pid[near], il[near]))]  # by link, then ascending cloud index
-    il, d, cloud = il[near], d[near], pid[near]
-    cuts = np.searchsorted(il, np.arange(1, len(Tb)))
-    return np.split(cloud, cuts), np.split(d, cuts)
+    cells = ctx.cells
+    ids, d, first = kernels().link_distances(
+        ctx.xyz, cells.order, cells.start, cells.count, c - rad, c + rad, ok, view.T0, view.r,
+        view.z_lo, view.z_hi, np.array(view.dz, dtype=np.float64), blo, bhi, Tb, ctx.half, reach,
+    )  # fmt: skip
+    return np.split(ids, first[1:-1]), np.split(d, first[1:-1])
 
 
 def support_collision(ctx: Context, T: np.ndarray, q: np.ndarray) -> str | None:

@@ -118,3 +118,194 @@ def test_may_touch_keeps_every_point_touched_inside_the_bracket(hand):
         n_dropped += int(np.count_nonzero(~keep))
         n_touched += int(np.count_nonzero(touched))
     assert n_touched > 0 and n_dropped > 0
+
+
+# ---- the compiled kernels (pregrasp_core/planner/kernels.py) against the numpy code they
+# replaced (copied here from the planner before issue 15): equal to the bit on every pre-grasp
+# of the default object, at the pre-grasp pose and moved along the approach
+
+
+@pytest.fixture(scope="module")
+def mug_plan(hand):
+    from pregrasp_core.io import load_point_cloud
+    from pregrasp_core.paths import DEFAULT_OBJECT
+    from pregrasp_core.pipeline import PipelineParams, run_pipeline
+    from pregrasp_core.planner import PlannerParams
+    from pregrasp_core.planner.context import Context
+
+    cloud = load_point_cloud(DEFAULT_OBJECT, n_points=6000, seed=0)
+    params = PipelineParams(planner=PlannerParams(threads=1))
+    res = run_pipeline(cloud, params=params, hand=hand, until="pool")
+    ctx = Context(
+        cloud.points, np.zeros_like(cloud.points), hand, params.planner, res.masks.support
+    )
+    return ctx, res.pool
+
+
+def _ref_points(ctx, view, pid):
+    from pregrasp_core.geometry import to_frame_t
+
+    p0 = to_frame_t(ctx.xyz[:, pid], view.T0)
+    x, y, z = p0
+    ok = (np.abs(x) <= view.r) & (np.abs(y) <= view.r) & (z >= view.z_lo) & (z <= view.z_hi)
+    p = p0[:, ok]
+    for d in view.dz:
+        p[2] += d
+    return ok, p
+
+
+def _ref_slices(ctx, view, gt, spread):
+    """finger_slices before issue 15 (without the support trace): per finger (points, n_slice)."""
+    from pregrasp_core.geometry import to_frame_t
+    from pregrasp_core.planner.slicing import thin_2d
+
+    prm = ctx.params
+    fingers = ctx.hand.fingers_for(gt)
+    planes = [ctx.plane(f, spread) for f in fingers]
+    nrm = np.array([pl.normal for pl in planes]).T
+    shift = np.array([pl.origin @ pl.normal for pl in planes])
+    half_w = np.array([0.5 * f.width for f in fingers])
+    reach = [f.middle_length + np.hypot(f.distal_length, 0.5 * f.thickness) for f in fingers]
+    r_all = np.array(reach) + prm.closing_margin
+    c, ok = view.cells(ctx)
+    rad = ctx.cells.radius[:, None]
+    origins = np.array([pl.origin for pl in planes])
+    d2 = np.sum((c[:, None, :] - origins[None]) ** 2, axis=2)
+    cand = (
+        ok[:, None]
+        & (np.abs(c @ nrm - shift) <= half_w + 1e-9 + rad)
+        & (d2 <= (np.hypot(r_all, half_w) + 1e-9 + rad) ** 2)
+    )
+    _, p = _ref_points(ctx, view, ctx.cells.points_of(np.flatnonzero(cand.any(axis=1))))
+    along = p[0, :, None] * nrm[0] + p[1, :, None] * nrm[1] + p[2, :, None] * nrm[2]
+    near_band = np.abs(along - shift) <= half_w + 1e-9
+    out = []
+    for j, (f, plane) in enumerate(zip(fingers, planes, strict=True)):
+        uvn = to_frame_t(p[:, near_band[:, j]], plane.T_hand_plane)
+        p2, off = uvn[:2].T, uvn[2]
+        r_f = r_all[j]
+        in_slice = (np.abs(off) <= 0.5 * f.width) & (
+            p2[:, 0] ** 2 + p2[:, 1] ** 2 <= (r_f + 1e-9) ** 2
+        )
+        out.append((thin_2d(p2[in_slice], prm.slice_resolution), int(np.count_nonzero(in_slice))))
+    return out
+
+
+def _ref_approach_sweep(ctx, T0, q, c0, window):
+    """The object part of the approach before issue 15 (one window): the first travel, inf if
+    none."""
+    from pregrasp_core.geometry import to_frame_t
+    from pregrasp_core.planner.boxes import sweep_pairs
+
+    c = ctx.params.approach_clearance
+    Tb, lo, hi = ctx.boxes(q)
+    wlo, whi = lo - c, hi + c
+    rad = ctx.cells.radius[:, None]
+    cm, cp = c0 - rad, c0 + rad
+    top = whi[:, 2] + window
+    ci, il = np.nonzero(
+        (cp[:, 2:3] >= wlo[:, 2]) & (cm[:, 2:3] <= top) & (cp[:, 0:1] >= wlo[:, 0])
+        & (cm[:, 0:1] <= whi[:, 0]) & (cp[:, 1:2] >= wlo[:, 1]) & (cm[:, 1:2] <= whi[:, 1])
+    )  # fmt: skip
+    pid, k = ctx.cells.expand(ci)
+    il = il[k]
+    px, py, pz = to_frame_t(ctx.xyz[:, pid], T0)
+    hit = np.flatnonzero(
+        (pz >= wlo[il, 2]) & (pz <= top[il]) & (px >= wlo[il, 0]) & (px <= whi[il, 0])
+        & (py >= wlo[il, 1]) & (py <= whi[il, 1])
+    )  # fmt: skip
+    if not len(hit):
+        return np.inf
+    return sweep_pairs(px[hit], py[hit], pz[hit], il[hit], Tb, ctx.half + c)[0]
+
+
+def _ref_link_distances(ctx, view, q, reach):
+    """verify._link_distances before issue 15."""
+    Tb, lo, hi = ctx.boxes(q)
+    blo, bhi = lo - reach, hi + reach
+    c, ok = view.cells(ctx)
+    rad = ctx.cells.radius[:, None]
+    cm, cp = c - rad, c + rad
+    ci, il = np.nonzero(
+        ok[:, None] & (cp[:, 0:1] >= blo[:, 0]) & (cm[:, 0:1] <= bhi[:, 0])
+        & (cp[:, 1:2] >= blo[:, 1]) & (cm[:, 1:2] <= bhi[:, 1]) & (cp[:, 2:3] >= blo[:, 2])
+        & (cm[:, 2:3] <= bhi[:, 2])
+    )  # fmt: skip
+    pid, k = ctx.cells.expand(ci)
+    seen, p = _ref_points(ctx, view, pid)
+    pid, il = pid[seen], il[k[seen]]
+    x, y, z = p
+    inside = np.flatnonzero(
+        (x >= blo[il, 0]) & (x <= bhi[il, 0]) & (y >= blo[il, 1]) & (y <= bhi[il, 1])
+        & (z >= blo[il, 2]) & (z <= bhi[il, 2])
+    )  # fmt: skip
+    il, pid = il[inside], pid[inside]
+    Tl = Tb[il]
+    v0, v1, v2 = x[inside] - Tl[:, 0, 3], y[inside] - Tl[:, 1, 3], z[inside] - Tl[:, 2, 3]
+    half = ctx.half[il]
+    qd = [
+        np.abs(v0 * Tl[:, 0, j] + v1 * Tl[:, 1, j] + v2 * Tl[:, 2, j]) - half[:, j]
+        for j in range(3)
+    ]
+    out = [np.maximum(qj, 0.0) for qj in qd]
+    d = np.sqrt(out[0] ** 2 + out[1] ** 2 + out[2] ** 2) + np.minimum(
+        np.maximum(np.maximum(qd[0], qd[1]), qd[2]), 0.0
+    )
+    near = np.flatnonzero(d <= reach)
+    near = near[np.lexsort((pid[near], il[near]))]
+    il, d, cloud = il[near], d[near], pid[near]
+    cuts = np.searchsorted(il, np.arange(1, len(Tb)))
+    return np.split(cloud, cuts), np.split(d, cuts)
+
+
+def test_kernels_equal_the_numpy_searches_on_every_pregrasp(mug_plan):
+    from pregrasp_core.geometry import to_frame
+    from pregrasp_core.planner.approach import prepare
+    from pregrasp_core.planner.slicing import finger_slices
+    from pregrasp_core.planner.verify import _link_distances
+
+    ctx, pool = mug_plan
+    rng = np.random.default_rng(0)
+    n_points = n_links = 0
+    for i in range(len(pool)):  # loop over the pre-grasps
+        T0, q0 = pool.T_world_hand[i], pool.q[i]
+        c0 = to_frame(ctx.cells.centre, T0)
+        for window in (0.01, 0.03, 0.15):
+            s_ref = _ref_approach_sweep(ctx, T0, q0, c0, window)
+            Tb, lo, hi = ctx.boxes(q0)
+            c = ctx.params.approach_clearance
+            rad = ctx.cells.radius[:, None]
+            cells = ctx.cells
+            s_new = ctx_kernels().approach(
+                ctx.xyz, cells.order, cells.start, cells.count, c0 - rad, c0 + rad, T0,
+                lo - c, hi + c, hi[:, 2] + c + window, Tb, ctx.half + c,
+            )  # fmt: skip
+            assert s_new == s_ref or (np.isinf(s_ref) and np.isinf(s_new))
+        p = prepare(ctx, pool, i)
+        if not hasattr(p, "view"):
+            continue
+        for view, T in ((p.view, p.T), (p.view.moved(0.005), p.T)):  # also a retreat
+            ref = _ref_slices(ctx, view, p.gt, p.spread)
+            got = finger_slices(ctx, T, view, p.q0, p.gt, p.spread)
+            for (pts, n), sl in zip(ref, got, strict=True):
+                np.testing.assert_array_equal(sl.points_2d[: sl.n_obj], pts)
+                assert sl.n_slice == n
+                n_points += len(pts)
+            # link distances at the preshape and at a random closing
+            q = p.q0.copy()
+            for f in ctx.hand.fingers_for(p.gt):
+                q[list(f.flex_index)] = rng.uniform(f.lower, f.upper)
+            for qq in (p.q0, q):
+                ids_r, d_r = _ref_link_distances(ctx, view, qq, 0.003)
+                ids_n, d_n = _link_distances(ctx, view, qq, 0.003)
+                for a, b, x, y in zip(ids_r, ids_n, d_r, d_n, strict=True):
+                    np.testing.assert_array_equal(a, b)
+                    np.testing.assert_array_equal(x, y)
+                    n_links += len(a)
+    assert n_points > 10000 and n_links > 1000  # the comparisons saw real data
+
+
+def ctx_kernels():
+    from pregrasp_core.planner.kernels import kernels
+
+    return kernels()

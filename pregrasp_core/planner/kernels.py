@@ -1,0 +1,311 @@
+"""Compiled loops of the planner's per-pre-grasp searches (numba), each doing, point by point,
+the same floating-point operations in the same order as the numpy code it replaced, so that
+every coordinate, distance and selection is equal to the bit (``docs/planner.md``, "Speed notes").
+
+numba is imported and the kernels compiled (or loaded from numba's on-disk cache, ``cache=True``)
+on the first plan of a process (:func:`kernels`), never when the package is imported; the
+kernels release Python's global lock (``nogil=True``), so the planner's threads run them side by
+side.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from types import SimpleNamespace
+
+import numpy as np
+
+_LOCK = threading.Lock()
+_KERNELS: SimpleNamespace | None = None
+
+
+def kernels() -> SimpleNamespace:
+    """The compiled kernels (``slices``, ...); the first call imports numba and compiles them
+    (a few seconds the very first time, then loaded from numba's cache)."""
+    global _KERNELS
+    if _KERNELS is None:
+        with _LOCK:
+            if _KERNELS is None:
+                import numba
+
+                jit = numba.njit(cache=True, nogil=True)
+                _KERNELS = SimpleNamespace(
+                    slices=jit(slice_points),
+                    approach=jit(approach_sweep),
+                    link_distances=jit(link_distances),
+                )
+    return _KERNELS
+
+
+def slice_points(
+    xyz: np.ndarray,
+    order: np.ndarray,
+    start: np.ndarray,
+    count: np.ndarray,
+    cand: np.ndarray,
+    T0: np.ndarray,
+    r: float,
+    z_lo: float,
+    z_hi: float,
+    dz: np.ndarray,
+    nrm: np.ndarray,
+    shift: np.ndarray,
+    band: np.ndarray,
+    T_planes: np.ndarray,
+    half_width: np.ndarray,
+    reach2: np.ndarray,
+    cell: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The thinned slices of F fingers for one hand pose (the loop form of
+    :func:`~pregrasp_core.planner.slicing.finger_slices`).
+
+    xyz (3, N): the cloud by coordinate; order, start, count: the cells (:class:`Cells`); cand
+    (C,) bool: the cells to search; T0 (4, 4): the view's pose; r, z_lo, z_hi: its keep box;
+    dz (D,): its shifts along hand z; nrm (3, F), shift (F,), band (F,): the flexion planes'
+    normals, offsets and band half widths (+ margin); T_planes (F, 4, 4): the planes' frames
+    in the hand; half_width (F,): half finger widths; reach2 (F,): squared 2D reach limits;
+    cell: the thinning cell side. Returns ``(uv (M, 2), first (F + 1,), n_slice (F,))``: finger
+    j's thinned points are ``uv[first[j]:first[j + 1]]``, in ascending cloud order."""
+    n = xyz.shape[1]
+    F = nrm.shape[1]
+    seen = np.zeros(n, dtype=np.bool_)
+    for c in range(cand.shape[0]):  # mark the points of the candidate cells
+        if cand[c]:
+            for k in range(start[c], start[c] + count[c]):
+                seen[order[k]] = True
+    # the seen points in the keep box, in the view's frame (to_frame_t, then the shifts)
+    m = 0
+    for i in range(n):
+        if seen[i]:
+            m += 1
+    px = np.empty(m)
+    py = np.empty(m)
+    pz = np.empty(m)
+    k = 0
+    tx, ty, tz = T0[0, 3], T0[1, 3], T0[2, 3]
+    for i in range(n):  # ascending cloud order
+        if not seen[i]:
+            continue
+        d0, d1, d2 = xyz[0, i] - tx, xyz[1, i] - ty, xyz[2, i] - tz
+        x = d0 * T0[0, 0] + d1 * T0[1, 0] + d2 * T0[2, 0]
+        y = d0 * T0[0, 1] + d1 * T0[1, 1] + d2 * T0[2, 1]
+        z = d0 * T0[0, 2] + d1 * T0[1, 2] + d2 * T0[2, 2]
+        if abs(x) <= r and abs(y) <= r and z >= z_lo and z <= z_hi:
+            for s in range(dz.shape[0]):  # the moves, one after the other
+                z += dz[s]
+            px[k], py[k], pz[k] = x, y, z
+            k += 1
+    m = k
+    uv = np.empty((m * F, 2))
+    first = np.zeros(F + 1, dtype=np.int64)
+    n_slice = np.zeros(F, dtype=np.int64)
+    out = 0
+    ku = np.empty(m, dtype=np.int64)
+    kv = np.empty(m, dtype=np.int64)
+    su = np.empty(m)
+    sv = np.empty(m)
+    for j in range(F):  # <= 3 fingers
+        Tp = T_planes[j]
+        ox, oy, oz = Tp[0, 3], Tp[1, 3], Tp[2, 3]
+        ns = 0
+        for i in range(m):
+            along = px[i] * nrm[0, j] + py[i] * nrm[1, j] + pz[i] * nrm[2, j]
+            if not abs(along - shift[j]) <= band[j]:
+                continue
+            d0, d1, d2 = px[i] - ox, py[i] - oy, pz[i] - oz
+            u = d0 * Tp[0, 0] + d1 * Tp[1, 0] + d2 * Tp[2, 0]
+            v = d0 * Tp[0, 1] + d1 * Tp[1, 1] + d2 * Tp[2, 1]
+            off = d0 * Tp[0, 2] + d1 * Tp[1, 2] + d2 * Tp[2, 2]
+            if abs(off) <= half_width[j] and u * u + v * v <= reach2[j]:
+                su[ns], sv[ns] = u, v
+                ns += 1
+        n_slice[j] = ns
+        if cell <= 0.0 or ns < 2:  # thin_2d keeps every point
+            for i in range(ns):
+                uv[out, 0], uv[out, 1] = su[i], sv[i]
+                out += 1
+        else:  # the first point of every occupied square cell (thin_2d)
+            for i in range(ns):
+                ku[i] = np.int64(math.floor(su[i] / cell))
+                kv[i] = np.int64(math.floor(sv[i] / cell))
+            u0, v0, v1 = ku[0], kv[0], kv[0]
+            for i in range(ns):
+                u0 = min(u0, ku[i])
+                v0 = min(v0, kv[i])
+                v1 = max(v1, kv[i])
+            key = (ku[:ns] - u0) * (v1 - v0 + 1) + (kv[:ns] - v0)
+            rows = np.argsort(key, kind="mergesort")  # stable: the lowest row first
+            keep = np.zeros(ns, dtype=np.bool_)
+            for a in range(ns):
+                if a == 0 or key[rows[a]] != key[rows[a - 1]]:
+                    keep[rows[a]] = True
+            for i in range(ns):
+                if keep[i]:
+                    uv[out, 0], uv[out, 1] = su[i], sv[i]
+                    out += 1
+        first[j + 1] = out
+    return uv[:out], first, n_slice
+
+
+def approach_sweep(
+    xyz: np.ndarray,
+    order: np.ndarray,
+    start: np.ndarray,
+    count: np.ndarray,
+    cm: np.ndarray,
+    cp: np.ndarray,
+    T0: np.ndarray,
+    wlo: np.ndarray,
+    whi: np.ndarray,
+    top: np.ndarray,
+    Tb: np.ndarray,
+    half: np.ndarray,
+) -> float:
+    """The first travel along hand +z at which a link box (poses ``Tb`` (L, 4, 4), half extents
+    ``half`` (L, 3), grown by the clearance) touches a cloud point of its travel window (hand
+    frame at ``T0``: ``wlo <= p <= whi`` across, ``wlo z <= p z <= top``), inf if none (the loop
+    form of the window test and :func:`~pregrasp_core.planner.boxes.sweep_pairs` in
+    :func:`~pregrasp_core.planner.approach.prepare`). cm, cp (C, 3): the cells' balls' bounds in
+    that frame; xyz, order, start, count: the cloud and its cells."""
+    best = np.inf
+    L = Tb.shape[0]
+    tx, ty, tz = T0[0, 3], T0[1, 3], T0[2, 3]
+    for c in range(cm.shape[0]):
+        for il in range(L):
+            if not (
+                cp[c, 2] >= wlo[il, 2]
+                and cm[c, 2] <= top[il]
+                and cp[c, 0] >= wlo[il, 0]
+                and cm[c, 0] <= whi[il, 0]
+                and cp[c, 1] >= wlo[il, 1]
+                and cm[c, 1] <= whi[il, 1]
+            ):
+                continue
+            R = Tb[il]
+            for k in range(start[c], start[c] + count[c]):
+                i = order[k]
+                d0, d1, d2 = xyz[0, i] - tx, xyz[1, i] - ty, xyz[2, i] - tz
+                px = d0 * T0[0, 0] + d1 * T0[1, 0] + d2 * T0[2, 0]
+                py = d0 * T0[0, 1] + d1 * T0[1, 1] + d2 * T0[2, 1]
+                pz = d0 * T0[0, 2] + d1 * T0[1, 2] + d2 * T0[2, 2]
+                if not (
+                    pz >= wlo[il, 2]
+                    and pz <= top[il]
+                    and px >= wlo[il, 0]
+                    and px <= whi[il, 0]
+                    and py >= wlo[il, 1]
+                    and py <= whi[il, 1]
+                ):
+                    continue
+                v0, v1, v2 = px - R[0, 3], py - R[1, 3], pz - R[2, 3]
+                s_in, s_out = -np.inf, np.inf
+                for j in range(3):  # the box's three axes (slab intersection)
+                    a = v0 * R[0, j] + v1 * R[1, j] + v2 * R[2, j]
+                    d = R[2, j]
+                    h = half[il, j]
+                    if abs(d) < 1e-12:
+                        inside = abs(a) <= h
+                        lo_j = -np.inf if inside else np.inf
+                        hi_j = np.inf if inside else -np.inf
+                    else:
+                        t1 = (a - h) / d
+                        t2 = (a + h) / d
+                        lo_j = min(t1, t2)
+                        hi_j = max(t1, t2)
+                    s_in = max(s_in, lo_j)
+                    s_out = min(s_out, hi_j)
+                if s_in <= s_out and s_out >= 0.0:
+                    best = min(best, max(s_in, 0.0))
+    return best
+
+
+def link_distances(
+    xyz: np.ndarray,
+    order: np.ndarray,
+    start: np.ndarray,
+    count: np.ndarray,
+    cm: np.ndarray,
+    cp: np.ndarray,
+    ok: np.ndarray,
+    T0: np.ndarray,
+    r: float,
+    z_lo: float,
+    z_hi: float,
+    dz: np.ndarray,
+    blo: np.ndarray,
+    bhi: np.ndarray,
+    Tb: np.ndarray,
+    half: np.ndarray,
+    reach: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per link (poses ``Tb`` (L, 4, 4), half extents ``half``): the cloud points of the view
+    (pose ``T0``, keep box r, z_lo, z_hi, shifts dz) within ``reach`` of its box and their exact
+    signed distances (the loop form of ``verify._link_distances``). Candidates: the points in
+    the link's AABB grown by ``reach`` (``blo``, ``bhi`` (L, 3)), from the cells whose balls
+    (bounds ``cm``, ``cp`` (C, 3), in the hand frame) meet it and that ``ok`` keeps. Returns
+    ``(ids (K,), d (K,), first (L + 1,))``: link l's points ``ids[first[l]:first[l + 1]]`` in
+    ascending cloud order."""
+    L = Tb.shape[0]
+    tx, ty, tz = T0[0, 3], T0[1, 3], T0[2, 3]
+    cap = 1024
+    ids = np.empty(cap, dtype=np.int64)
+    dist = np.empty(cap)
+    first = np.zeros(L + 1, dtype=np.int64)
+    n = 0
+    for il in range(L):
+        R = Tb[il]
+        g = n
+        for c in range(cm.shape[0]):
+            if not (
+                ok[c]
+                and cp[c, 0] >= blo[il, 0]
+                and cm[c, 0] <= bhi[il, 0]
+                and cp[c, 1] >= blo[il, 1]
+                and cm[c, 1] <= bhi[il, 1]
+                and cp[c, 2] >= blo[il, 2]
+                and cm[c, 2] <= bhi[il, 2]
+            ):
+                continue
+            for k in range(start[c], start[c] + count[c]):
+                i = order[k]
+                d0, d1, d2 = xyz[0, i] - tx, xyz[1, i] - ty, xyz[2, i] - tz
+                x = d0 * T0[0, 0] + d1 * T0[1, 0] + d2 * T0[2, 0]
+                y = d0 * T0[0, 1] + d1 * T0[1, 1] + d2 * T0[2, 1]
+                z = d0 * T0[0, 2] + d1 * T0[1, 2] + d2 * T0[2, 2]
+                if not (abs(x) <= r and abs(y) <= r and z >= z_lo and z <= z_hi):
+                    continue
+                for s in range(dz.shape[0]):  # the moves, one after the other
+                    z += dz[s]
+                if not (
+                    x >= blo[il, 0]
+                    and x <= bhi[il, 0]
+                    and y >= blo[il, 1]
+                    and y <= bhi[il, 1]
+                    and z >= blo[il, 2]
+                    and z <= bhi[il, 2]
+                ):
+                    continue
+                v0, v1, v2 = x - R[0, 3], y - R[1, 3], z - R[2, 3]
+                q0 = abs(v0 * R[0, 0] + v1 * R[1, 0] + v2 * R[2, 0]) - half[il, 0]
+                q1 = abs(v0 * R[0, 1] + v1 * R[1, 1] + v2 * R[2, 1]) - half[il, 1]
+                q2 = abs(v0 * R[0, 2] + v1 * R[1, 2] + v2 * R[2, 2]) - half[il, 2]
+                o0, o1, o2 = max(q0, 0.0), max(q1, 0.0), max(q2, 0.0)
+                d = math.sqrt(o0 * o0 + o1 * o1 + o2 * o2) + min(max(max(q0, q1), q2), 0.0)
+                if d <= reach:
+                    if n == cap:  # grow the outputs
+                        cap *= 2
+                        ids2 = np.empty(cap, dtype=np.int64)
+                        dist2 = np.empty(cap)
+                        ids2[:n] = ids[:n]
+                        dist2[:n] = dist[:n]
+                        ids, dist = ids2, dist2
+                    ids[n] = i
+                    dist[n] = d
+                    n += 1
+        if n - g > 1:  # ascending cloud order within the link
+            o = np.argsort(ids[g:n])
+            ids[g:n] = ids[g:n][o]
+            dist[g:n] = dist[g:n][o]
+        first[il + 1] = n
+    return ids[:n], dist[:n], first
