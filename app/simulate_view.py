@@ -278,7 +278,10 @@ class LiftRunner:
         try:
             self.controller.act(client, self._simulate, client, s, g, rank, t_press)
         finally:
-            self.controller.update(lambda st: _with_lift(st, s.result.grasps, running=None))
+            try:
+                self.controller.update(lambda st: _with_lift(st, s.result.grasps, running=None))
+            except Exception:  # noqa: BLE001 - e.g. the server stopped meanwhile
+                logger.warning("could not clear the running lift", exc_info=True)
 
     def _simulator(self, s: AppState) -> tuple[Any, str, float]:
         """The compiled scene of the state's object (reused when unchanged), its model's

@@ -152,3 +152,26 @@ def _rotate(wxyz, p):
         ]
     )
     return R @ p
+
+
+def test_an_upload_is_simulated_from_its_cloud_never_from_a_file_by_its_name(app):
+    """An upload's name is the browser's: even when it names a mesh file on the server (here
+    the demo can, relative to the working directory), the collision model comes from the
+    uploaded cloud."""
+    from pathlib import Path
+
+    from pregrasp_core.paths import OBJECTS_DIR
+
+    c = app.controller
+    name = "assets/objects/can_soda.obj"
+    assert Path(name).is_file(), "the test runs from the repository root"
+    c.load_upload(name, (OBJECTS_DIR / "can_soda.obj").read_bytes())
+    c.plan()
+    assert ranked_grasps(c.state.result), "the can gets grasps"
+    c.select_grasp(0)
+    c.simulate()
+    assert c.lift.wait(120)
+    s = _wait_rendered(app, lambda s: s.lift is not None and s.lift.running is None)
+    assert s.error == "" and s.lift.playback.model == "cloud"
+    assert s.lift.playback.outcome.outcome in ("lifted", "slipped", "dropped", "unstable")
+    assert f"model from the cloud ({s.lift.playback.n_pieces} pieces" in app.gui.lift_info.content
