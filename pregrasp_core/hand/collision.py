@@ -179,10 +179,15 @@ class SelfCollisionChecker:
                 return []
         return self.collisions_of(Tb)
 
-    def collisions_of(self, Tb: np.ndarray) -> list[list[tuple[str, str]]]:
+    def collisions_of(
+        self, Tb: np.ndarray, only: np.ndarray | None = None
+    ) -> list[list[tuple[str, str]]]:
         """The intersecting checked pairs of each of B hands given their box poses Tb
-        (B, L, 4, 4): ball test, separating-axis test, python-fcl on what is left."""
-        ia, ib, reach = self.a, self.b, self.reach  # (P,), (P,), (P,)
+        (B, L, 4, 4): ball test, separating-axis test, python-fcl on what is left. ``only``:
+        the positions in ``pairs`` of the pairs to check (None: every pair); each verdict is
+        the one the check of every pair gives (the pairs are tested independently)."""
+        sel = np.arange(len(self.pairs)) if only is None else np.asarray(only, dtype=np.int64)
+        ia, ib, reach = self.a[sel], self.b[sel], self.reach[sel]  # (P,), (P,), (P,)
         B = Tb.shape[0]
         out: list[list[tuple[str, str]]] = [[] for _ in range(B)]
         c = Tb[:, :, :3, 3]  # (B, L, 3) box centres
@@ -207,7 +212,7 @@ class SelfCollisionChecker:
         geoms = self.boxes
         objs: dict[tuple[int, int], fcl.CollisionObject] = {}  # (hand, link) -> placed box
         req = fcl.CollisionRequest()
-        pairs = self.pairs
+        pairs = [self.pairs[k] for k in sel.tolist()]
         # loop over the pairs no separating axis parts (a few per hand); plain ints (fast keys)
         for b, k, *links in zip(*(x[todo].tolist() for x in (bb, kk, la, lb)), strict=True):
             for li in links:  # place each link box of this hand once

@@ -84,13 +84,16 @@ def slice_points(
     pz = np.empty(m)
     k = 0
     tx, ty, tz = T0[0, 3], T0[1, 3], T0[2, 3]
+    r00, r01, r02 = T0[0, 0], T0[0, 1], T0[0, 2]
+    r10, r11, r12 = T0[1, 0], T0[1, 1], T0[1, 2]
+    r20, r21, r22 = T0[2, 0], T0[2, 1], T0[2, 2]
     for i in range(n):  # ascending cloud order
         if not seen[i]:
             continue
         d0, d1, d2 = xyz[0, i] - tx, xyz[1, i] - ty, xyz[2, i] - tz
-        x = d0 * T0[0, 0] + d1 * T0[1, 0] + d2 * T0[2, 0]
-        y = d0 * T0[0, 1] + d1 * T0[1, 1] + d2 * T0[2, 1]
-        z = d0 * T0[0, 2] + d1 * T0[1, 2] + d2 * T0[2, 2]
+        x = d0 * r00 + d1 * r10 + d2 * r20
+        y = d0 * r01 + d1 * r11 + d2 * r21
+        z = d0 * r02 + d1 * r12 + d2 * r22
         if abs(x) <= r and abs(y) <= r and z >= z_lo and z <= z_hi:
             for s in range(dz.shape[0]):  # the moves, one after the other
                 z += dz[s]
@@ -108,16 +111,21 @@ def slice_points(
     for j in range(F):  # <= 3 fingers
         Tp = T_planes[j]
         ox, oy, oz = Tp[0, 3], Tp[1, 3], Tp[2, 3]
+        a00, a01, a02 = Tp[0, 0], Tp[0, 1], Tp[0, 2]
+        a10, a11, a12 = Tp[1, 0], Tp[1, 1], Tp[1, 2]
+        a20, a21, a22 = Tp[2, 0], Tp[2, 1], Tp[2, 2]
+        n0, n1, n2, sh, bd = nrm[0, j], nrm[1, j], nrm[2, j], shift[j], band[j]
+        hw, lim = half_width[j], reach2[j]
         ns = 0
         for i in range(m):
-            along = px[i] * nrm[0, j] + py[i] * nrm[1, j] + pz[i] * nrm[2, j]
-            if not abs(along - shift[j]) <= band[j]:
+            along = px[i] * n0 + py[i] * n1 + pz[i] * n2
+            if not abs(along - sh) <= bd:
                 continue
             d0, d1, d2 = px[i] - ox, py[i] - oy, pz[i] - oz
-            u = d0 * Tp[0, 0] + d1 * Tp[1, 0] + d2 * Tp[2, 0]
-            v = d0 * Tp[0, 1] + d1 * Tp[1, 1] + d2 * Tp[2, 1]
-            off = d0 * Tp[0, 2] + d1 * Tp[1, 2] + d2 * Tp[2, 2]
-            if abs(off) <= half_width[j] and u * u + v * v <= reach2[j]:
+            u = d0 * a00 + d1 * a10 + d2 * a20
+            v = d0 * a01 + d1 * a11 + d2 * a21
+            off = d0 * a02 + d1 * a12 + d2 * a22
+            if abs(off) <= hw and u * u + v * v <= lim:
                 su[ns], sv[ns] = u, v
                 ns += 1
         n_slice[j] = ns
@@ -134,12 +142,25 @@ def slice_points(
                 u0 = min(u0, ku[i])
                 v0 = min(v0, kv[i])
                 v1 = max(v1, kv[i])
-            key = (ku[:ns] - u0) * (v1 - v0 + 1) + (kv[:ns] - v0)
-            rows = np.argsort(key, kind="mergesort")  # stable: the lowest row first
+            width = v1 - v0 + 1
+            u1 = u0
+            for i in range(ns):
+                u1 = max(u1, ku[i])
+            n_cells = (u1 - u0 + 1) * width
             keep = np.zeros(ns, dtype=np.bool_)
-            for a in range(ns):
-                if a == 0 or key[rows[a]] != key[rows[a - 1]]:
-                    keep[rows[a]] = True
+            if n_cells <= 16 * ns + 65536:  # a dense grid: the first row seen in each cell
+                taken = np.zeros(n_cells, dtype=np.bool_)
+                for i in range(ns):  # ascending rows
+                    key = (ku[i] - u0) * width + (kv[i] - v0)
+                    if not taken[key]:
+                        taken[key] = True
+                        keep[i] = True
+            else:  # a sparse spread: a stable sort of the cell keys
+                keys = (ku[:ns] - u0) * width + (kv[:ns] - v0)
+                rows = np.argsort(keys, kind="mergesort")  # stable: the lowest row first
+                for a in range(ns):
+                    if a == 0 or keys[rows[a]] != keys[rows[a - 1]]:
+                        keep[rows[a]] = True
             for i in range(ns):
                 if keep[i]:
                     uv[out, 0], uv[out, 1] = su[i], sv[i]

@@ -174,21 +174,28 @@ def open_self_collisions(
     rejected later as ``self_collision``. Returns ``(q, clean)``; ``clean`` says that python-fcl
     found no pair at the returned ``q``; the fingers opened are marked in ``corrected``."""
     hand = ctx.hand
+    checker = hand.self_collision_checker
     q = q.copy()
     for _ in range(len(closings)):  # loop over <= 3 fingers
         pairs = ctx.self_pairs(q)
         if not pairs:
             return q, True
         a, b = pairs[0]
+        only = np.array([checker.pairs.index((a, b))])
         best: tuple[int, Finger, np.ndarray] | None = None  # (kept path index, finger, q_flex)
         for f, cl, *_ in closings:  # loop over <= 3 fingers
             if not {a, b} & {f.links[1], f.links[2]} or len(cl.path) == 0:
                 continue
 
-            def apart(i: int, f=f, cl=cl, pair=(a, b)) -> bool:
-                qq = q.copy()
-                qq[list(f.flex_index)] = cl.path[i]
-                return pair not in hand.self_collisions(qq)
+            # the pair's state at every sample of the path, in one batched check (the
+            # bisection below reads the samples it needs from it)
+            Q = np.repeat(q[None], len(cl.path), axis=0)
+            Q[:, list(f.flex_index)] = cl.path
+            hits = checker.collisions_of(hand.box_poses(Q), only)  # this pair only
+            free = [not h for h in hits]
+
+            def apart(i: int, free=free) -> bool:
+                return free[i]
 
             if not apart(0):
                 continue
