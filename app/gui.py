@@ -20,6 +20,7 @@ import numpy as np
 
 from pregrasp_core.limits import MAX_SCALE, MIN_SCALE
 from pregrasp_core.paths import demo_objects
+from pregrasp_core.planner.rank import score_text
 from pregrasp_core.shape import GRASP_TYPES
 
 from .controller import N_POINTS_RANGE, SEED_RANGE, SPEED_RANGE, Controller
@@ -522,7 +523,8 @@ def grasp_label(k: int, g: Any) -> str:
     """Option text of the grasp chooser: ``#rank type eps``, and ``NOT force closure`` when the
     grasp would not hold the object against every disturbance (epsilon 0)."""
     fc = "" if is_force_closure(g) else " NOT force closure"
-    return f"#{k + 1} {_type_of(g)} eps {float(g.epsilon):.3f}{fc}"
+    eps = score_text(g.epsilon, getattr(g, "epsilon_exact", True), ".3f")
+    return f"#{k + 1} {_type_of(g)} eps {eps}{fc}"
 
 
 def _type_of(g: Any) -> str:
@@ -572,7 +574,9 @@ def grasp_table(s: AppState) -> str:
         contacts = f"{len(contact_arrays(g)[0])}" + (f" ({n_assumed} assumed)" if n_assumed else "")
         return (
             f"| {k + 1} | {md_text(_type_of(g))} | {node} | {contacts} | "
-            f"{float(g.epsilon):.4f} | {float(getattr(g, 'volume', 0.0)):.2e} | {fc} |{lift}"
+            f"{score_text(g.epsilon, getattr(g, 'epsilon_exact', True), '.4f')} | "
+            f"{score_text(getattr(g, 'volume', 0.0), getattr(g, 'volume_exact', True), '.2e')} "
+            f"| {fc} |{lift}"
         )
 
     fc_rows = [(k, g) for k, g in enumerate(ranked) if is_force_closure(g)]

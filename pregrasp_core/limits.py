@@ -176,6 +176,12 @@ class WorkLimits:
         )
 
 
+MAX_EXACT_TOP: int = 1_000_000
+"""Upper bound of ``QualityParams.exact_top`` (grasps whose scores are exact whatever their
+bounds): more than any pool holds, so a larger value is a typo; ``exact_all`` makes every
+score exact."""
+
+
 # ----------------------------------------------------------------------------- checks
 
 

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+from .limits import MAX_EXACT_TOP, check_int
 from .tolerances import GEOM_EPS, HULL_CHECK_TOL, QUALITY_EPS, QUALITY_RANK_TOL
 
 logger = logging.getLogger(__name__)
@@ -70,6 +71,15 @@ class QualityParams:
     torque_origin: str = "object"
     """Where torques are taken: 'object' (the object's centroid, GraspIt's convention) or
     'contacts' (the contacts' centroid; the scores of the releases before 0.2)."""
+    exact_top: int = 20
+    """The planner's scores (epsilon and volume, one 6D hull each) are exact for every grasp
+    that can enter the best ``exact_top`` of the ranking and for the best grasp of each grasp
+    type; the other kept grasps carry upper bounds, with force closure still exact
+    (docs/quality.md). pregrasp plan raises it to its --top and --simulate."""
+    exact_all: bool = False
+    """Exact scores for every kept grasp instead of bounds for those that cannot reach the
+    best ``exact_top`` (slower; the ranking's best ``exact_top`` and each type's best are the
+    same either way)."""
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.mu) and self.mu >= 0.0):
@@ -82,6 +92,12 @@ class QualityParams:
             raise ValueError(
                 f"torque_origin must be one of {TORQUE_ORIGINS}, got {self.torque_origin!r}"
             )
+        object.__setattr__(
+            self, "exact_top", check_int("exact_top", self.exact_top, 0, MAX_EXACT_TOP)
+        )
+        if not isinstance(self.exact_all, (bool, np.bool_)):
+            raise ValueError(f"exact_all must be True or False, got {self.exact_all!r}")
+        object.__setattr__(self, "exact_all", bool(self.exact_all))
 
 
 @dataclass(frozen=True)
@@ -97,7 +113,15 @@ class GraspQuality:
     force_closure: bool
     """True when the origin lies strictly inside the wrench hull (epsilon > 0)."""
     reason: str
-    """'' when the hull was computed, else why the scores are 0 (e.g. 'rank 5 < 6')."""
+    """'' when the hull was computed or bounded, else why the scores are 0 (e.g. 'rank 5 < 6')."""
+    epsilon_exact: bool = True
+    """False when ``epsilon`` is an upper bound of the exact value (see :func:`grasp_quality`'s
+    ``level``); ``force_closure`` is always exact."""
+    volume_exact: bool = True
+    """False when ``volume`` is an upper bound of the exact value."""
+    bound: str = ""
+    """How the scores were obtained: '' = exact (hull or degenerate), else the bound of
+    :data:`QUALITY_BOUNDS` that gave them."""
 
 
 def _as_vectors(x: np.ndarray, name: str) -> np.ndarray:
@@ -200,29 +224,28 @@ def _exact_hull(w: np.ndarray) -> ConvexHull | None:
     return hull
 
 
-def hull_quality(wrenches: np.ndarray) -> tuple[float, float, str]:
-    """``(epsilon, volume, reason)`` of the convex hull of ``wrenches`` (M, D); never raises.
-
-    ``reason`` is '' when the hull was built, else why both scores are 0.
-    """
-    w = np.asarray(wrenches, dtype=np.float64)
-    if w.ndim != 2:
-        raise ValueError(f"wrenches must have shape (M, D), got {w.shape}")
+def _wrench_check(w: np.ndarray) -> str:
+    """'' when the wrenches ``w`` (M, D) span D dimensions (a hull exists), else why not."""
     m, d = w.shape
     if m < d + 1:
-        return 0.0, 0.0, f"{m} wrenches < {d + 1}"
+        return f"{m} wrenches < {d + 1}"
     if not np.all(np.isfinite(w)):
-        return 0.0, 0.0, "non-finite wrench"
+        return "non-finite wrench"
     sv = np.linalg.svd(w - w.mean(axis=0), compute_uv=False)
     rank = int(np.sum(sv > QUALITY_RANK_TOL * max(sv[0], GEOM_EPS)))
     if rank < d:
-        return 0.0, 0.0, f"rank {rank} < {d}"
+        return f"rank {rank} < {d}"
+    return ""
+
+
+def _hull_scores(w: np.ndarray) -> tuple[float, float, str]:
+    """``(epsilon, volume, reason)`` of the hull of full-rank wrenches ``w`` (M, D)."""
     hull = _exact_hull(w)
     if hull is None:
         try:
             hull = ConvexHull(w, qhull_options=QHULL_FALLBACK)
         except (QhullError, ValueError) as exc:  # degenerate input: a score of 0, no exception
-            logger.debug("qhull failed on %d wrenches: %s", m, exc)
+            logger.debug("qhull failed on %d wrenches: %s", len(w), exc)
             return 0.0, 0.0, "qhull failed"
     # equations: unit outward normal nv and offset o with nv . x + o <= 0 inside;
     # the distance from the origin to facet j is -o_j (negative when the origin is outside it).
@@ -233,6 +256,176 @@ def hull_quality(wrenches: np.ndarray) -> tuple[float, float, str]:
     return eps, float(hull.volume), ""
 
 
+def hull_quality(wrenches: np.ndarray) -> tuple[float, float, str]:
+    """``(epsilon, volume, reason)`` of the convex hull of ``wrenches`` (M, D); never raises.
+
+    ``reason`` is '' when the hull was built, else why both scores are 0.
+    """
+    w = np.asarray(wrenches, dtype=np.float64)
+    if w.ndim != 2:
+        raise ValueError(f"wrenches must have shape (M, D), got {w.shape}")
+    reason = _wrench_check(w)
+    if reason:
+        return 0.0, 0.0, reason
+    return _hull_scores(w)
+
+
+# ----------------------------------------------------------------------------- bounds
+
+LEVEL_CHEAPEST: int = 0
+"""``level`` of :func:`grasp_quality`: the cheapest scores that still decide force closure
+exactly (a bound where it can, the exact hull where the bounds cannot decide)."""
+LEVEL_HALF_CONES: int = 1
+"""``level``: at least the half-cone bounds (tighter than the directions' bounds)."""
+LEVEL_EXACT: int = 2
+"""``level``: the exact hull (the default)."""
+
+QUALITY_BOUNDS: tuple[str, ...] = ("directions", "half cones")
+"""``GraspQuality.bound`` of the bounded scores of level 0 and 1 ('' = exact), see
+docs/quality.md: 'directions' = epsilon 0 proven by a separating direction of a fixed set, the
+volume bounded by the wrenches' principal box; 'half cones' = both bounded through the hull of
+every other cone edge."""
+
+EPS_BOUND_TOL: float = 1e-9
+"""Added to an upper bound of epsilon so that it also bounds the value qhull computes (its
+rounding, about 1e-15, and the joggled fallback's perturbation, about 1e-10)."""
+
+VOLUME_BOUND_RTOL: float = 1e-9
+"""Relative margin added to an upper bound of the volume, for the same reason."""
+
+NOT_CLOSURE_BOUND: float = 0.5 * QUALITY_EPS
+"""An upper bound of epsilon at or below this proves the score 0 (not force closure): the
+exact value, within qhull's error (about 1e-10 at worst) of the true one, is then below
+``QUALITY_EPS`` and is reported as 0. Many planner grasps have the origin exactly on the hull's
+boundary (bounds of about 1e-17)."""
+
+
+def _unit_directions(n: int, seed: int) -> np.ndarray:
+    """(6, n + 12) unit directions: ``n`` seeded random ones and the 12 signed axes."""
+    u = np.random.default_rng(seed).normal(size=(6, n))
+    u /= np.linalg.norm(u, axis=0)
+    return np.hstack([u, np.eye(6), -np.eye(6)])
+
+
+BOUND_DIRECTIONS: np.ndarray = _unit_directions(256, 15)
+"""(6, 268) fixed unit directions of :func:`direction_bound` (seeded: the same every run)."""
+
+
+def wrench_frame(wrenches: np.ndarray, n_edges: int) -> np.ndarray:
+    """(3, 3) a frame fixed to the grasp: the first contact's cone frame ``(a, b, n)`` read
+    back from its ``n_edges`` edge forces (the first ``n_edges`` rows of ``wrenches``; ``n`` =
+    their mean, ``a`` = the first edge minus it). It turns with the grasp, so bounds taken in
+    it do not depend on the world frame. The identity when the cone is flat (``mu`` = 0)."""
+    f = np.asarray(wrenches, dtype=np.float64)[:n_edges, :3]
+    n = f.mean(axis=0)
+    a = f[0] - n
+    na, nn = float(np.linalg.norm(a)), float(np.linalg.norm(n))
+    if not (na > 1e-9 * max(nn, 1.0) and nn > GEOM_EPS):
+        return np.eye(3)
+    a, n = a / na, n / nn
+    a = a - (a @ n) * n
+    a /= np.linalg.norm(a)
+    return np.stack([a, np.cross(n, a), n], axis=1)
+
+
+def direction_bound(wrenches: np.ndarray, frame: np.ndarray | None = None) -> float:
+    """An upper bound of epsilon for 6D wrenches (M, 6): the smallest support value
+    ``max_j u . w_j`` over :data:`BOUND_DIRECTIONS`, turned by ``frame`` (3, 3; applied to the
+    force and to the torque part; None = the world frame). epsilon is the minimum of the
+    support function over every unit direction (the distance to the nearest facet), so each
+    direction's value bounds it; a value <= 0 proves the origin is not strictly inside
+    (epsilon 0, see :data:`NOT_CLOSURE_BOUND`)."""
+    w = np.asarray(wrenches, dtype=np.float64)
+    u = BOUND_DIRECTIONS
+    if frame is not None:
+        r = np.asarray(frame, dtype=np.float64)
+        u = np.vstack([r @ u[:3], r @ u[3:]])
+    return float((w @ u).max(axis=0).min())
+
+
+def box_volume_bound(wrenches: np.ndarray) -> float:
+    """An upper bound of the hull's volume: the volume of the box of the wrenches (M, D) in
+    their principal frame (the hull lies inside any box that holds its points)."""
+    w = np.asarray(wrenches, dtype=np.float64)
+    c = w - w.mean(axis=0)
+    vt = np.linalg.svd(c, full_matrices=False)[2]
+    p = c @ vt.T
+    return float(np.prod(p.max(axis=0) - p.min(axis=0)))
+
+
+def half_cone_bounds(wrenches: np.ndarray, n_edges: int) -> tuple[float, float, float] | None:
+    """``(epsilon_lower, epsilon_upper, volume_upper)`` of the hull of ``wrenches`` (K * m, D:
+    contact after contact, ``m = n_edges`` edges each) from the hull H of every other edge of
+    each cone (half the points, about a quarter of the time):
+
+    * H lies inside the full hull, so when the origin is inside H, H's epsilon (the distance to
+      its nearest facet) is a lower bound; when it is not, the value returned (the smallest
+      signed facet distance) is <= 0;
+    * every facet normal of H is a direction, so the smallest support value of the full set
+      over them is an upper bound;
+    * with ``c`` the centroid of H's points, the full hull lies in ``c + s (H - c)`` where ``s``
+      is the largest ratio over H's facets of the full set's support to H's offset (both
+      measured from ``c``), so its volume is at most ``s^D vol(H)``.
+
+    None when the bounds do not apply (fewer than 5 edges, H flat or qhull failing on it).
+    """
+    w = np.asarray(wrenches, dtype=np.float64)
+    m, d = w.shape
+    k = m // n_edges if n_edges else 0
+    if n_edges < 5 or k * n_edges != m:
+        return None
+    sub = w.reshape(k, n_edges, d)[:, ::2].reshape(-1, d)
+    if _wrench_check(sub):
+        return None
+    hull = _exact_hull(sub)
+    if hull is None:
+        return None
+    nrm = hull.equations[:, :-1]
+    dist = -hull.equations[:, -1]
+    support = (w @ nrm.T).max(axis=0)  # (F,) the full set's support along each facet normal
+    nc = nrm @ sub.mean(axis=0)
+    inner = dist - nc  # distance from the centroid to each facet of H (> 0)
+    if not inner.min() > GEOM_EPS:
+        return None
+    scale = max(1.0, float(((support - nc) / inner).max()))
+    return float(dist.min()), float(support.min()), scale**d * float(hull.volume)
+
+
+def wrench_quality(
+    wrenches: np.ndarray, n_contacts: int, n_edges: int, level: int = LEVEL_EXACT
+) -> GraspQuality:
+    """The scores of ``wrenches`` (K * m, D), contact after contact with ``m = n_edges`` edges
+    each, at ``level`` (:data:`LEVEL_CHEAPEST`, :data:`LEVEL_HALF_CONES` or
+    :data:`LEVEL_EXACT`). Below the exact level, force closure is still decided exactly: a
+    bound is returned only when it proves epsilon = 0 (a separating direction) or epsilon > 0
+    (the half-cone hull holds the origin); otherwise the exact hull is built. Bounded scores
+    are upper bounds (margins :data:`EPS_BOUND_TOL`, :data:`VOLUME_BOUND_RTOL`)."""
+    w = np.asarray(wrenches, dtype=np.float64)
+    if w.ndim != 2:
+        raise ValueError(f"wrenches must have shape (M, D), got {w.shape}")
+    reason = _wrench_check(w)
+    if reason:
+        return GraspQuality(0.0, 0.0, n_contacts, False, reason)
+    if level < LEVEL_EXACT and w.shape[1] == 6:
+        upper = direction_bound(w, wrench_frame(w, n_edges))
+        vol_upper = box_volume_bound(w)
+        if level <= LEVEL_CHEAPEST and upper <= NOT_CLOSURE_BOUND:
+            vol = vol_upper * (1.0 + VOLUME_BOUND_RTOL)
+            return GraspQuality(0.0, vol, n_contacts, False, "", True, False, QUALITY_BOUNDS[0])
+        half = half_cone_bounds(w, n_edges)
+        if half is not None:
+            lower, upper_h, vol_h = half
+            upper = min(upper, upper_h)
+            vol = min(vol_upper, vol_h) * (1.0 + VOLUME_BOUND_RTOL)
+            if upper <= NOT_CLOSURE_BOUND:
+                return GraspQuality(0.0, vol, n_contacts, False, "", True, False, QUALITY_BOUNDS[1])
+            if lower > QUALITY_EPS + EPS_BOUND_TOL:
+                eps = upper + EPS_BOUND_TOL
+                return GraspQuality(eps, vol, n_contacts, True, "", False, False, QUALITY_BOUNDS[1])
+    eps, vol, reason = _hull_scores(w)
+    return GraspQuality(eps, vol, n_contacts, eps > 0.0, reason)
+
+
 def grasp_quality(
     points: np.ndarray,
     normals: np.ndarray,
@@ -241,6 +434,7 @@ def grasp_quality(
     torques: bool = True,
     center: np.ndarray | None = None,
     radius: float | None = None,
+    level: int = LEVEL_EXACT,
 ) -> GraspQuality:
     """Ferrari-Canny epsilon L1 and wrench-hull volume of a set of contacts.
 
@@ -248,7 +442,9 @@ def grasp_quality(
     tangents: (K, 3) optional first cone edge direction per contact (see :func:`tangent_frames`);
     torques: False scores the 3D force space only (the antipodal oracle of docs/quality.md);
     center, radius: the torque origin and rho (see :func:`contact_wrenches` and the module
-    docstring; :func:`object_frame` gives both for a cloud).
+    docstring; :func:`object_frame` gives both for a cloud);
+    level: :data:`LEVEL_EXACT` (default) or a cheaper level whose scores may be upper bounds
+    (see :func:`wrench_quality`; force closure stays exact).
     """
     p = _as_vectors(points, "points")
     n = _as_vectors(normals, "normals")
@@ -263,8 +459,7 @@ def grasp_quality(
     w = contact_wrenches(
         p, n, params, tangents=tangents, torques=torques, center=center, radius=radius
     )
-    eps, vol, reason = hull_quality(w)
-    return GraspQuality(eps, vol, k, eps > 0.0, reason)
+    return wrench_quality(w, k, params.n_edges, level)
 
 
 def object_frame(points: np.ndarray) -> tuple[np.ndarray, float]:

@@ -55,6 +55,7 @@ from pregrasp_core.hand import Hand, load_hand
 from pregrasp_core.io import SUPPORTED_EXTENSIONS, PointCloud
 from pregrasp_core.pipeline import PipelineParams, PipelineResult, result_document, run_pipeline
 from pregrasp_core.planner import Grasp, GraspSet, PlannerParams
+from pregrasp_core.planner.rank import score_text
 from pregrasp_core.planner.serialize import SimulatedRanking
 from pregrasp_core.result import JsonValue, to_jsonable, write_result
 
@@ -180,11 +181,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def plan_run(args: argparse.Namespace) -> PlanRun:
     """The options of ``args`` as a :class:`PlanRun`; a bad value raises ``OptionError``."""
-    return PlanRun(
-        input=INPUT_OPTIONS.build(args),
-        params=PIPELINE_OPTIONS.build(args),
-        output=OUTPUT_OPTIONS.build(args),
-    )
+    output, params = OUTPUT_OPTIONS.build(args), PIPELINE_OPTIONS.build(args)
+    q = params.planner.quality  # every grasp listed or simulated gets exact scores
+    if max(output.top, output.simulate) > q.exact_top:
+        q = dataclasses.replace(q, exact_top=max(output.top, output.simulate))
+        params = dataclasses.replace(params, planner=dataclasses.replace(params.planner, quality=q))
+    return PlanRun(input=INPUT_OPTIONS.build(args), params=params, output=output)
 
 
 def plan_loaded(
@@ -412,7 +414,9 @@ def summary(
                 col = f" {'-' if sim is None else 'yes' if sim.success else 'no':>4}"
             lines.append(
                 f"  {rank + 1:>4}  {g.grasp_type:<17} {int(pool.node[g.pregrasp]):>4} "
-                f"{g.pregrasp:>5} {g.n_contacts:>8} {g.epsilon:>8.4f} {g.volume:>10.3e}{col}"
+                f"{g.pregrasp:>5} {g.n_contacts:>8} "
+                f"{score_text(g.epsilon, g.epsilon_exact, '.4f'):>8} "
+                f"{score_text(g.volume, g.volume_exact, '.3e'):>10}{col}"
                 f"  {links}"
             )
         lines.append("by grasp type (why the best has its type):")

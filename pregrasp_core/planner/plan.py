@@ -17,9 +17,9 @@ import numpy as np
 
 from ..geometry import as_points, as_points_like
 from ..normals import NormalParams, estimate_normals
-from ..quality import GraspQuality, grasp_quality, object_frame
 from .approach import Prepared, prepare
 from .context import Context
+from .rank import first_level, quality_frame, score_grasp, settle_exact
 from .slicing import ClosedFinger, Slice, close_slices, closing_records, finger_slices
 from .types import REJECTION_REASONS, Grasp, GraspSet, PlannerParams
 from .verify import finish
@@ -44,19 +44,6 @@ _Out = TypeVar("_Out")
 _Records = dict[int, tuple[np.ndarray, list[ClosedFinger], float]]
 """Per pre-grasp index of a chunk: the joints after closing, what each finger did, and how far
 back along the approach the hand closed (see :func:`_lift_retries`)."""
-
-
-def _score(prm: PlannerParams, frame: tuple[np.ndarray, float] | None, g: Grasp) -> Grasp:
-    """``g`` with the epsilon, volume and quality detail of its contacts; torques about
-    ``frame`` = (the object's centroid, its largest radius), None = about the contacts."""
-    pts = np.array([c.point for c in g.contacts])
-    nrm = np.array([c.normal for c in g.contacts])
-    tng = np.array([c.tangent for c in g.contacts])
-    center, radius = frame if frame is not None else (None, None)
-    qual: GraspQuality = grasp_quality(
-        pts, nrm, prm.quality, tangents=tng, center=center, radius=radius
-    )
-    return dataclasses.replace(g, epsilon=qual.epsilon, volume=qual.volume, detail=qual.reason)
 
 
 def _n_threads(threads: int) -> int:
@@ -142,8 +129,8 @@ def _plan_chunks(
 
     prm, clock, done = ctx.params, ctx.clock, 0
     # GraspIt's torque origin: the object's centroid and largest radius (docs/quality.md)
-    use_object = prm.quality.torque_origin == "object" and len(ctx.points) > 0
-    frame = object_frame(ctx.points) if use_object else None
+    frame = quality_frame(prm.quality, ctx.points)
+    score = functools.partial(score_grasp, prm.quality, frame, first_level(prm.quality))
     for c0 in range(0, P, _CHUNK):  # loop over chunks of pre-grasps
         t0 = time.perf_counter()
         preps = each(functools.partial(prepare, ctx, pool), list(range(c0, min(P, c0 + _CHUNK))))
@@ -161,9 +148,9 @@ def _plan_chunks(
             ctx.prefetch_boxes(np.array([r[0] for r in records.values()]))
         chunk = each(functools.partial(_finish_or_keep, ctx, records), preps)
         t3 = time.perf_counter()
-        # 5. quality of the kept grasps: one 6D hull each
+        # 5. quality of the kept grasps: bounds, or a 6D hull (planner/rank.py)
         kept = [k for k, g in enumerate(chunk) if g.kept]
-        scored = each(functools.partial(_score, prm, frame), [chunk[k] for k in kept])
+        scored = each(score, [chunk[k] for k in kept])
         for k, g in zip(kept, scored, strict=True):
             chunk[k] = g
         t4 = time.perf_counter()
@@ -224,6 +211,9 @@ def plan_grasps(
     ex = ThreadPoolExecutor(n_threads) if n_threads > 1 and P > 1 else None
     try:
         _plan_chunks(ctx, pool, P, ex, grasps, progress)
+        t0 = time.perf_counter()  # exact scores wherever they decide the ranking's top
+        grasps, _ = settle_exact(grasps, prm.quality, quality_frame(prm.quality, pts), ex)
+        ctx.clock["quality"] += time.perf_counter() - t0
     finally:
         if ex is not None:
             ex.shutdown()

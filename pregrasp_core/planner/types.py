@@ -159,6 +159,15 @@ class Grasp:
     """None when kept, else a key of :data:`REJECTION_REASONS`."""
     detail: str = ""
     """Human-readable detail of the rejection or of the quality ('' if nothing to say)."""
+    epsilon_exact: bool = True
+    """False when ``epsilon`` is an upper bound of the exact value (a grasp that cannot reach
+    the best ``QualityParams.exact_top``; docs/quality.md). Force closure (epsilon > 0) is
+    always exact."""
+    volume_exact: bool = True
+    """False when ``volume`` is an upper bound of the exact value."""
+    quality_bound: str = ""
+    """'' when both scores are exact, else the bound that gave them
+    (:data:`pregrasp_core.quality.QUALITY_BOUNDS`)."""
 
     @classmethod
     def from_rejection(

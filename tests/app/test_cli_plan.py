@@ -71,6 +71,7 @@ def test_json_to_stdout_and_planner_options(capsys):
     doc = json.loads(capsys.readouterr().out)
     assert doc["parameters"]["planner"]["quality"] == {
         "mu": 0.8, "n_edges": 6, "torque_scale": None, "torque_origin": "object",
+        "exact_top": 20, "exact_all": False,
     }  # fmt: skip
     assert doc["grasps"]["quality"]["n_edges"] == 6
     # the thread count is recorded and changes no grasp

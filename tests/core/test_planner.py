@@ -412,7 +412,11 @@ def test_threads_change_no_result(hand):
                 center=center,  # GraspIt: torques about the object's centroid, rho its radius
                 radius=radius,
             )
-            assert (a.epsilon, a.volume) == pytest.approx((ref.epsilon, ref.volume), rel=1e-12)
+            if a.epsilon_exact and a.volume_exact:
+                assert (a.epsilon, a.volume) == pytest.approx((ref.epsilon, ref.volume), rel=1e-12)
+            else:  # an upper bound (docs/quality.md): same force closure, never below the exact
+                assert (a.epsilon > 0.0) == (ref.epsilon > 0.0)
+                assert a.epsilon >= ref.epsilon and a.volume >= ref.volume
     assert set(three.phase_seconds) == {"approach_slicing", "closing", "verification", "quality"}
     with pytest.raises(ValueError, match="threads must be an integer >= 0"):
         PlannerParams(threads=-1)

@@ -1,0 +1,135 @@
+"""Exact scores where they decide what the user sees, bounds elsewhere (issue 15).
+
+The planner scores every kept grasp at the cheapest level that still decides force closure
+(:data:`~pregrasp_core.quality.LEVEL_CHEAPEST`: an upper bound of epsilon and of the volume when
+one proves the grasp's force closure either way, else the exact hull), then
+:func:`settle_exact` makes exact, best first, the grasps that can still enter
+
+* the best ``QualityParams.exact_top`` of the ranking, and
+* the first place of each grasp type,
+
+by branch and bound: the grasps are sorted by their scores (exact or upper bound; epsilon, then
+volume, then contacts, then pre-grasp index, as :func:`~pregrasp_core.planner.plan.rank_grasps`
+sorts them); while the first K of a group are not all exact, each of them that is not is
+refined one level (the half-cone bounds, then the exact hull) and the group is sorted again.
+A refined score is never above its bound, so a grasp among the first K stays there until it is
+exact, and once the first K are exact every other grasp's bound -- hence its exact score -- is
+below the K-th: the first K are the exact ranking's first K, in the same order. The set of
+refined grasps depends only on the scores, never on the threads. ``exact_all`` scores every
+kept grasp exactly from the start. See ``docs/quality.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from ..quality import (
+    LEVEL_CHEAPEST,
+    LEVEL_EXACT,
+    LEVEL_HALF_CONES,
+    QUALITY_BOUNDS,
+    QualityParams,
+    grasp_quality,
+    object_frame,
+)
+from .types import Grasp
+
+Frame = tuple[np.ndarray, float] | None
+"""The torque origin and scale (the object's centroid and radius), None = about the contacts."""
+
+
+def quality_frame(params: QualityParams, points: np.ndarray) -> Frame:
+    """GraspIt's torque frame of the cloud ``points`` (N, 3) when ``params.torque_origin`` is
+    'object' (docs/quality.md), else None (torques about the contacts)."""
+    if params.torque_origin == "object" and len(points) > 0:
+        return object_frame(points)
+    return None
+
+
+def first_level(params: QualityParams) -> int:
+    """The level every kept grasp is scored at first: exact with ``exact_all``, else the
+    cheapest level that decides force closure."""
+    return LEVEL_EXACT if params.exact_all else LEVEL_CHEAPEST
+
+
+def score_grasp(params: QualityParams, frame: Frame, level: int, g: Grasp) -> Grasp:
+    """``g`` with the epsilon, volume, exactness and quality detail of its contacts at
+    ``level`` (:func:`pregrasp_core.quality.grasp_quality`)."""
+    pts = np.array([c.point for c in g.contacts]).reshape(-1, 3)
+    nrm = np.array([c.normal for c in g.contacts]).reshape(-1, 3)
+    tng = np.array([c.tangent for c in g.contacts]).reshape(-1, 3)
+    center, radius = frame if frame is not None else (None, None)
+    q = grasp_quality(pts, nrm, params, tangents=tng, center=center, radius=radius, level=level)
+    return dataclasses.replace(
+        g,
+        epsilon=q.epsilon,
+        volume=q.volume,
+        detail=q.reason,
+        epsilon_exact=q.epsilon_exact,
+        volume_exact=q.volume_exact,
+        quality_bound=q.bound,
+    )
+
+
+def is_exact(g: Grasp) -> bool:
+    """Whether both scores of ``g`` are exact."""
+    return g.epsilon_exact and g.volume_exact
+
+
+def rank_key(g: Grasp) -> tuple[float, float, int, int]:
+    """Sort key of the ranking, best first: epsilon, volume, contacts (descending), then the
+    pre-grasp index."""
+    return (-g.epsilon, -g.volume, -g.n_contacts, g.pregrasp)
+
+
+def refine(params: QualityParams, frame: Frame, g: Grasp) -> Grasp:
+    """``g`` one level closer to exact: the half-cone bounds after the directions' bound, the
+    exact hull after the half-cone bounds."""
+    level = LEVEL_HALF_CONES if g.quality_bound == QUALITY_BOUNDS[0] else LEVEL_EXACT
+    return score_grasp(params, frame, level, g)
+
+
+def settle_exact(
+    grasps: Sequence[Grasp],
+    params: QualityParams,
+    frame: Frame,
+    ex: ThreadPoolExecutor | None = None,
+) -> tuple[list[Grasp], int]:
+    """``(grasps, n_refined)``: ``grasps`` (pool order) with exact scores for every grasp that
+    can enter the best ``params.exact_top`` or the first place of its grasp type (module
+    docstring); the refinements of one round run on ``ex`` when given."""
+    out = list(grasps)
+    kept = [i for i, g in enumerate(out) if g.kept]
+    groups: list[tuple[list[int], int]] = [(kept, int(params.exact_top))]
+    for t in sorted({out[i].grasp_type for i in kept}):  # loop over the (<= 4) grasp types
+        groups.append(([i for i in kept if out[i].grasp_type == t], 1))
+    fn = functools.partial(refine, params, frame)
+    n_refined = 0
+    for members, k in groups:  # loop over the groups (the ranking, then each type)
+        while k > 0:  # each round refines every inexact grasp among the group's first k
+            top = sorted(members, key=lambda i: rank_key(out[i]))[:k]
+            todo = [i for i in top if not is_exact(out[i])]
+            if not todo:
+                break
+            items = [out[i] for i in todo]
+            done = (
+                list(ex.map(fn, items))
+                if ex is not None and len(items) > 1
+                else [fn(g) for g in items]
+            )
+            for i, g in zip(todo, done, strict=True):
+                out[i] = g
+            n_refined += len(todo)
+    return out, n_refined
+
+
+def score_text(value: float, exact: bool, spec: str) -> str:
+    """A score for people: ``format(value, spec)``, prefixed by ``<= `` when it is an upper
+    bound rather than the exact value (so that a bound is never shown as if exact)."""
+    text = format(float(value), spec)
+    return text if exact else f"<= {text}"
