@@ -14,8 +14,18 @@ so on an idle machine the two agree.
 2. objects: for every demo object at ``--points`` points, parts (leaves), splits, depth,
    shape classes of the leaves and the median time, at the default parameters (0.9 / 500).
 
+3. ``--compare [REV]`` (issue 15): this tree against the code of commit REV (default fe74cdf,
+   before issue 15's decomposition work) in one run. REV is checked out in a temporary
+   ``git worktree``; one worker process runs each tree's code on the same clouds (every demo
+   object at ``--points`` points, seed 0), the two are driven alternately (old then new, new then
+   old on the next round), and the table gives the median over ``--repeats`` rounds (at least
+   7) of each side's CPU and wall time per decomposition, and whether the trees (nodes, point
+   indices and the bytes of every box) are identical. A worker warms up on every cloud first;
+   the new side's first call in a fresh process (numba import and cache load) is printed apart.
+
 Run on one core:  .venv/bin/python benchmarks/bench_decomposition.py
 Options: --object NAME --sizes 1000,10000,... --repeats R --points N --skip-objects
+         --compare [REV]
 """
 
 from __future__ import annotations
@@ -26,10 +36,22 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import hashlib  # noqa: E402
+import json  # noqa: E402
 import math  # noqa: E402
 import statistics  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
 from collections import Counter  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+if "--worker" in sys.argv:  # a worker runs the code of the tree it is given
+    sys.path.insert(0, sys.argv[sys.argv.index("--worker") + 1])
+else:
+    sys.path.insert(0, str(REPO))  # this tree's code, not whatever is installed
 
 from pregrasp_core import decomposition as dec  # noqa: E402
 from pregrasp_core.decomposition import DecompositionParams, decompose  # noqa: E402
@@ -126,6 +148,108 @@ def objects(n_points, repeats, params):
     print()
 
 
+def tree_signature(tree) -> str:
+    """Hash of everything a tree holds: structure, point indices and the bytes of every box."""
+    h = hashlib.sha256()
+    for nd in tree.nodes:
+        h.update(repr((nd.parent, nd.children, nd.depth, nd.split_order)).encode())
+        for arr in (nd.indices, nd.box.center, nd.box.rotation, nd.box.extents):
+            h.update(arr.tobytes())
+    return h.hexdigest()[:16]
+
+
+def worker(n_points: int) -> None:
+    """Decompose on request: reads an object name per line, answers one JSON line."""
+    t0 = time.perf_counter()
+    from pregrasp_core.decomposition import decompose as dec_fn
+    from pregrasp_core.io import load_point_cloud as load
+    from pregrasp_core.paths import DEFAULT_OBJECT as default
+    from pregrasp_core.paths import demo_objects as objs
+
+    clouds = {p.stem: load(p, n_points=n_points, seed=0).points for p in objs()}
+    t_import = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    dec_fn(clouds[default.stem])  # the first call of a fresh process
+    first = time.perf_counter() - t1
+    for pts in clouds.values():  # warm-up
+        dec_fn(pts)
+    print(json.dumps({"objects": list(clouds), "first": first, "import": t_import}), flush=True)
+    for line in sys.stdin:
+        name = line.strip()
+        if not name:
+            break
+        c0, w0 = time.process_time(), time.perf_counter()
+        tree = dec_fn(clouds[name])
+        cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+        out = {"cpu": cpu, "wall": wall, "sig": tree_signature(tree), "parts": len(tree.leaves())}
+        print(json.dumps(out), flush=True)
+
+
+def compare(rev: str, n_points: int, repeats: int) -> None:
+    """This tree against commit ``rev``, side by side (see the module docstring)."""
+    repeats = max(7, repeats)
+    tmp = Path(tempfile.mkdtemp(prefix="bench_dec_"))
+    old_tree = tmp / "old"
+    git = ["git", "-C", str(REPO)]
+    subprocess.run([*git, "worktree", "add", "--detach", str(old_tree), rev], check=True,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    procs = {}
+    try:
+        for side, tree in (("old", old_tree), ("new", REPO)):
+            procs[side] = subprocess.Popen(
+                [sys.executable, str(Path(__file__).resolve()), "--worker", str(tree),
+                 "--points", str(n_points)],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=str(tree),
+                env={**os.environ, "PYTHONPATH": str(tree)},
+            )  # fmt: skip
+        hello = {side: json.loads(p.stdout.readline()) for side, p in procs.items()}
+        names = hello["new"]["objects"]
+        runs: dict[tuple[str, str], list[dict]] = {(s, n): [] for s in procs for n in names}
+        for r in range(repeats):
+            for i, name in enumerate(names):
+                sides = ("old", "new") if (r + i) % 2 == 0 else ("new", "old")
+                for side in sides:
+                    procs[side].stdin.write(name + "\n")
+                    procs[side].stdin.flush()
+                    runs[side, name].append(json.loads(procs[side].stdout.readline()))
+    finally:
+        for p in procs.values():
+            if p.stdin:
+                p.stdin.close()
+            p.wait(timeout=60)
+        subprocess.run([*git, "worktree", "remove", "--force", str(old_tree)], check=False,
+                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    load = os.getloadavg()
+    print(
+        f"### Side by side: this tree against {rev}, {n_points:,} points (seed 0), default "
+        f"parameters, median of {repeats} interleaved runs; load average "
+        f"{load[0]:.1f} / {load[1]:.1f} at the end\n"
+    )
+    print(
+        "| object | parts | old CPU ms | new CPU ms | new / old | old wall ms | new wall ms "
+        "| identical trees |"
+    )
+    print("|---|---:|---:|---:|---:|---:|---:|---|")
+    ratios = []
+    for name in names:
+        o, n = runs["old", name], runs["new", name]
+        oc, nc = (statistics.median(x["cpu"] for x in v) * 1e3 for v in (o, n))
+        ow, nw = (statistics.median(x["wall"] for x in v) * 1e3 for v in (o, n))
+        same = len({x["sig"] for x in o + n}) == 1
+        ratios.append(nc / oc)
+        print(
+            f"| {name} | {n[0]['parts']} | {oc:.1f} | {nc:.1f} | {nc / oc:.2f} | {ow:.1f} | "
+            f"{nw:.1f} | {'yes' if same else 'NO'} |"
+        )
+    print(f"\nmedian new / old CPU: {statistics.median(ratios):.2f}")
+    for side in ("old", "new"):
+        print(
+            f"{side}: first decomposition of the default object in a fresh process "
+            f"{hello[side]['first'] * 1e3:.0f} ms (after imports and cloud loading)"
+        )
+    print()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--object", default=DEFAULT_OBJECT.stem, help="object for the scaling table")
@@ -134,7 +258,16 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=20000, help="points per object (table 2)")
     ap.add_argument("--skip-objects", action="store_true")
     ap.add_argument("--skip-scaling", action="store_true")
+    ap.add_argument("--compare", nargs="?", const="fe74cdf", metavar="REV",
+                    help="side by side with the code of commit REV (default fe74cdf)")  # fmt: skip
+    ap.add_argument("--worker", metavar="TREE", help=argparse.SUPPRESS)
     a = ap.parse_args()
+    if a.worker:
+        worker(a.points)
+        return
+    if a.compare:
+        compare(a.compare, a.points, a.repeats)
+        return
     params = DecompositionParams()
     path = next((p for p in demo_objects() if p.stem == a.object), OBJECTS_DIR / a.object)
     sizes = [int(s) for s in a.sizes.split(",")]

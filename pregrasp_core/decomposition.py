@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .box import OrientedBox, canonical_axes
+from .decomposition_kernels import kernels
 from .errors import DegenerateGeometryError, WorkLimitError
 from .geometry import as_points
 from .limits import (
@@ -251,35 +252,19 @@ def best_cut(p_box: np.ndarray, min_points: int) -> tuple[int, int, np.ndarray, 
         return None
     best: tuple[int, int, np.ndarray, float] | None = None
     lo, hi = min_points - 1, n - min_points - 1  # cut after sorted position i, lo <= i <= hi
-    left_i, right_i = slice(lo, hi + 1), slice(lo + 1, hi + 2)  # i and i + 1 for every cut
     pT = np.ascontiguousarray(p.T)  # (3, n): rows are contiguous, accumulate runs fast
+    cut_scan = kernels().cut_scan
     for a in range(3):
-        # ties are never cut (see below), so the unstable sort gives the same children
+        # Ties are never cut (see below), so the unstable sort gives the same children. The
+        # compiled scan does what these numpy steps did, to the bit: s = pT[:, order]; running
+        # maxima and minima of the two other rows from the front (the left child s[:, : i + 1])
+        # and from the back (the right child s[:, i + 1 :]); for every cut, total =
+        # (x[i] - x[0]) e1 e2 + (x[-1] - x[i + 1]) f1 f2, inf where x[i + 1] <= x[i] (only
+        # between distinct values); the first minimum.
         order = np.argsort(pT[a])
-        s = np.take(pT, order, axis=1)  # (3, n) sorted along a (5x faster than pT[:, order])
-        x = s[a]  # (n,)
-        others = s[[b for b in range(3) if b != a]]  # (2, n)
-        # prefix extents of the two other axes for the left child s[:, : i + 1]: (2, n)
-        # (in-place arithmetic: the same operations in the same order, fewer temporaries)
-        pre = np.maximum.accumulate(others, axis=1)
-        pre -= np.minimum.accumulate(others, axis=1)
-        # suffix extents for the right child s[:, i:]: (2, n)
-        rev = others[:, ::-1]
-        suf = np.maximum.accumulate(rev, axis=1)
-        suf -= np.minimum.accumulate(rev, axis=1)
-        suf = suf[:, ::-1]
-        xl, xr = x[left_i], x[right_i]  # (m,) coordinates on both sides of each cut
-        total = xl - x[0]  # becomes v_left + v_right, (m,)
-        total *= pre[0, left_i]
-        total *= pre[1, left_i]
-        v_right = x[-1] - xr
-        v_right *= suf[0, right_i]
-        v_right *= suf[1, right_i]
-        total += v_right
-        total[xr <= xl] = np.inf  # only between distinct values
-        j = int(np.argmin(total))
-        if np.isfinite(total[j]) and (best is None or total[j] < best[3]):
-            best = (a, lo + j, order, float(total[j]))
+        j, v = cut_scan(pT, order, a, lo, hi)
+        if math.isfinite(v) and (best is None or v < best[3]):
+            best = (a, lo + j, order, float(v))
     return best
 
 

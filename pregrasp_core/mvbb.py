@@ -37,6 +37,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from .box import OrientedBox, canonical_axes
+from .decomposition_kernels import kernels
 from .errors import DegenerateGeometryError, InputError
 from .geometry import as_points
 from .limits import (
@@ -268,26 +269,10 @@ def _tight_box(PT: np.ndarray, R: np.ndarray, origin: np.ndarray | None = None) 
 
 def _kernel_mask(q: np.ndarray, lo: np.ndarray, ext: np.ndarray, grid: int) -> np.ndarray:
     """(N,) bool: the lowest and the highest point of every column of a ``grid`` x ``grid``
-    grid, along each of the three axes (one point per column and side, ties broken by index).
-    q: (3, N) points; lo, ext: (3,) their bounds."""
-    n = q.shape[1]
-    keep = np.zeros(n, dtype=bool)
-    cells = np.minimum(((q - lo[:, None]) / ext[:, None] * grid).astype(np.int64), grid - 1)
-    for a in range(3):
-        b, c = (a + 1) % 3, (a + 2) % 3
-        cell = cells[b] * grid + cells[c]  # (N,) column index of every point
-        top = np.full(grid * grid, -np.inf)
-        np.maximum.at(top, cell, q[a])
-        bottom = np.full(grid * grid, np.inf)
-        np.minimum.at(bottom, cell, q[a])
-        for hit in (np.flatnonzero(q[a] >= top[cell]), np.flatnonzero(q[a] <= bottom[cell])):
-            # One point per column even when several tie (points on a face parallel to a grid
-            # plane): the first of each column (np.minimum.at on the few hits: cheaper than
-            # np.unique, which sorts).
-            first = np.full(grid * grid, n)
-            np.minimum.at(first, cell[hit], hit)
-            keep[first[first < n]] = True
-    return keep
+    grid, along each of the three axes (one point per column and side: the first by index when
+    several tie). q: (3, N) points; lo, ext: (3,) their bounds. One compiled pass per axis
+    (``decomposition_kernels``)."""
+    return kernels().kernel_mask(q, lo, ext, grid)
 
 
 def _face_areas(S: np.ndarray, simplices: np.ndarray) -> np.ndarray:
@@ -470,7 +455,11 @@ def _search(
             np.any((proj >= hi[:, None] - margin) | (proj <= lo[:, None] + margin), axis=0)
         )
         near = near[_kernel_mask(np.take(proj, near, axis=1), lo, hi - lo, p.polish_grid)]
-        fine = np.union1d(fine, near)
+        # np.union1d(fine, near) without its sort: both are indices into Q
+        in_set = np.zeros(Q.shape[1], dtype=bool)
+        in_set[fine] = True
+        in_set[near] = True
+        fine = np.flatnonzero(in_set)
         Vf = np.take(Q, fine, axis=1)
         cur = _pattern_search(cur, Vf, p, mid, n_levels)
         proj = None  # cur has moved
@@ -608,49 +597,29 @@ def _pattern_search(
     halves the memory traffic and is ample for steps of a tenth of a degree and more.
     """
     cur_t = np.ascontiguousarray(cur.transpose(0, 2, 1))  # (T, 3, 3), rows = axes
-    Vf = Vf.astype(dtype, copy=False)
+    Vf = np.ascontiguousarray(Vf, dtype=dtype)
     cur_vol = _volumes(cur.astype(dtype), Vf)
     radius = float(np.sqrt((Vf * Vf).sum(axis=0).max()))  # rotations are about the origin
     n_levels = stop
     steps = p.step_start * 0.5 ** np.arange(n_levels)  # (L,)
     stencils_t = _stencils_t(float(p.step_start), int(n_levels))  # (L, 26, 3, 3)
     level = np.full(len(cur), start, dtype=np.int64)  # per-candidate step level
-    active: list[np.ndarray] = [Vf, Vf, Vf]
-    spent, budget = 0.0, -1.0
-    for _ in range(p.max_iterations):
-        live = np.flatnonzero(level < n_levels)
-        n_live = len(live)
-        if n_live == 0:
-            break
-        Ct, lv = cur_t[live], level[live]  # (T', 3, 3), (T',)
-        step = float(steps[lv].max())
-        if spent + step > budget:
-            # Active sets: rotations of total angle <= budget move a coordinate by at most
-            # radius * budget, so only points within 2 * radius * budget of face +-k of a current
-            # box can become extreme along axis k before the sets are rebuilt.
-            budget, spent = p.active_reach * step, 0.0
-            proj = (Ct.astype(dtype).reshape(-1, 3) @ Vf).reshape(n_live, 3, -1)
-            margin = 2.0 * radius * budget * (1.0 + 1e-9)
-            near = (proj >= proj.max(axis=2, keepdims=True) - margin) | (
-                proj <= proj.min(axis=2, keepdims=True) + margin
-            )  # (T', 3, f)
-            near_k = near.any(axis=0)  # (3, f)
-            active = [np.compress(near_k[k], Vf, axis=1) for k in range(3)]  # (3, a_k) each
-        trial_t = stencils_t[lv] @ Ct[:, None]  # (T', 26, 3, 3): rows = trial axes
-        trial_e = trial_t.astype(dtype, copy=False)
-        tv: np.ndarray = np.ones((n_live, 26), dtype=dtype)
-        for k in range(3):
-            pk = trial_e[:, :, k, :].reshape(-1, 3) @ active[k]  # (T' * 26, a_k)
-            tv *= (pk.max(axis=1) - pk.min(axis=1)).reshape(n_live, 26)
-        j = np.argmin(tv, axis=1)
-        tbest = tv[np.arange(n_live), j]
-        better = tbest < cur_vol[live] * (1.0 - 1e-12)
-        if np.any(better):
-            spent += step
-            up = live[better]
-            cur_t[up] = trial_t[better, j[better]]
-            cur_vol[up] = tbest[better]
-        level[live[~better]] += 1
+    # The loop is compiled (decomposition_kernels.pattern_search), the same steps as this numpy
+    # version, to the bit:
+    #   for each iteration: live = candidates with level < n_levels (none: stop);
+    #     step = the largest step of the live ones; when spent + step > budget, the active sets
+    #     are rebuilt: budget = active_reach * step, spent = 0, margin = 2 radius budget, and the
+    #     active points of axis k are those within margin of face +-k of a live box (projected
+    #     in the precision of the volumes);
+    #     trials: the 26 stencil rotations S.T @ C.T of each live box (rows = trial axes), their
+    #     volumes = product over k of the extent along trial axis k of the active points of k;
+    #     a box moves to its best trial if that is below its volume * (1 - 1e-12) (and spent +=
+    #     step), otherwise its level goes down one step.
+    shrink: np.ndarray = np.array([1.0 - 1e-12], dtype=dtype)
+    kernels().pattern_search(
+        cur_t, cur_vol, Vf, stencils_t, steps, level, radius, float(p.active_reach),
+        int(p.max_iterations), shrink,
+    )  # fmt: skip
     return np.ascontiguousarray(cur_t.transpose(0, 2, 1))
 
 
