@@ -15,12 +15,12 @@ from .batch_hits import (
     SliceBatch,
     any_hit_ragged,
     batch_distance,
-    pair_eval,
     pair_hits,
     paths,
     points_of,
 )
 from .closing import REFINE_BUDGET, REFINE_SAMPLES, FingerGeometry
+from .sweep_kernel import sweep_kernel
 
 
 def _coarse_sweep(
@@ -60,52 +60,13 @@ def _coarse_sweep(
     best = np.where(palm.any(axis=1), np.argmax(palm, axis=1), C1)  # (R,) first touch so far
     t_flat = t.reshape(-1)
     inv_step = np.divide(1.0, step, out=np.full(R, np.inf), where=step > 0)
-    free = np.zeros(len(pts))  # each point is off the links for all t in [0, free)
-    px, py = B.x[pts], B.y[pts]
-    lim = np.minimum(n_t, best)  # (R,) samples beyond this need no test
-    # buckets[k]: the points (positions in pts, increasing in each part) to test at coarse
-    # sample k; every point starts at sample 0 and, untouched, moves on to the first sample its
-    # clearance does not cover
-    buckets: list[list[np.ndarray]] = [[] for _ in range(C1)]
-    buckets[0].append(np.arange(len(pts)))
-    for k in range(C1):  # loop over closing steps, in order: a slice stops at its first touch
-        if not buckets[k]:
-            continue
-        parts, buckets[k] = buckets[k], []
-        if k == 0 and np.all(lim > 0):  # every point (no gathers)
-            pos, rw, ppx, ppy, f = parts[0], rows, px, py, free
-        else:
-            pos = parts[0] if len(parts) == 1 else np.concatenate(parts)
-            pos = pos[lim[rows[pos]] > k]
-            if len(pos) == 0:
-                continue
-            rw, ppx, ppy, f = rows[pos], px[pos], py[pos], free[pos]
-        ci = rw * C1 + k
-        hit, clear = pair_eval(flat, ci, ppx, ppy, B.margin, links)
-        tk = np.take(t_flat, ci)
-        # the certified intervals (tk - clear, tk + clear) of a point chain up from t = 0 (its
-        # next test is at or before tk + clear, unless it is pushed to the next sample)
-        free[pos] = np.where(tk - clear < f, np.maximum(f, tk + clear), f)
-        if hit.any():
-            best[rw[hit]] = k  # the first touch of these slices (the samples go in order)
-            lim = np.minimum(n_t, best)
-        # next sample that the point may touch at (never beyond the first sample after tk + clear)
-        with np.errstate(invalid="ignore", over="ignore"):
-            nxt = np.floor((tk + clear) * inv_step[rw])
-        nxt = np.where(np.isfinite(nxt), np.minimum(nxt, C1), C1).astype(np.int64)
-        nxt = np.maximum(nxt, k + 1)
-        keep = np.flatnonzero(~hit & (nxt < lim[rw]))
-        if len(keep) == 0:
-            continue
-        nk = nxt[keep]
-        # stable (a radix sort for 16-bit keys): positions stay increasing within each part
-        order = keep[np.argsort(nk.astype(np.int16) if C1 < 2**15 else nk, kind="stable")]
-        pos, nxt = pos[order], nxt[order]
-        cut = np.flatnonzero(np.diff(nxt)) + 1
-        starts = np.concatenate([[0], cut])
-        ends = np.concatenate([cut, [len(nxt)]])
-        for a, b in zip(starts, ends, strict=True):  # loop over distinct next samples (< C1)
-            buckets[int(nxt[a])].append(pos[a:b])
+    names = ("d1x", "d1y", "d2x", "d2y", "cs", "cr", "hm", "top0", "top1", "sp0", "sp1")
+    best, free = sweep_kernel()(
+        np.stack([flat[f] for f in names]), np.ascontiguousarray(t_flat), inv_step,
+        n_t.astype(np.int64), best.astype(np.int64), np.ascontiguousarray(B.x[pts]),
+        np.ascontiguousarray(B.y[pts]), rows.astype(np.int64), C1, float(B.margin),
+        bool(links[0]), bool(links[1]),
+    )  # fmt: skip
     k_first = np.where(best < n_t, best, -1)
     return k_first, free
 

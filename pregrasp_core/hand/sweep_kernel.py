@@ -1,0 +1,140 @@
+"""The closing model's coarse sweep as one compiled loop (numba; see
+:func:`~pregrasp_core.hand.batch_events.coarse_sweep`): the same tests of the same (sample,
+point) pairs with the same arithmetic as the numpy sweep it replaced, so every result is
+equal to the bit. numba is imported and the loop compiled (or loaded from numba's on-disk
+cache) on the first closing of a process (:func:`sweep_kernel`), never at import; it releases
+Python's global lock."""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Callable
+
+import numpy as np
+
+_LOCK = threading.Lock()
+_KERNEL: list[Callable[..., tuple[np.ndarray, np.ndarray]]] = []
+
+
+def sweep_kernel() -> Callable[..., tuple[np.ndarray, np.ndarray]]:
+    """The compiled :func:`coarse_sweep_loop` (numba imported on the first call)."""
+    if not _KERNEL:
+        with _LOCK:
+            if not _KERNEL:
+                import numba
+
+                _KERNEL.append(numba.njit(cache=True, nogil=True)(coarse_sweep_loop))
+    return _KERNEL[0]
+
+
+def coarse_sweep_loop(
+    flat: np.ndarray,
+    t_flat: np.ndarray,
+    inv_step: np.ndarray,
+    n_t: np.ndarray,
+    best: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    rows: np.ndarray,
+    C1: int,
+    m: float,
+    mid: bool,
+    dis: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The first touching coarse sample of R slices and the certified-free parameter of every
+    point (``batch_events.coarse_sweep``'s loop).
+
+    flat (11, R * C1): per configuration d1x, d1y, d2x, d2y, cs, cr, hm, top0, top1, sp0, sp1
+    (the sweep's per-configuration arrays, in this order); t_flat (R * C1,): the parameters;
+    inv_step (R,); n_t (R,); best (R,): the first palm touch (C1 if none), updated; px, py,
+    rows (P,): the points and their slices' rows; C1: samples per slice; m: the margin; mid,
+    dis: which links are tested. Returns ``(best (R,), free (P,))``."""
+    P = px.shape[0]
+    R = n_t.shape[0]
+    lim = np.minimum(n_t, best)
+    free = np.zeros(P)
+    # buckets as linked lists: head[k] -> first point, nxt_in[p] -> the next point
+    head = np.full(C1 + 1, -1, dtype=np.int64)
+    link = np.full(P, -1, dtype=np.int64)
+    for p in range(P - 1, -1, -1):  # every point starts at sample 0
+        link[p] = head[0]
+        head[0] = p
+    tested = np.empty(P, dtype=np.int64)
+    t_next = np.empty(P, dtype=np.int64)
+    t_hit = np.zeros(P, dtype=np.bool_)
+    hit_row = np.zeros(R, dtype=np.bool_)
+    for k in range(C1):  # the samples in order: a slice stops at its first touch
+        n = 0
+        p = head[k]
+        head[k] = -1
+        while p >= 0:
+            nx = link[p]
+            rw = rows[p]
+            if lim[rw] > k:
+                ci = rw * C1 + k
+                # the pair's test (the arithmetic of the numpy sweep's pair test): hit = a link
+                # within the margin; clear = the path parameter over which the point surely
+                # stays off both links (its distance to each grown rectangle over the
+                # rectangle's largest speed; 0 when it touches)
+                hit = False
+                clear = np.inf
+                hm = flat[6, ci]
+                for lk in range(2):  # middle, distal
+                    if (lk == 0 and not mid) or (lk == 1 and not dis):
+                        continue
+                    dx = flat[0, ci] if lk == 0 else flat[2, ci]
+                    dy = flat[1, ci] if lk == 0 else flat[3, ci]
+                    s = dx * px[p]
+                    s += dy * py[p]
+                    r = dx * py[p]
+                    r -= dy * px[p]
+                    if lk == 1:
+                        s -= flat[4, ci]
+                        r -= flat[5, ci]
+                    top = flat[7, ci] if lk == 0 else flat[8, ci]
+                    r = abs(r)
+                    top = s - top
+                    s = -s
+                    s -= m
+                    s = max(s, top)
+                    s = max(s, 0.0)
+                    r -= hm
+                    r = max(r, 0.0)
+                    if max(s, r) == 0.0:
+                        hit = True
+                    s *= s
+                    r *= r
+                    s += r
+                    s = math.sqrt(s)
+                    s -= 1e-9
+                    s = max(s, 0.0)
+                    s /= flat[9, ci] if lk == 0 else flat[10, ci]
+                    clear = min(clear, s)
+                if hit:
+                    clear = 0.0
+                tk = t_flat[ci]
+                f = free[p]
+                if tk - clear < f:
+                    free[p] = max(f, tk + clear)
+                if hit:
+                    hit_row[rw] = True
+                y = (tk + clear) * inv_step[rw]
+                nxt = np.int64(min(np.floor(y), C1)) if math.isfinite(y) else np.int64(C1)
+                tested[n] = p
+                t_next[n] = nxt if nxt > k + 1 else k + 1
+                t_hit[n] = hit
+                n += 1
+            p = nx
+        for rw in range(R):  # the first touch of the slices hit at this sample
+            if hit_row[rw]:
+                best[rw] = k
+                lim[rw] = min(n_t[rw], k)
+                hit_row[rw] = False
+        for a in range(n):  # the untouched points move on to the next sample they may touch at
+            p = tested[a]
+            nk = t_next[a]
+            if not t_hit[a] and nk < lim[rows[p]]:
+                link[p] = head[nk]
+                head[nk] = p
+    return best, free
