@@ -27,6 +27,7 @@ from pregrasp_core.errors import InputError, PregraspError
 from pregrasp_core.limits import MAX_SCALE, MIN_SCALE, check_real
 from pregrasp_core.paths import demo_objects
 
+from .result_file import ResultFile, looks_like_result, read_result_file
 from .scene import SceneRenderer
 from .scene_data import (
     kept_cluster,
@@ -50,6 +51,15 @@ SEED_RANGE = (0, 2**31 - 1)
 """Accepted sampling seeds (the ``seed`` control uses the same range)."""
 SPEED_RANGE = (0.1, 4.0)
 """Accepted animation speeds, cycles per 2 s (the ``speed`` control uses the same range)."""
+
+
+def loaded_result_notice(loaded: ResultFile, what: str = "change the thresholds") -> str:
+    """Why a threshold, a resample or a plan is refused while a result file is shown."""
+    return (
+        f"{loaded.name} is a loaded result file: it is shown as it was computed, with its "
+        f"parameters, and nothing is recomputed. To {what}, open the object it was computed "
+        f"from ({loaded.source or 'its input'}) and plan again"
+    )
 
 
 class Superseded(Exception):
@@ -256,7 +266,110 @@ class Controller:
             )
         if not data:
             raise InputError(f"upload {filename!r} is empty: choose a point cloud or mesh file")
+        if Path(filename).suffix.lower() == ".json" or looks_like_result(bytes(data[:64])):
+            return self.load_result(bytes(data), filename)
         return self._load(ObjectSource(name=filename, data=bytes(data)))
+
+    # ------------------------------------------------------------------ result files
+    def _read_result(self, data: bytes, name: str) -> ResultFile:
+        if len(data) > self.max_upload_bytes:
+            raise InputError(
+                f"{name} is {len(data) / 2**20:.1f} MiB; the limit for result files is "
+                f"{self.max_upload_bytes / 2**20:.0f} MiB"
+            )
+        return read_result_file(data, name, self.hand)
+
+    def load_result_path(self, path: str | Path) -> AppState:
+        """Open a ``pregrasp/1`` result file (``pregrasp plan -o X.json``) from disk."""
+        p = Path(path)
+        try:
+            with p.open("rb") as fh:
+                data = fh.read(self.max_upload_bytes + 1)
+        except OSError as exc:
+            raise InputError(f"{p}: cannot read the result file ({exc.strerror or exc})") from None
+        return self.load_result(data, p.name)
+
+    def load_result(self, data: bytes, name: str) -> AppState:
+        """Show the result file ``data`` exactly as it holds it (boxes, face masks, pool,
+        grasps, best), without recomputing anything (:mod:`app.result_file`). Supersedes a
+        computation in progress."""
+        loaded = self._read_result(data, name)  # outside the lock: parsing only
+        with self._req_lock:
+            self._generation += 1
+            gen = self._generation
+            self._pending = {}
+        res = loaded.result
+        n = len(ranked_grasps(res))
+        n_parts = 0 if res.tree is None else len(res.tree.leaves())
+        best_rank = _best_rank(loaded)
+        parts = [
+            f"{name}: result file of {loaded.source or 'an unnamed input'} "
+            f"({loaded.n_points} points), {n_parts} parts",
+            f"pool {0 if res.pool is None else len(res.pool)}",
+            f"{n} grasps kept" if loaded.planned else "not planned",
+        ]
+        note = (
+            "the file holds no points: showing its boxes, face masks, pre-grasps, the hand "
+            "and its contacts (nothing recomputed)"
+        )
+        with self._lock:
+            s = self._state
+            state = dataclasses.replace(
+                s,
+                source=ObjectSource(name=name),
+                params=res.params,
+                result=res,
+                planned=loaded.planned,
+                loaded=loaded,
+                compare=None,
+                view=ViewState(
+                    show_face_masks=s.view.show_face_masks,
+                    show_ghosts=s.view.show_ghosts,
+                    speed=s.view.speed,
+                    selected_grasp=best_rank,
+                    anim_t=0.0 if best_rank is not None else 1.0,
+                    playing=best_rank is not None,
+                ),
+                busy="",
+                progress=0.0,
+                message=", ".join(parts) + "; " + note,
+                error="",
+            )
+            return self._settle(gen, state)
+
+    def compare_result(self, data: bytes, name: str) -> AppState:
+        """Draw the best grasps of a second result file of the same object beside the current
+        ones (a view: the current result stays as it is)."""
+        other = self._read_result(data, name)
+        with self._lock:
+            s = self._state
+            if s.result is None:
+                raise InputError("open an object or a result file before comparing")
+            mine = s.loaded.source if s.loaded is not None else s.cloud.source
+            if Path(str(mine)).name != Path(other.source).name:
+                raise InputError(
+                    f"{name} is a result of {Path(other.source).name or 'another input'}, not of "
+                    f"{Path(str(mine)).name}: compare two results of the same object"
+                )
+            if not other.planned:
+                raise InputError(f"{name} holds no planned grasps to compare with")
+            return self._commit(dataclasses.replace(s, compare=other))
+
+    def compare_result_path(self, path: str | Path) -> AppState:
+        """:meth:`compare_result` with a file on disk."""
+        p = Path(path)
+        try:
+            data = p.read_bytes()
+        except OSError as exc:
+            raise InputError(f"{p}: cannot read the result file ({exc.strerror or exc})") from None
+        return self.compare_result(data, p.name)
+
+    def clear_compare(self) -> AppState:
+        """Stop comparing."""
+        with self._lock:
+            if self._state.compare is None:
+                return self._state
+            return self._commit(dataclasses.replace(self._state, compare=None))
 
     def set_n_points(self, n: Any) -> AppState:
         """Resample the current object with ``n`` points and re-run everything."""
@@ -280,6 +393,8 @@ class Controller:
         src = self._state.source
         if src is None:
             raise InputError("load an object before setting its scale")
+        if self._state.loaded is not None:
+            raise InputError(loaded_result_notice(self._state.loaded, "change the scale"))
         if scale == src.scale:
             return self._state
         return self._load(dataclasses.replace(src, scale=scale))
@@ -347,6 +462,10 @@ class Controller:
     def _request(self, **changes: Any) -> AppState:
         """Ask for a computation with ``changes`` on top of the pending ones; it supersedes the
         computation in progress (which stops at its next stage)."""
+        loaded = self._state.loaded
+        if loaded is not None:
+            what = "change the thresholds" if "params" in changes else "resample the points"
+            raise InputError(loaded_result_notice(loaded, what))
         with self._req_lock:
             if all(self._pending.get(k, getattr(self._state, k)) == v for k, v in changes.items()):
                 return self._state
@@ -417,22 +536,25 @@ class Controller:
         return self._long(gen, lambda g: self._load_now(source, g))
 
     def _load_now(self, source: ObjectSource, gen: int) -> AppState:
+        """Read and run the pipeline outside the lock (other browsers and view actions go on);
+        commit under it when no newer request has arrived."""
         with self._lock:
             self._check(gen)
-            s = self._state
             n_points, seed, params = (self.pending(k) for k in ("n_points", "seed", "params"))
-            t0 = time.perf_counter()
-            cloud = self._read(source, n_points, seed)
-            self._check(gen)
-            result = self._run(cloud, params, previous=None, plan=False, gen=gen)
-            dt = time.perf_counter() - t0
-            tree = result.tree
-            msg = (
-                f"{source.name}: {len(cloud.points)} points, {len(tree.leaves())} parts, "
-                f"pool {len(result.pool) if getattr(result, 'pool', None) is not None else 0} "
-                f"({dt * 1000:.0f} ms)"
-            )
-            warn = list(getattr(cloud, "info", {}).get("warnings", []) or [])
+        t0 = time.perf_counter()
+        cloud = self._read(source, n_points, seed)
+        self._check(gen)
+        result = self._run(cloud, params, previous=None, plan=False, gen=gen)
+        dt = time.perf_counter() - t0
+        tree = result.tree
+        msg = (
+            f"{source.name}: {len(cloud.points)} points, {len(tree.leaves())} parts, "
+            f"pool {len(result.pool) if getattr(result, 'pool', None) is not None else 0} "
+            f"({dt * 1000:.0f} ms)"
+        )
+        warn = list(getattr(cloud, "info", {}).get("warnings", []) or [])
+        with self._lock:
+            s = self._state
             state = dataclasses.replace(
                 s,
                 source=source,
@@ -441,11 +563,15 @@ class Controller:
                 params=params,
                 result=result,
                 planned=False,
+                loaded=None,
+                compare=None,
                 view=ViewState(
                     show_face_masks=s.view.show_face_masks,
                     show_ghosts=s.view.show_ghosts,
                     speed=s.view.speed,
                 ),
+                busy="",
+                progress=0.0,
                 message=msg + ("; " + "; ".join(warn) if warn else ""),
                 error="",
             )
@@ -467,25 +593,48 @@ class Controller:
         return self._request(params=params)
 
     def _rerun(self, gen: int) -> AppState:
+        """Re-run the stages downstream of a threshold change outside the lock (re-planning when
+        grasps were planned, with the progress bar); commit under the lock on top of the state
+        as it is then, unless a newer request has arrived (it then includes this change)."""
         with self._lock:
             self._check(gen)
             s = self._state
             params = self.pending("params")
             if s.result is None:
                 return self._settle(gen, dataclasses.replace(s, params=params))
-            t0 = time.perf_counter()
-            result = self._run(s.result.cloud, params, previous=s.result, plan=s.planned, gen=gen)
-            dt = time.perf_counter() - t0
-            view = s.view
+            if s.loaded is not None:
+                raise InputError(loaded_result_notice(s.loaded))
+            if s.planned:
+                self._commit(dataclasses.replace(s, busy="plan", progress=0.0), render=False)
+        t0 = time.perf_counter()
+        result = self._run(
+            s.result.cloud, params, previous=s.result, plan=s.planned, gen=gen, show=s.planned
+        )
+        dt = time.perf_counter() - t0
+        msg = f"{len(result.tree.leaves())} parts, pool {len(result.pool)} ({dt * 1000:.0f} ms)"
+        with self._lock:
+            self._check(gen)
+            now = self._state
+            if now.result is not s.result:  # another object or result was opened meanwhile
+                raise Superseded
+            view = now.view
             if result.tree is not s.result.tree:
                 view = dataclasses.replace(view, level=None, selected_node=None, ghost_node=None)
             if result is not s.result:
-                view = dataclasses.replace(view, selected_grasp=0 if s.planned else None)
-            msg = f"{len(result.tree.leaves())} parts, pool {len(result.pool)} ({dt * 1000:.0f} ms)"
+                view = dataclasses.replace(
+                    view, selected_grasp=0 if s.planned else None, anim_t=0.0, playing=s.planned
+                )
             return self._settle(
                 gen,
                 dataclasses.replace(
-                    s, params=params, result=result, view=view, message=msg, error=""
+                    now,
+                    params=params,
+                    result=result,
+                    view=view,
+                    busy="",
+                    progress=0.0,
+                    message=msg,
+                    error="",
                 ),
             )
 
@@ -554,6 +703,8 @@ class Controller:
             s = self._state
             if s.result is None:
                 raise InputError("load an object before planning")
+            if s.loaded is not None:
+                raise InputError(loaded_result_notice(s.loaded, "plan"))
             params = self.pending("params")
             self._commit(dataclasses.replace(s, busy="plan", progress=0.0), render=False)
         t0 = time.perf_counter()
@@ -563,7 +714,10 @@ class Controller:
             )
         except BaseException:
             with self._lock:
-                self._commit(dataclasses.replace(self._state, busy="", progress=0.0), render=False)
+                if self._generation == gen:  # a newer run keeps its own progress bar
+                    self._commit(
+                        dataclasses.replace(self._state, busy="", progress=0.0), render=False
+                    )
             raise
         dt = time.perf_counter() - t0
         n = len(ranked_grasps(result))
@@ -669,6 +823,11 @@ class Controller:
         s = self._state
         if s.result is None:
             raise InputError("nothing to export: load an object first")
+        if s.loaded is not None:
+            raise InputError(
+                f"{s.loaded.name} is a result file already: it is exported as it is (no points "
+                "to write a new one from)"
+            )
         doc = ppl.result_document(s.result, s.params)
         import json
 
@@ -727,6 +886,18 @@ class Controller:
         return result
 
 
+def _best_rank(loaded: ResultFile) -> int | None:
+    """Rank (0 = first of the ranking) of the file's ``best`` grasp, else of its first ranked
+    grasp, or ``None`` when it has none."""
+    gs = loaded.result.grasps
+    if gs is None or len(gs.ranking) == 0:
+        return None
+    if loaded.best is None:
+        return 0
+    hits = np.flatnonzero(np.asarray(gs.ranking) == loaded.best)
+    return int(hits[0]) if len(hits) else 0
+
+
 __all__ = [
     "ALL",
     "Controller",
@@ -736,4 +907,5 @@ __all__ = [
     "SPEED_RANGE",
     "Superseded",
     "coerce_param",
+    "loaded_result_notice",
 ]

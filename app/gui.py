@@ -23,6 +23,7 @@ from pregrasp_core.paths import demo_objects
 from pregrasp_core.planner.rank import score_text
 from pregrasp_core.shape import GRASP_TYPES
 
+from .compare_layer import compare_markdown
 from .controller import N_POINTS_RANGE, SEED_RANGE, SPEED_RANGE, Controller
 from .safe_text import md_text
 from .scene import SceneRenderer
@@ -138,8 +139,12 @@ class Gui:
             names = [p.stem for p in demo_objects()]
             self.demo = gui.add_dropdown("demo object", names or ["(none)"])
             self.demo.on_update(lambda e: self._do(e, c.load_demo, e.target.value))
-            self.upload = gui.add_upload_button("upload cloud / mesh", icon=None)
+            self.upload = gui.add_upload_button("upload cloud / mesh / result (JSON)", icon=None)
             self.upload.on_upload(lambda e: self._do(e, self._upload, e.target))
+            self.compare = gui.add_upload_button("compare with result (JSON)", icon=None)
+            self.compare.on_upload(lambda e: self._do(e, self._compare, e.target))
+            self.stop_compare = gui.add_button("stop comparing", visible=False)
+            self.stop_compare.on_click(lambda e: self._do(e, c.clear_compare))
             self.n_points = gui.add_number(
                 "points", c.state.n_points, min=N_POINTS_RANGE[0], max=N_POINTS_RANGE[1], step=1000
             )
@@ -207,6 +212,7 @@ class Gui:
             self.simulate.on_click(lambda e: self._do(e, c.simulate, e.client))
             self.lift_info = gui.add_markdown("")
             self.table = gui.add_markdown("")
+            self.compare_table = gui.add_markdown("")
 
         with gui.add_folder("Legend", expand_by_default=False):
             self.legend = gui.add_markdown(legend_markdown())
@@ -244,6 +250,10 @@ class Gui:
         """A click in the 3D scene: with "click picks the object" on, keep the cluster under it."""
         if self.pick_mode.value and not getattr(self._local, "syncing", False):
             self._do(event, self.controller.pick_ray, event.ray_origin, event.ray_direction)
+
+    def _compare(self, handle: Any) -> Any:
+        value = handle.value
+        return self.controller.compare_result(bytes(value.content), str(value.name))
 
     def _ghost_type(self, value: Any) -> Any:
         if value not in (ALL, *GRASP_TYPES):
@@ -412,12 +422,18 @@ class Gui:
         busy = bool(s.busy)
         for key, h in (("plan", self.plan), ("export", self.export), ("upload", self.upload)):
             self._set(f"{key}.disabled", h, "disabled", busy or s.result is None)
-        fix = unit_fix(s.cloud, getattr(s.source, "scale", None))
+        fix = None if s.loaded is not None else unit_fix(s.cloud, getattr(s.source, "scale", None))
         self._set("units_fix.visible", self.units_fix, "visible", fix is not None)
         if fix is not None:
             self._set("units_fix.label", self.units_fix, "label", fix[1])
         scene = getattr(s.cloud, "sensor", None) is not None
         self._set("pick_mode.disabled", self.pick_mode, "disabled", not scene)
+        if s.loaded is not None:  # a result file: nothing to plan or export again
+            self._set("plan.disabled", self.plan, "disabled", True)
+            self._set("export.disabled", self.export, "disabled", True)
+        self._set("compare.disabled", self.compare, "disabled", busy or s.result is None)
+        self._set("stop_compare.visible", self.stop_compare, "visible", s.compare is not None)
+        self._set("compare_table", self.compare_table, "content", compare_markdown(s))
         self._set("progress.visible", self.progress, "visible", busy)
         self._set("progress.value", self.progress, "value", round(100.0 * s.progress, 1))
         self._set("plan.label", self.plan, "label", "planning..." if busy else "plan grasps")

@@ -217,6 +217,10 @@ class SceneRenderer:
 
     def _draw_cloud(self, state: AppState) -> None:
         pts = np.asarray(state.cloud.points, dtype=np.float32)
+        if len(pts) == 0:  # a result file keeps no points: frame the boxes instead
+            self._remove("cloud")
+            self._frame_object(state.tree.root.box.corners())
+            return
         diag = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0))) if len(pts) else 1.0
         self._handles["cloud"] = self.server.scene.add_point_cloud(
             NAMES["cloud"],
@@ -266,6 +270,8 @@ class SceneRenderer:
         )
 
     def _recolor_cloud(self, state: AppState) -> None:
+        if "cloud" not in self._handles:
+            return
         self._handles["cloud"].colors = self._cloud_colors(state)
 
     def _cloud_colors(self, state: AppState) -> np.ndarray:

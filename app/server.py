@@ -20,6 +20,7 @@ from pregrasp_core.io import SensorOptions
 from pregrasp_core.paths import DEFAULT_OBJECT
 
 from . import viser_hooks
+from .compare_layer import CompareLayer
 from .controller import DEFAULT_MAX_UPLOAD_BYTES, Controller
 from .gui import Gui
 from .scene import SceneRenderer
@@ -67,6 +68,9 @@ class ViewerConfig:
     """Whether the face masks are drawn at start (the GUI toggles them)."""
     params: Any = field(default=None)
     """``PipelineParams`` to start with (defaults when ``None``)."""
+    compare: Path | None = None
+    """A second ``pregrasp/1`` result file of the same object to compare with (its best grasps
+    drawn beside the shown ones), or ``None``."""
 
     def __post_init__(self) -> None:
         if not 0 <= int(self.port) <= 65535:
@@ -98,6 +102,8 @@ class App:
         self.gui = gui
         self.uploads = uploads
         """The guard in front of viser's upload handlers (see :mod:`app.viser_hooks`)."""
+        self.compare_layer: CompareLayer | None = None
+        """The layer drawing a compared result file's best grasps (``app.compare_layer``)."""
         self._stop = threading.Event()
         self._period = 1.0 / float(animate_hz)
         self._thread = threading.Thread(target=self._animate, name="pregrasp-animator", daemon=True)
@@ -160,10 +166,19 @@ def run(config: ViewerConfig, server: Any) -> App:
     gui = Gui(server, controller, scene)
     uploads = viser_hooks.install_upload_guard(server, lambda: controller.max_upload_bytes)
     viser_hooks.install_update_guard(server, gui.on_bad_value)
+    layer = CompareLayer(server, hand)
+    controller.subscribe(layer.render)
     path = config.input if config.input is not None else DEFAULT_OBJECT
-    controller.load_path(path, scale=config.scale, sensor=config.sensor)
+    is_result = Path(path).suffix.lower() == ".json"
+    if is_result:  # a pregrasp/1 result file: shown as it is, nothing recomputed
+        controller.load_result_path(path)
+    else:
+        controller.load_path(path, scale=config.scale, sensor=config.sensor)
+    if config.compare is not None:
+        controller.compare_result_path(config.compare)
     app = App(server, controller, scene, gui, config.animate_hz, uploads)
-    if config.plan_on_start:
+    app.compare_layer = layer
+    if config.plan_on_start and not is_result:
         app.plan_in_background()
     return app
 

@@ -86,6 +86,12 @@ class AppState:
     timings) of the current run, or ``None`` before the first run."""
     planned: bool = False
     """Whether ``result`` holds planned grasps for the current thresholds."""
+    loaded: Any = None
+    """The ``app.result_file.ResultFile`` shown (``result`` is its content, nothing recomputed),
+    or ``None`` when ``result`` was computed here from ``source``."""
+    compare: Any = None
+    """A second ``ResultFile`` of the same object whose best grasps are drawn beside the
+    current ones ("compare with"), or ``None``."""
     view: ViewState = field(default_factory=ViewState)
     """Selections, filters and the animation clock."""
     busy: str = ""

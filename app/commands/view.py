@@ -52,11 +52,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="inspect decomposition, face masks, pre-grasps and grasps in the browser",
         description=(
             "Start the viser inspection app and print its URL and the SSH port-forward line. "
-            "With no INPUT it opens the default object (a mug with a handle). The pipeline "
-            "options set the parameters the app starts with."
+            "With no INPUT it opens the default object (a mug with a handle); a pregrasp/1 "
+            "result file (RESULT.json, from `pregrasp plan -o`) is shown as it is, without "
+            "recomputing. The pipeline options set the parameters the app starts with."
         ),
     )
-    add_input_args(p, required=False)
+    add_input_args(p, required=False, what="point cloud, mesh or pregrasp/1 result file (.json)")
+    p.add_argument(
+        "--compare",
+        metavar="RESULT.json",
+        default=None,
+        help="a second pregrasp/1 result file of the same object: its best grasps are drawn "
+        "beside the shown ones (magenta) with a table of both results' best grasps",
+    )
     SERVE_OPTIONS.add_to(p)
     PIPELINE_OPTIONS.add_to(p)
     p.set_defaults(func=run)
@@ -69,7 +77,10 @@ def run(args: argparse.Namespace) -> int:
     sensor = inp.sensor()  # --intrinsics, --pick, --scene, --viewpoint, as `pregrasp plan`
     path = None if args.input is None else Path(args.input)
     if path is not None and not path.is_file():
-        raise InputError(f"{path}: no such file; pass a point cloud or mesh file")
+        raise InputError(f"{path}: no such file; pass a point cloud, a mesh or a result file")
+    compare = None if args.compare is None else Path(args.compare)
+    if compare is not None and not compare.is_file():
+        raise InputError(f"--compare {compare}: no such file; pass a pregrasp/1 result file")
 
     from app.server import ViewerConfig, serve  # viser only when the viewer runs
 
@@ -84,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
             sensor=sensor,
             params=params,
             plan_on_start=True,
+            compare=compare,
         )
     )
     return 0

@@ -421,3 +421,155 @@ def test_every_demo_object_loads_and_renders(app):
         free, blocked = app.scene.n_faces_shown
         assert free + blocked == 6 * app.scene.n_boxes
         assert app.scene.n_ghosts_shown == min(len(s.result.pool), app.scene.max_ghosts)
+
+
+# ---------------------------------------------------------------------- result files
+def _planned_doc(app, **planner):
+    """A pregrasp/1 document planned by the core itself on the app's cloud (as `pregrasp plan
+    -o` writes it), and the core's result it was written from."""
+    import dataclasses
+
+    from pregrasp_core import pipeline as ppl
+
+    s = app.controller.state
+    params = s.params
+    if planner:
+        q = dataclasses.replace(params.planner.quality, **planner)
+        params = dataclasses.replace(params, planner=dataclasses.replace(params.planner, quality=q))
+    res = ppl.run_pipeline(s.cloud, params, app.controller.hand, until="grasps")
+    return ppl.result_document(res), res
+
+
+def test_a_result_file_is_shown_as_it_holds_it_without_recomputing(app, tmp_path, monkeypatch):
+    from pregrasp_core import pipeline as ppl
+
+    doc, res = _planned_doc(app)
+    path = tmp_path / "mug.json"
+    path.write_text(json.dumps(doc))
+
+    def no_pipeline(*a, **k):
+        raise AssertionError("a result file must be shown without running the pipeline")
+
+    monkeypatch.setattr(ppl, "run_pipeline", no_pipeline)
+    c = app.controller
+    c.load_result_path(path)
+    s = c.state
+    assert s.error == "" and s.loaded is not None and s.planned
+    assert "holds no points" in app.gui.status.content.replace("\\", "")
+    assert app.scene.handle("cloud") is None  # no points in the file, none drawn
+    # the boxes are the file's leaves, where the file puts them
+    leaves = doc["tree"]["leaves"]
+    assert app.scene.box_ids == leaves
+    for i in leaves:
+        node = doc["tree"]["nodes"][i]
+        h = app.server.scene.get_handle_by_name(f"{NAMES['boxes']}/node_{i}")
+        np.testing.assert_allclose(h.position, node["center"], atol=1e-9)
+        np.testing.assert_allclose(h.dimensions, node["extents"], atol=1e-9)
+    free, blocked = app.scene.n_faces_shown
+    want_blocked = sum(doc["tree"]["nodes"][i]["face_mask"][f][0] for i in leaves for f in range(6))
+    assert (free, blocked) == (6 * len(leaves) - want_blocked, want_blocked)
+    # the best grasp is the file's best, posed and with its contacts as the file holds them
+    best = doc["grasps"]["items"][doc["best"]]
+    ranked = ranked_grasps(s.result)
+    assert ranked[s.view.selected_grasp].pregrasp == doc["best"]
+    _wait_closed(app)
+    frame = app.scene.handle("hand_frame")
+    np.testing.assert_allclose(frame.position, np.asarray(best["T_world_hand"])[:3, 3], atol=1e-9)
+    contacts = app.server.scene.get_handle_by_name(NAMES["contacts"])
+    np.testing.assert_allclose(contacts.points, [c["point"] for c in best["contacts"]], atol=1e-6)
+    # the cones are turned by the tangents the planner scored with (not in the file: found
+    # from the stored pose and joints), the core's own Contact.tangent
+    g_live = res.grasps.grasps[doc["best"]]
+    g_file = s.result.grasps.grasps[doc["best"]]
+    for a, b in zip(g_live.contacts, g_file.contacts, strict=True):
+        np.testing.assert_allclose(b.tangent, a.tangent, atol=1e-9)
+    n_fc = doc["grasps"]["n_force_closure"]
+    assert f"{n_fc} force-closure of {doc['grasps']['n_kept']} kept" in app.gui.table.content
+    assert f"{best['epsilon']:.4f}" in app.gui.table.content
+    # thresholds are the file's and are not recomputed: an edit gets a notice, the state stays
+    h = app.gui.params[("decomposition", "volume_ratio")]
+    assert h.value == doc["parameters"]["decomposition"]["volume_ratio"]
+    before = c.state.result
+    h.value = 0.5
+    assert "is a loaded result file" in c.state.error and c.state.result is before
+    assert h.value == doc["parameters"]["decomposition"]["volume_ratio"]
+    assert app.gui.plan.disabled and app.gui.export.disabled
+
+
+def test_result_files_by_upload_and_malformed_ones(app):
+    doc, _ = _planned_doc(app)
+
+    class Client:
+        def __init__(self):
+            self.notes = []
+
+        def add_notification(self, title, body, **kw):
+            self.notes.append((title, body))
+
+    handle = app.gui.upload
+    c = app.controller
+    bad = {
+        "list.json": b"[1, 2, 3]",
+        "other.json": b'{"name": "not a result"}',
+        "cut.json": json.dumps(doc).encode()[:5000],
+        "nan.json": json.dumps({**doc, "best": float("nan")}).encode(),
+        "tree.json": json.dumps({**doc, "tree": {"nodes": 3, "n_points": 1}}).encode(),
+        "pose.json": json.dumps(
+            {**doc, "pool": {**doc["pool"], "pregrasps": [{"T_world_hand": [[1, 2]]}]}}
+        ).encode(),
+        "latin1.json": b'{"schema": "pregrasp/1", "x": "\xe9"}',
+    }
+    s0 = c.state
+    for name, data in bad.items():
+        client = Client()
+        c.act(client, c.load_upload, name, data)
+        assert len(client.notes) == 1, name
+        title, body = client.notes[0]
+        assert title == "Cannot do that" and name in body and "\n" not in body, body
+        assert c.state.result is s0.result  # the object shown stays
+    # a good one through the upload widget, as viser delivers it
+    handle._impl.value = UploadedFile(name="mug.pregrasp.json", content=json.dumps(doc).encode())
+    for cb in handle._impl.update_cb:
+        cb(GuiEvent(client=None, client_id=None, target=handle))
+    s = c.state
+    assert s.error == "" and s.loaded.name == "mug.pregrasp.json"
+    assert app.scene.box_ids == doc["tree"]["leaves"]
+
+
+def test_compare_two_results_of_the_same_object(app):
+    doc_a, _ = _planned_doc(app)
+    doc_b, _ = _planned_doc(app, mu=0.3)
+    c = app.controller
+    c.load_result(json.dumps(doc_a).encode(), "mu05.json")
+    c.compare_result(json.dumps(doc_b).encode(), "mu03.json")
+    s = c.state
+    assert s.error == "" and s.compare.name == "mu03.json"
+    layer = app.compare_layer
+    ranked_b = [doc_b["grasps"]["items"][i] for i in doc_b["grasps"]["ranking"]]
+    assert layer.n_hands == min(3, len(ranked_b))
+    for k, item in enumerate(ranked_b[: layer.n_hands]):  # the other's best, where it put them
+        h = app.server.scene.get_handle_by_name(f"/compare/hand_{k}")
+        np.testing.assert_allclose(h.position, np.asarray(item["T_world_hand"])[:3, 3], atol=1e-9)
+    table = app.gui.compare_table.content
+    best_a = doc_a["grasps"]["items"][doc_a["grasps"]["ranking"][0]]
+    assert f"{best_a['epsilon']:.4f}" in table and f"{ranked_b[0]['epsilon']:.4f}" in table
+    assert app.gui.stop_compare.visible
+    app.gui.stop_compare.value = True  # a click
+    assert c.state.compare is None and layer.n_hands == 0
+    assert app.server.scene.get_handle_by_name("/compare/hand_0") is None
+    # another object's result is refused with a notice naming the file
+    other = {**doc_b, "input": {**doc_b["input"], "source": "bottle.obj"}}
+    with pytest.raises(InputError, match=r"bottle\.obj.*same object"):
+        c.compare_result(json.dumps(other).encode(), "bottle.json")
+
+
+def test_view_opens_a_result_file_from_the_command_line(make_app, tmp_path):
+    app0 = make_app()
+    doc, _ = _planned_doc(app0)
+    path = tmp_path / "mug.json"
+    path.write_text(json.dumps(doc))
+    app = make_app(input=path, plan_on_start=True, compare=path)
+    s = app.controller.state
+    assert s.loaded is not None and s.loaded.name == "mug.json" and s.busy == ""
+    assert app.controller.idle()  # no plan started on a result file
+    assert app.scene.box_ids == doc["tree"]["leaves"] and app.compare_layer.n_hands >= 1
