@@ -141,6 +141,70 @@ def _cut_scan(pT, order, a, lo, hi):  # pragma: no cover - compiled by numba
     return best_j, best
 
 
+def _outside(eq, F, thr):  # pragma: no cover - compiled by numba
+    # numpy: signed = eq[:, :3] @ F (BLAS: the fma chain, see _pattern_search); signed +=
+    # eq[:, 3:]; signed.max(axis=0) > thr. Faces outer, points inner (vectorised); a point is
+    # outside as soon as one face gives more than thr (the maximum does, exactly).
+    n_faces = eq.shape[0]
+    m = F.shape[1]
+    best = np.empty(m)
+    for j in range(m):
+        best[j] = -np.inf
+    x, y, z = F[0], F[1], F[2]
+    for k in range(n_faces):
+        n0, n1, n2, off = eq[k, 0], eq[k, 1], eq[k, 2], eq[k, 3]
+        for j in range(m):
+            v = _fma(n2, z[j], _fma(n1, y[j], n0 * x[j])) + off
+            best[j] = v if v > best[j] else best[j]
+    out = np.empty(m, dtype=np.bool_)
+    for j in range(m):
+        out[j] = best[j] > thr
+    return out
+
+
+def _sweep(frames, V, rot2):  # pragma: no cover - compiled by numba
+    # numpy (mvbb._sweep): proj = frames.T @ V per frame (BLAS: the fma chain); height = extent
+    # of proj[:, 2]; xy = rot2 @ proj[:, :2] (the fma chain of two terms); ext = extents of xy;
+    # volumes = ext[:, :M] * ext[:, M:] * height. Points outer, the 2M rows inner (vectorised).
+    K = frames.shape[0]
+    h = V.shape[1]
+    M2 = rot2.shape[0]
+    M = M2 // 2
+    out = np.empty((K, M))
+    mx = np.empty(M2)
+    mn = np.empty(M2)
+    r0 = np.ascontiguousarray(rot2[:, 0])
+    r1 = np.ascontiguousarray(rot2[:, 1])
+    for k in range(K):
+        a0, a1, a2 = frames[k, 0, 0], frames[k, 1, 0], frames[k, 2, 0]
+        b0, b1, b2 = frames[k, 0, 1], frames[k, 1, 1], frames[k, 2, 1]
+        c0, c1, c2 = frames[k, 0, 2], frames[k, 1, 2], frames[k, 2, 2]
+        hmx = -np.inf
+        hmn = np.inf
+        for j in range(h):
+            x, y, z = V[0, j], V[1, j], V[2, j]
+            u = _fma(a2, z, _fma(a1, y, a0 * x))
+            w = _fma(b2, z, _fma(b1, y, b0 * x))
+            t = _fma(c2, z, _fma(c1, y, c0 * x))
+            hmx = t if t > hmx else hmx
+            hmn = t if t < hmn else hmn
+            if j == 0:
+                for m in range(M2):
+                    v = _fma(r1[m], w, r0[m] * u)
+                    mx[m] = v
+                    mn[m] = v
+            else:
+                for m in range(M2):
+                    v = _fma(r1[m], w, r0[m] * u)
+                    mx[m] = v if v > mx[m] else mx[m]
+                    mn[m] = v if v < mn[m] else mn[m]
+        height = hmx - hmn
+        for m in range(M):
+            area = (mx[m] - mn[m]) * (mx[M + m] - mn[M + m])
+            out[k, m] = area * height
+    return out
+
+
 def _pattern_search(  # pragma: no cover - compiled by numba
     cur_t, cur_vol, Vf, stencils_t, steps, level, radius, reach, max_iter, shrink
 ):
@@ -293,6 +357,8 @@ class Kernels(NamedTuple):
     """The compiled kernels (see the module docstring)."""
 
     pattern_search: Callable[..., object]
+    sweep: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+    outside: Callable[[np.ndarray, np.ndarray, float], np.ndarray]
     kernel_mask: Callable[[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray]
     cut_scan: Callable[[np.ndarray, np.ndarray, int, int, int], tuple[int, float]]
 
@@ -322,6 +388,8 @@ def kernels() -> Kernels:
 
     return Kernels(
         pattern_search=jit(_pattern_search, fastmath=set(MINMAX_FLAGS)),
+        outside=jit(_outside, fastmath=set(MINMAX_FLAGS)),  # type: ignore[arg-type]
+        sweep=jit(_sweep, fastmath=set(MINMAX_FLAGS)),  # type: ignore[arg-type]
         kernel_mask=jit(_kernel_mask),  # type: ignore[arg-type]
         cut_scan=jit(_cut_scan),  # type: ignore[arg-type]
     )

@@ -149,10 +149,6 @@ class MvbbParams:
 
 DEFAULT_PARAMS = MvbbParams()
 
-SIGNED_BLOCK: int = 1 << 22
-"""Entries (hull faces x kernel points) of the signed-distance table computed at once (32 MB);
-the default settings need at most a few hundred thousand, so one block."""
-
 
 def pca_box(points: np.ndarray) -> OrientedBox:
     """Box aligned with the principal axes of ``points`` (N, 3), N >= 1.
@@ -240,14 +236,10 @@ def minimum_volume_box(points: np.ndarray, params: MvbbParams = DEFAULT_PARAMS) 
     Vc = np.take(S, hull.vertices, axis=1)  # (3, h) coarse hull vertices
     # Only fine-kernel points outside the coarse hull (or on it) can be extreme in some direction.
     eq = hull.equations  # (faces, 4): unit outward normal, offset
-    # (faces, m) signed distances, in column blocks of at most SIGNED_BLOCK entries (one block
-    # at the default settings; large grids would otherwise take gigabytes here)
-    step = max(1, SIGNED_BLOCK // len(eq))
-    outside = np.empty(F.shape[1], dtype=bool)
-    for j in range(0, F.shape[1], step):
-        signed = eq[:, :3] @ F[:, j : j + step]  # (faces, block)
-        signed += eq[:, 3:]  # in place: a second large temporary costs ~10x more here
-        outside[j : j + step] = signed.max(axis=0) > -GEOM_EPS * float(ext[0])
+    # outside[j]: the largest signed distance of point j to a hull face, eq[:, :3] @ F +
+    # eq[:, 3:] maximised over the faces, is above -GEOM_EPS * ext[0] (one compiled pass, the
+    # same products as BLAS: decomposition_kernels)
+    outside = kernels().outside(eq, F, -GEOM_EPS * float(ext[0]))
     R_local = _search(Vc, eq[:, :3], _face_areas(S, hull.simplices), fine[outside], q, params)
     return _tight_box(PT, R_pca @ R_local, origin)
 
@@ -361,16 +353,13 @@ def _sweep(V: np.ndarray, cand: np.ndarray, n_angles: int) -> tuple[np.ndarray, 
     candidates that are kept, see ``_sweep_angles``).
     """
     frames = _frames_from_normals(cand)  # (K, 3, 3)
-    proj = (frames.transpose(0, 2, 1).reshape(-1, 3) @ V).reshape(len(cand), 3, -1)  # (K, 3, h)
-    height = proj[:, 2].max(axis=1) - proj[:, 2].min(axis=1)  # (K,) shared by all angles
     angles = _sweep_angles(n_angles)
     c, s = np.cos(angles), np.sin(angles)
-    # In-plane coordinates of every angle in one product: rows x_m = c u + s v, y_m = c v - s u.
+    # In-plane coordinates of every angle: rows x_m = c u + s v, y_m = c v - s u of the frame
+    # coordinates (u, v, height) = frames[k].T @ V; the compiled loop gives the extents of each
+    # and the volumes, the same products as numpy's (2M, 2) @ (K, 2, h) (decomposition_kernels).
     rot2 = np.concatenate([np.stack([c, s], axis=1), np.stack([-s, c], axis=1)])  # (2M, 2)
-    xy = rot2 @ proj[:, :2]  # (K, 2M, h)
-    ext = xy.max(axis=2) - xy.min(axis=2)  # (K, 2M)
-    area = ext[:, :n_angles] * ext[:, n_angles:]  # (K, M)
-    return frames, area * height[:, None]
+    return frames, kernels().sweep(frames, V, rot2)
 
 
 def _sweep_angles(n_angles: int) -> np.ndarray:
