@@ -282,9 +282,9 @@ LEVEL_EXACT: int = 2
 
 QUALITY_BOUNDS: tuple[str, ...] = ("directions", "half cones")
 """``GraspQuality.bound`` of the bounded scores of level 0 and 1 ('' = exact), see
-docs/quality.md: 'directions' = epsilon 0 proven by a separating direction of a fixed set, the
-volume bounded by the wrenches' principal box; 'half cones' = both bounded through the hull of
-every other cone edge."""
+docs/quality.md: 'directions' = epsilon bounded by the support values along fixed directions
+(0 when force closure is disproved), the volume by the wrenches' principal box; 'half cones' =
+both bounded through the hull of every other cone edge. Force closure is exact in both."""
 
 EPS_BOUND_TOL: float = 1e-9
 """Added to an upper bound of epsilon so that it also bounds the value qhull computes (its
@@ -391,15 +391,59 @@ def half_cone_bounds(wrenches: np.ndarray, n_edges: int) -> tuple[float, float, 
     return float(dist.min()), float(support.min()), scale**d * float(hull.volume)
 
 
+CLOSURE_PROOF_MIN: float = 1e-6
+"""The smallest distance from the origin to the facets of a simplex of wrenches that is taken
+as a proof of force closure (:func:`closure_certificate`): far above the rounding of the 7 x 7
+inverse that measures it and above ``QUALITY_EPS``; smaller margins are decided by the hulls."""
+
+
+def closure_certificate(wrenches: np.ndarray) -> tuple[bool | None, float]:
+    """Force closure of 6D wrenches (M, 6) decided without a hull, with a certificate checked
+    here: ``(False, 0)`` when the point of the hull nearest to the origin (Wolfe's algorithm,
+    :mod:`pregrasp_core.minnorm`) gives a direction whose support value is at most
+    :data:`NOT_CLOSURE_BOUND` (epsilon is 0); ``(True, lower)`` when the origin lies inside a
+    simplex of 7 of the wrenches at a distance ``lower >= CLOSURE_PROOF_MIN`` from its facets
+    (the simplex lies in the hull, so epsilon >= lower); ``(None, 0)`` otherwise."""
+    from .minnorm import MAX_ITERATIONS, compiled
+
+    w = np.ascontiguousarray(wrenches, dtype=np.float64)
+    d = w.shape[1]
+    x, corral, n, _ = compiled()(w, MAX_ITERATIONS)
+    nx = float(np.linalg.norm(x))
+    if nx > 0.0 and float((w @ (-x / nx)).max()) <= NOT_CLOSURE_BOUND:
+        return False, 0.0
+    if n != d + 1:
+        return None, 0.0
+    simplex = w[corral[:n, 0].astype(np.int64)]
+    M = np.vstack([simplex.T, np.ones(n)])  # barycentric coordinates: M lam = (y, 1)
+    try:
+        inv = np.linalg.inv(M)
+    except np.linalg.LinAlgError:
+        return None, 0.0
+    lam = inv[:, -1]  # the origin's
+    grad = np.linalg.norm(inv[:, :d], axis=1)  # |gradient| of each coordinate in y
+    e = np.zeros(n)
+    e[-1] = 1.0
+    if not (np.all(np.isfinite(inv)) and np.abs(M @ lam - e).max() <= 1e-12):
+        return None, 0.0
+    lower = float((lam / grad).min())  # distance from the origin to the simplex's facets
+    if lower >= CLOSURE_PROOF_MIN:
+        return True, lower
+    return None, 0.0
+
+
 def wrench_quality(
     wrenches: np.ndarray, n_contacts: int, n_edges: int, level: int = LEVEL_EXACT
 ) -> GraspQuality:
     """The scores of ``wrenches`` (K * m, D), contact after contact with ``m = n_edges`` edges
     each, at ``level`` (:data:`LEVEL_CHEAPEST`, :data:`LEVEL_HALF_CONES` or
-    :data:`LEVEL_EXACT`). Below the exact level, force closure is still decided exactly: a
-    bound is returned only when it proves epsilon = 0 (a separating direction) or epsilon > 0
-    (the half-cone hull holds the origin); otherwise the exact hull is built. Bounded scores
-    are upper bounds (margins :data:`EPS_BOUND_TOL`, :data:`VOLUME_BOUND_RTOL`)."""
+    :data:`LEVEL_EXACT`). Below the exact level, force closure is still decided exactly:
+    bounds are returned only when force closure is proven either way (a separating direction,
+    or the origin inside a simplex of wrenches or inside the half-cone hull:
+    :func:`closure_certificate`, :func:`half_cone_bounds`); otherwise the exact hull is built.
+    Level 0 gives the directions' bounds when the certificate decides, level 1 always adds the
+    half-cone bounds (or is exact where they do not apply). Bounded scores are upper bounds
+    (margins :data:`EPS_BOUND_TOL`, :data:`VOLUME_BOUND_RTOL`)."""
     w = np.asarray(wrenches, dtype=np.float64)
     if w.ndim != 2:
         raise ValueError(f"wrenches must have shape (M, D), got {w.shape}")
@@ -408,20 +452,27 @@ def wrench_quality(
         return GraspQuality(0.0, 0.0, n_contacts, False, reason)
     if level < LEVEL_EXACT and w.shape[1] == 6:
         upper = direction_bound(w, wrench_frame(w, n_edges))
-        vol_upper = box_volume_bound(w)
-        if level <= LEVEL_CHEAPEST and upper <= NOT_CLOSURE_BOUND:
-            vol = vol_upper * (1.0 + VOLUME_BOUND_RTOL)
-            return GraspQuality(0.0, vol, n_contacts, False, "", True, False, QUALITY_BOUNDS[0])
-        half = half_cone_bounds(w, n_edges)
+        vol = box_volume_bound(w)
+        closure, lower = (False, 0.0) if upper <= NOT_CLOSURE_BOUND else closure_certificate(w)
+        half = None
+        if level > LEVEL_CHEAPEST or closure is None:
+            half = half_cone_bounds(w, n_edges)
+        if half is None and level > LEVEL_CHEAPEST:
+            closure = None  # the half-cone bounds asked for do not apply: exact
         if half is not None:
-            lower, upper_h, vol_h = half
-            upper = min(upper, upper_h)
-            vol = min(vol_upper, vol_h) * (1.0 + VOLUME_BOUND_RTOL)
-            if upper <= NOT_CLOSURE_BOUND:
-                return GraspQuality(0.0, vol, n_contacts, False, "", True, False, QUALITY_BOUNDS[1])
-            if lower > QUALITY_EPS + EPS_BOUND_TOL:
-                eps = upper + EPS_BOUND_TOL
-                return GraspQuality(eps, vol, n_contacts, True, "", False, False, QUALITY_BOUNDS[1])
+            upper, vol = min(upper, half[1]), min(vol, half[2])
+            lower = max(lower, half[0])
+            if closure is None and upper <= NOT_CLOSURE_BOUND:
+                closure = False
+            if closure is None and lower > QUALITY_EPS + EPS_BOUND_TOL:
+                closure = True
+        if closure is not None:
+            kind = QUALITY_BOUNDS[0 if half is None else 1]
+            vol *= 1.0 + VOLUME_BOUND_RTOL
+            if not closure:
+                return GraspQuality(0.0, vol, n_contacts, False, "", True, False, kind)
+            eps = upper + EPS_BOUND_TOL
+            return GraspQuality(eps, vol, n_contacts, True, "", False, False, kind)
     eps, vol, reason = _hull_scores(w)
     return GraspQuality(eps, vol, n_contacts, eps > 0.0, reason)
 

@@ -292,3 +292,66 @@ def test_exact_all_scores_every_grasp_exactly(demo_plans):
             b.epsilon, b.volume, True, True,
         )  # fmt: skip
     assert np.array_equal(full.ranking, rank_grasps(exact))
+
+
+# ----------------------------------------------------------------------------- min-norm point
+
+
+def test_min_norm_point_matches_a_quadratic_program_and_its_python_form():
+    """Wolfe's algorithm (compiled) against SLSQP on min |P' lam|^2, lam >= 0, sum 1, for point
+    sets around or away from the origin (2D to 6D); the uncompiled Python gives the same
+    point."""
+    from scipy.optimize import minimize
+
+    from pregrasp_core.minnorm import MAX_ITERATIONS, compiled, min_norm_point
+
+    rng = np.random.default_rng(4)
+    far = 0
+    for trial in range(25):
+        d = int(rng.integers(2, 7))
+        P = rng.normal(size=(int(rng.integers(d + 1, 30)), d)) + rng.normal(scale=2.0, size=d)
+        x, corral, n, ok = compiled()(P, MAX_ITERATIONS)
+        assert ok and 1 <= n <= d + 1
+        lam = corral[:n, 1]
+        assert np.all(lam > 0) and lam.sum() == pytest.approx(1.0)
+        assert np.allclose(P[corral[:n, 0].astype(int)].T @ lam, x, atol=1e-12)
+        m = len(P)
+        ref = minimize(
+            lambda v, P=P: float(np.sum((P.T @ v) ** 2)),
+            np.full(m, 1.0 / m),
+            jac=lambda v, P=P: 2.0 * P @ (P.T @ v),
+            bounds=[(0.0, 1.0)] * m,
+            constraints=[{"type": "eq", "fun": lambda v: v.sum() - 1.0}],
+            method="SLSQP",
+            options={"ftol": 1e-14, "maxiter": 500},
+        )
+        assert np.linalg.norm(x) == pytest.approx(np.linalg.norm(P.T @ ref.x), rel=1e-5, abs=1e-6)
+        far += np.linalg.norm(x) > 0.1
+        assert np.all(P @ x >= x @ x - 1e-9)  # optimality: no point beyond the plane through x
+        if trial < 5:
+            x2, corral2, n2, ok2 = min_norm_point(P, MAX_ITERATIONS)
+            assert np.array_equal(x, x2) and n == n2 and ok == ok2
+    assert 5 <= far <= 24  # origins outside and inside the hulls
+
+
+def test_closure_certificate_agrees_with_linear_programming():
+    """The hull-free decision of force closure: when it decides, it agrees with an LP (and its
+    lower bound is below the exact epsilon); it decides most random planner-like sets."""
+    from pregrasp_core.quality import closure_certificate
+
+    rng = np.random.default_rng(11)
+    decided = 0
+    for trial in range(120):
+        p, n, t, c, r = _contact_set(rng, int(rng.integers(3, 7)), 0.3 if trial % 2 else 0.9)
+        w = contact_wrenches(p, n, QualityParams(), tangents=t, center=c, radius=r)
+        fc, lower = closure_certificate(w)
+        if fc is None:
+            continue
+        decided += 1
+        eps, _, _ = hull_quality(w)
+        assert fc == (eps > 0.0), trial
+        if trial % 3 == 0:
+            assert fc == _lp_force_closure(w), trial
+        if fc:
+            assert 0.0 < lower <= eps + 1e-12
+    assert decided >= 100
