@@ -205,6 +205,60 @@ def _sweep(frames, V, rot2):  # pragma: no cover - compiled by numba
     return out
 
 
+def _frames(n):  # pragma: no cover - compiled by numba
+    # numpy (mvbb._frames_from_normals): helper = the world axis of the smallest |n_i| (the first
+    # on a tie); u = helper x n; u /= sqrt((u0 u0 + u1 u1) + u2 u2); v = n x u; frames[k] = the
+    # columns (u, v, n). The cross products are written out in full, as numpy computes them.
+    K = n.shape[0]
+    out = np.empty((K, 3, 3))
+    for k in range(K):
+        n0, n1, n2 = n[k, 0], n[k, 1], n[k, 2]
+        i = 0
+        if abs(n1) < abs(n0):
+            i = 1
+        if abs(n2) < abs(n[k, i]):
+            i = 2
+        h0 = 1.0 if i == 0 else 0.0
+        h1 = 1.0 if i == 1 else 0.0
+        h2 = 1.0 if i == 2 else 0.0
+        u0 = h1 * n2 - h2 * n1
+        u1 = h2 * n0 - h0 * n2
+        u2 = h0 * n1 - h1 * n0
+        norm = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+        u0 /= norm
+        u1 /= norm
+        u2 /= norm
+        out[k, 0, 0], out[k, 1, 0], out[k, 2, 0] = u0, u1, u2
+        out[k, 0, 1] = n1 * u2 - n2 * u1
+        out[k, 1, 1] = n2 * u0 - n0 * u2
+        out[k, 2, 1] = n0 * u1 - n1 * u0
+        out[k, 0, 2], out[k, 1, 2], out[k, 2, 2] = n0, n1, n2
+    return out
+
+
+def _near_faces(proj, lo, hi, margin):  # pragma: no cover - compiled by numba
+    # numpy: flatnonzero(any((proj >= hi[:, None] - margin) | (proj <= lo[:, None] + margin),
+    # axis=0)) for proj (3, N): the points within margin of a face of the box [lo, hi].
+    n = proj.shape[1]
+    top = np.empty(3)
+    bottom = np.empty(3)
+    for a in range(3):
+        top[a] = hi[a] - margin
+        bottom[a] = lo[a] + margin
+    keep = np.empty(n, dtype=np.int64)
+    m = 0
+    for j in range(n):
+        hit = False
+        for a in range(3):
+            v = proj[a, j]
+            if v >= top[a] or v <= bottom[a]:
+                hit = True
+        if hit:
+            keep[m] = j
+            m += 1
+    return keep[:m].copy()
+
+
 def _pattern_search(  # pragma: no cover - compiled by numba
     cur_t, cur_vol, Vf, stencils_t, steps, level, radius, reach, max_iter, shrink
 ):
@@ -357,6 +411,8 @@ class Kernels(NamedTuple):
     """The compiled kernels (see the module docstring)."""
 
     pattern_search: Callable[..., object]
+    frames: Callable[[np.ndarray], np.ndarray]
+    near_faces: Callable[[np.ndarray, np.ndarray, np.ndarray, float], np.ndarray]
     sweep: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
     outside: Callable[[np.ndarray, np.ndarray, float], np.ndarray]
     kernel_mask: Callable[[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray]
@@ -390,6 +446,8 @@ def kernels() -> Kernels:
         pattern_search=jit(_pattern_search, fastmath=set(MINMAX_FLAGS)),
         outside=jit(_outside, fastmath=set(MINMAX_FLAGS)),  # type: ignore[arg-type]
         sweep=jit(_sweep, fastmath=set(MINMAX_FLAGS)),  # type: ignore[arg-type]
+        frames=jit(_frames),  # type: ignore[arg-type]
+        near_faces=jit(_near_faces),  # type: ignore[arg-type]
         kernel_mask=jit(_kernel_mask),  # type: ignore[arg-type]
         cut_scan=jit(_cut_scan),  # type: ignore[arg-type]
     )

@@ -274,15 +274,10 @@ def _face_areas(S: np.ndarray, simplices: np.ndarray) -> np.ndarray:
 
 
 def _frames_from_normals(normals: np.ndarray) -> np.ndarray:
-    """(K, 3) unit normals -> (K, 3, 3) rotations whose third column is the normal."""
-    n = normals
-    # Helper axis: the world axis least aligned with n.
-    helper = np.zeros_like(n)
-    helper[np.arange(len(n)), np.argmin(np.abs(n), axis=1)] = 1.0
-    u = _cross(helper.T, n.T).T
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    v = _cross(n.T, u.T).T
-    return np.stack([u, v, n], axis=2)
+    """(K, 3) unit normals -> (K, 3, 3) rotations whose third column is the normal: the first
+    axis is (world axis least aligned with n) x n, normalised, the second n x the first (one
+    compiled loop, ``decomposition_kernels``)."""
+    return kernels().frames(np.ascontiguousarray(normals, dtype=np.float64))
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -440,9 +435,7 @@ def _search(
             v_set = float(_volumes(cur, Vf)[0])
             if float(np.prod(hi - lo)) <= v_set * (1.0 + 1e-12):
                 break
-        near = np.flatnonzero(
-            np.any((proj >= hi[:, None] - margin) | (proj <= lo[:, None] + margin), axis=0)
-        )
+        near = kernels().near_faces(proj, lo, hi, margin)  # within margin of a face
         near = near[_kernel_mask(np.take(proj, near, axis=1), lo, hi - lo, p.polish_grid)]
         # np.union1d(fine, near) without its sort: both are indices into Q
         in_set = np.zeros(Q.shape[1], dtype=bool)
@@ -478,9 +471,7 @@ def _snap(
     # of it: hull those, thinned to the column extremes of a snap_grid grid. (The snapped boxes
     # are judged on the whole cloud at the end.)
     close_margin = 2.0 * 2.0 * radius * p.snap_angle
-    near = np.flatnonzero(
-        np.any((proj >= hi[:, None] - close_margin) | (proj <= lo[:, None] + close_margin), axis=0)
-    )
+    near = kernels().near_faces(proj, lo, hi, close_margin)  # within close_margin of a face
     near = near[_kernel_mask(np.take(proj, near, axis=1), lo, hi - lo, p.snap_grid)]
     Z = np.take(Q, near, axis=1)  # (3, z)
     try:
