@@ -43,7 +43,11 @@ def slice_points(
     order: np.ndarray,
     start: np.ndarray,
     count: np.ndarray,
-    cand: np.ndarray,
+    centres: np.ndarray,
+    rad: np.ndarray,
+    dz_sum: float,
+    origins: np.ndarray,
+    ball2: np.ndarray,
     T0: np.ndarray,
     r: float,
     z_lo: float,
@@ -60,8 +64,11 @@ def slice_points(
     """The thinned slices of F fingers for one hand pose (the loop form of
     :func:`~pregrasp_core.planner.slicing.finger_slices`).
 
-    xyz (3, N): the cloud by coordinate; order, start, count: the cells (:class:`Cells`); cand
-    (C,) bool: the cells to search; T0 (4, 4): the view's pose; r, z_lo, z_hi: its keep box;
+    xyz (3, N): the cloud by coordinate; order, start, count: the cells (:class:`Cells`);
+    centres (C, 3), rad (C,): their balls in the frame of T0, the view's moves ``dz_sum`` not yet
+    added (the cells searched: those whose balls meet the keep box and a finger's band and
+    reach, ``origins`` (F, 3) its first joint, ``ball2`` (F,) its 3D reach + margin, the
+    exact tests follow); T0 (4, 4): the view's pose; r, z_lo, z_hi: its keep box;
     dz (D,): its shifts along hand z; nrm (3, F), shift (F,), band (F,): the flexion planes'
     normals, offsets and band half widths (+ margin); T_planes (F, 4, 4): the planes' frames
     in the hand; half_width (F,): half finger widths; reach2 (F,): squared 2D reach limits;
@@ -70,8 +77,21 @@ def slice_points(
     n = xyz.shape[1]
     F = nrm.shape[1]
     seen = np.zeros(n, dtype=np.bool_)
-    for c in range(cand.shape[0]):  # mark the points of the candidate cells
-        if cand[c]:
+    for c in range(centres.shape[0]):  # mark the points of the candidate cells
+        rc = rad[c]
+        cx, cy, cz = centres[c, 0], centres[c, 1], centres[c, 2]
+        if not (abs(cx) <= r + rc and abs(cy) <= r + rc and cz >= z_lo - rc and cz <= z_hi + rc):
+            continue  # the cell's ball misses the keep box
+        cz = cz + dz_sum
+        near = False
+        for j in range(F):  # the ball meets finger j's band and reach
+            along = cx * nrm[0, j] + cy * nrm[1, j] + cz * nrm[2, j]
+            e0, e1, e2 = cx - origins[j, 0], cy - origins[j, 1], cz - origins[j, 2]
+            lim = ball2[j] + rc
+            if abs(along - shift[j]) <= band[j] + rc and e0 * e0 + e1 * e1 + e2 * e2 <= lim * lim:
+                near = True
+                break
+        if near:
             for k in range(start[c], start[c] + count[c]):
                 seen[order[k]] = True
     # the seen points in the keep box, in the view's frame (to_frame_t, then the shifts)
@@ -246,9 +266,9 @@ def link_distances(
     order: np.ndarray,
     start: np.ndarray,
     count: np.ndarray,
-    cm: np.ndarray,
-    cp: np.ndarray,
-    ok: np.ndarray,
+    centres: np.ndarray,
+    rad: np.ndarray,
+    dz_sum: float,
     T0: np.ndarray,
     r: float,
     z_lo: float,
@@ -264,7 +284,8 @@ def link_distances(
     (pose ``T0``, keep box r, z_lo, z_hi, shifts dz) within ``reach`` of its box and their exact
     signed distances (the loop form of ``verify._link_distances``). Candidates: the points in
     the link's AABB grown by ``reach`` (``blo``, ``bhi`` (L, 3)), from the cells whose balls
-    (bounds ``cm``, ``cp`` (C, 3), in the hand frame) meet it and that ``ok`` keeps. Returns
+    (``centres`` (C, 3) in the frame of T0, radii ``rad``, moved by ``dz_sum``) meet it and the
+    keep box. Returns
     ``(ids (K,), d (K,), first (L + 1,))``: link l's points ``ids[first[l]:first[l + 1]]`` in
     ascending cloud order."""
     L = Tb.shape[0]
@@ -274,10 +295,21 @@ def link_distances(
     dist = np.empty(cap)
     first = np.zeros(L + 1, dtype=np.int64)
     n = 0
+    C = centres.shape[0]
+    ok = np.zeros(C, dtype=np.bool_)
+    cm = np.empty((C, 3))
+    cp = np.empty((C, 3))
+    for c in range(C):  # the cells whose balls meet the keep box; their bounds, moved
+        rc = rad[c]
+        cx, cy, cz = centres[c, 0], centres[c, 1], centres[c, 2]
+        ok[c] = abs(cx) <= r + rc and abs(cy) <= r + rc and cz >= z_lo - rc and cz <= z_hi + rc
+        cz = cz + dz_sum
+        cm[c, 0], cm[c, 1], cm[c, 2] = cx - rc, cy - rc, cz - rc
+        cp[c, 0], cp[c, 1], cp[c, 2] = cx + rc, cy + rc, cz + rc
     for il in range(L):
         R = Tb[il]
         g = n
-        for c in range(cm.shape[0]):
+        for c in range(C):
             if not (
                 ok[c]
                 and cp[c, 0] >= blo[il, 0]

@@ -68,22 +68,11 @@ def finger_slices(
     # candidates: the cells whose balls meet a finger's band (within half a finger width of
     # its plane, and within its reach in the plane: in 3D within hypot(reach, half width) of
     # its first joint)
-    c, ok = view.cells(ctx)
-    rad = ctx.cells.radius[:, None]
     origins = np.array([pl.origin for pl in planes])  # (F, 3)
-    d2 = (
-        (c[:, 0:1] - origins[:, 0]) ** 2
-        + (c[:, 1:2] - origins[:, 1]) ** 2
-        + (c[:, 2:3] - origins[:, 2]) ** 2
-    )  # (C, F)
-    cand = (
-        ok[:, None]
-        & (np.abs(c @ nrm - shift) <= half_w + 1e-9 + rad)
-        & (d2 <= (np.hypot(r_all, half_w) + 1e-9 + rad) ** 2)
-    )  # (C, F)
     cells = ctx.cells
     uv, first, n_slice = kernels().slices(
-        ctx.xyz, cells.order, cells.start, cells.count, cand.any(axis=1), view.T0, view.r,
+        ctx.xyz, cells.order, cells.start, cells.count, view.centres, cells.radius,
+        float(sum(view.dz)), origins, np.hypot(r_all, half_w) + 1e-9, view.T0, view.r,
         view.z_lo, view.z_hi, np.array(view.dz, dtype=np.float64), nrm, shift, half_w + 1e-9,
         np.array([pl.T_hand_plane for pl in planes]), np.array([0.5 * f.width for f in fingers]),
         np.array([(r + 1e-9) ** 2 for r in r_all]), prm.slice_resolution,

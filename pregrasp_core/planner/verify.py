@@ -4,6 +4,7 @@ penetration, self-collision and support checks) and its contacts (:func:`finish`
 
 from __future__ import annotations
 
+import itertools
 from typing import TYPE_CHECKING
 
 import fcl
@@ -47,7 +48,9 @@ def finish(
     # depth of the nearby cloud points in every link
     reach = max(prm.contact_distance, prm.penetration_tol)
     ids, dists = _link_distances(ctx, view, q, reach)
-    bad = {ctx.link_names[j] for j, d in enumerate(dists) if np.any(d < -prm.penetration_tol)}
+    bad = {
+        ctx.link_names[j] for j, d in enumerate(dists) if len(d) and d.min() < -prm.penetration_tol
+    }
     if bad:
         q = _open_penetrating(ctx, view, q, closings, bad, pre.spread, corrected)
         ids, dists = _link_distances(ctx, view, q, reach)
@@ -226,14 +229,17 @@ def _link_distances(
     of a box grown by ``reach`` (found through the cells); all pairs' distances at once."""
     Tb, lo, hi = ctx.boxes(q)  # hand frame
     blo, bhi = lo - reach, hi + reach  # (L, 3)
-    c, ok = view.cells(ctx)
-    rad = ctx.cells.radius[:, None]
     cells = ctx.cells
     ids, d, first = kernels().link_distances(
-        ctx.xyz, cells.order, cells.start, cells.count, c - rad, c + rad, ok, view.T0, view.r,
-        view.z_lo, view.z_hi, np.array(view.dz, dtype=np.float64), blo, bhi, Tb, ctx.half, reach,
+        ctx.xyz, cells.order, cells.start, cells.count, view.centres, cells.radius,
+        float(sum(view.dz)), view.T0, view.r, view.z_lo, view.z_hi,
+        np.array(view.dz, dtype=np.float64), blo, bhi, Tb, ctx.half, reach,
     )  # fmt: skip
-    return np.split(ids, first[1:-1]), np.split(d, first[1:-1])
+    cut = first.tolist()
+    return (
+        [ids[a:b] for a, b in itertools.pairwise(cut)],
+        [d[a:b] for a, b in itertools.pairwise(cut)],
+    )
 
 
 def support_collision(ctx: Context, T: np.ndarray, q: np.ndarray) -> str | None:
