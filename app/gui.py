@@ -13,6 +13,7 @@ import dataclasses
 import enum
 import logging
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -132,6 +133,8 @@ class Gui:
         self._timers: dict[Any, threading.Timer] = {}  # pending debounced edit per control
         self._timers_lock = threading.Lock()
         self._values_lock = threading.RLock()  # a re-send and a sync of the values never mix
+        self._edits: dict[int, list[float]] = {}  # id(handle) -> arrival of edits not yet read
+        self._edits_lock = threading.Lock()
         c, gui = controller, server.gui
         gui.configure_theme(control_width="large", dark_mode=False, show_logo=False)
 
@@ -226,6 +229,33 @@ class Gui:
         controller.subscribe(self.sync)
 
     # ------------------------------------------------------------------ callbacks
+    def begin_edit(self, handle: Any) -> None:
+        """A browser's edit of ``handle`` has arrived and its callback has not run yet (called by
+        the update guard of :mod:`app.viser_hooks`): :meth:`sync` leaves that control's value
+        alone until the callback has read it (else a state committed meanwhile by another thread
+        would put the old value back first and the edit would be lost)."""
+        with self._edits_lock:
+            self._edits.setdefault(id(handle), []).append(time.monotonic())
+
+    def _end_edit(self, event: Any) -> None:
+        if getattr(event, "client", None) is None:
+            return  # an edit from Python: no browser edit was waiting
+        with self._edits_lock:
+            marks = self._edits.get(id(getattr(event, "target", None)))
+            if marks:
+                marks.pop(0)
+
+    def _editing(self) -> set[int]:
+        """ids of the controls with a browser edit whose callback has not run (marks older than
+        :data:`EDIT_READ_S` are dropped: viser skips the callbacks of a browser gone meanwhile)."""
+        now = time.monotonic()
+        with self._edits_lock:
+            for key in list(self._edits):
+                self._edits[key] = [t for t in self._edits[key] if now - t < EDIT_READ_S]
+                if not self._edits[key]:
+                    del self._edits[key]
+            return set(self._edits)
+
     def _do(self, event: Any, fn: Callable[..., Any], *args: Any) -> Any:
         """Run a controller action for a GUI event, unless :meth:`sync` is setting the value;
         then send the control's value in use to every browser (see :meth:`repush`)."""
@@ -234,6 +264,7 @@ class Gui:
         try:
             return self.controller.act(getattr(event, "client", None), fn, *args)
         finally:
+            self._end_edit(event)
             if getattr(event, "client", None) is not None:
                 self.repush(getattr(event, "target", None))
 
@@ -315,6 +346,7 @@ class Gui:
                 old.cancel()
             self._timers[key] = timer
             timer.start()
+        self._end_edit(event)  # the edit is now held by its timer (sync skips waiting controls)
 
     def _run_debounced(
         self, key: Any, timer: Any, client: Any, target: Any, fn: Callable[..., Any], *args: Any
@@ -459,6 +491,7 @@ class Gui:
             waiting = {id(self.params[k]) for k in self._timers if k in self.params}
             numbers = (("n_points", self.n_points), ("seed", self.seed), ("scale", self.scale))
             waiting |= {id(h) for k, h in numbers if k in self._timers}
+        waiting |= self._editing()
         with self._values_lock:
             for key, h, v in self._input_values(s):
                 if id(h) not in waiting:
@@ -500,6 +533,10 @@ class Gui:
             self._set("grasp.options", self.grasp, "options", ("(plan first)",))
             self._set("grasp.disabled", self.grasp, "disabled", True)
 
+
+EDIT_READ_S = 5.0
+"""A browser edit whose callback has not run after this long (seconds) no longer holds its
+control's value back from :meth:`Gui.sync` (viser drops the callbacks of a closed tab)."""
 
 PARAM_DEBOUNCE_S = 0.3
 """A browser's edit of a number (thresholds, points, seed) is applied once the control has

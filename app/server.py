@@ -165,7 +165,7 @@ def run(config: ViewerConfig, server: Any) -> App:
     scene.on_box_click = lambda node, client: controller.act(client, controller.select_node, node)
     gui = Gui(server, controller, scene)
     uploads = viser_hooks.install_upload_guard(server, lambda: controller.max_upload_bytes)
-    viser_hooks.install_update_guard(server, gui.on_bad_value)
+    viser_hooks.install_update_guard(server, gui.on_bad_value, gui.begin_edit)
     layer = CompareLayer(server, hand)
     controller.subscribe(layer.render)
     path = config.input if config.input is not None else DEFAULT_OBJECT

@@ -382,12 +382,20 @@ def value_refusal(handle: Any, value: Any) -> str | None:
 
 
 def install_update_guard(
-    server: Any, on_bad_value: Callable[[int, Any, str], None]
+    server: Any,
+    on_bad_value: Callable[[int, Any, str], None],
+    on_edit: Callable[[Any], None] | None = None,
 ) -> Callable[..., Any]:
     """Put a guard in front of viser's GUI update handler: updates of anything but a control's
     ``value`` are dropped, and a value that :func:`value_refusal` refuses calls
     ``on_bad_value(client_id, handle, reason)`` instead of reaching viser (which would fail in
-    its event loop or pass the value on to every browser)."""
+    its event loop or pass the value on to every browser).
+
+    ``on_edit(handle)`` is called for each accepted edit that viser will pass to the control's
+    callbacks (a button press, or a value that differs from the one held), before viser stores
+    the value: viser runs the callbacks later on its thread pool and they read the control's
+    value then, so until they have run the app must not set that control's value itself (it
+    would replace the browser's edit before the callback reads it: a lost click)."""
     from viser import _messages
 
     gui = server.gui
@@ -412,11 +420,27 @@ def install_update_guard(
         if why is not None:
             on_bad_value(client_id, handle, why)
             return
+        if on_edit is not None and _will_fire(handle, updates["value"]):
+            on_edit(handle)
         await inner(client_id, message)
 
     ws.unregister_handler(_messages.GuiUpdateMessage, inner)
     ws.register_handler(_messages.GuiUpdateMessage, guarded)
     return guarded
+
+
+def _will_fire(handle: Any, value: Any) -> bool:
+    """Whether viser runs ``handle``'s callbacks for ``value`` (a button always; an input when
+    the value, cast as viser casts it, differs from the one held)."""
+    impl = handle._impl
+    if impl.is_button:
+        return True
+    current = impl.value
+    try:
+        v = tuple(value) if isinstance(current, tuple) else type(current)(value)
+    except (TypeError, ValueError, OverflowError):
+        return False
+    return bool(current != v)
 
 
 def push_value(handle: Any, value: Any) -> None:

@@ -573,3 +573,116 @@ def test_view_opens_a_result_file_from_the_command_line(make_app, tmp_path):
     assert s.loaded is not None and s.loaded.name == "mug.json" and s.busy == ""
     assert app.controller.idle()  # no plan started on a result file
     assert app.scene.box_ids == doc["tree"]["leaves"] and app.compare_layer.n_hands >= 1
+
+
+# ---------------------------------------------------------------------- two browsers at once
+def _live_scene_names(messages) -> set[str]:
+    """The scene nodes a client holds after applying ``messages`` in order (created minus
+    removed; the URDF's meshes and the table grid included)."""
+    live: set[str] = set()
+    for m in messages:
+        name = m.get("name") if isinstance(m, dict) else None
+        if not isinstance(name, str):
+            continue
+        if m["type"] == "RemoveSceneNodeMessage":
+            live.discard(name)
+        elif m["type"].endswith("Message") and "props" in m:
+            live.add(name)
+    return live
+
+
+def test_one_browser_plans_while_another_changes_a_threshold(make_app):
+    """Browser A plans, browser B changes the volume ratio meanwhile: the stale plan is
+    cancelled, the threshold change runs, and both browsers keep being served (a view action of
+    each is answered within 0.5 s the whole time, measured here from the browser's side: from
+    sending the click to receiving the control's value back); both end with the same scene."""
+    from test_security import Browser, _wait  # viser's protocol spoken by a test client
+
+    app = make_app(n_points=20000)  # a threshold change takes about a second here
+    c = app.controller
+    a, b = Browser(app.server.get_port()), Browser(app.server.get_port())
+    masks = app.gui.show_masks
+    try:
+        _wait(lambda: a.messages and b.messages, 10, "both connected")
+        a.send(_button_click(app.gui.plan))
+        _wait(lambda: c.state.busy == "plan", 30, "the plan to start")
+        b.set_value(app.gui.params[("decomposition", "volume_ratio")], 0.5)
+        waits = {"a": [], "b": []}
+        t_end = time.monotonic() + 120
+        while time.monotonic() < t_end:
+            for key, client in (("a", a), ("b", b)):
+                n0 = len(client.updates.get(masks._impl.uuid, []))
+                want = not masks.value
+                t0 = time.monotonic()
+                client.set_value(masks, want)  # a view action: show or hide the face masks
+                _wait(
+                    lambda cl=client, n=n0, w=want: (
+                        len(cl.updates.get(masks._impl.uuid, [])) > n
+                        and cl.updates[masks._impl.uuid][-1] == w
+                    ),
+                    10,
+                    "the view action answered",
+                )
+                waits[key].append(time.monotonic() - t0)
+            if c.idle() and not app.gui._timers and c.state.busy == "":
+                break
+        s = c.state
+        assert s.params.decomposition.volume_ratio == 0.5 and s.error == ""
+        assert not s.planned  # A's plan, for the old thresholds, was cancelled (stale)
+        assert s.result.params.decomposition.volume_ratio == 0.5
+        assert len(waits["a"]) >= 2, waits  # the browsers were served while the work ran
+        print({k: f"max {max(v):.3f} s over {len(v)}" for k, v in waits.items()})  # noqa: T201
+        assert max(waits["a"] + waits["b"]) < 0.5, waits
+        time.sleep(0.5)  # the last scene messages reach both browsers
+        live_a, live_b = _live_scene_names(a.messages), _live_scene_names(b.messages)
+        assert live_a == live_b
+        boxes = {n for n in live_a if n.startswith(f"{NAMES['boxes']}/")}
+        assert boxes == {f"{NAMES['boxes']}/node_{i}" for i in s.tree.leaves()}
+        h = app.gui.params[("decomposition", "volume_ratio")]
+        assert a.updates[h._impl.uuid][-1] == 0.5 and b.updates[h._impl.uuid][-1] == 0.5
+    finally:
+        a.close()
+        b.close()
+
+
+def _button_click(handle):
+    """What viser's client sends when a button is clicked."""
+    from viser import _messages
+
+    return _messages.GuiUpdateMessage(handle._impl.uuid, {"value": True})
+
+
+def test_a_browser_edit_is_not_lost_to_a_state_committed_meanwhile(app):
+    """viser stores a browser's value and runs the control's callback later on its thread pool;
+    states committed in between (progress reports of a plan, another browser's actions) must not
+    put the old value back before the callback reads it. Here another thread commits states
+    without pause while a browser toggles the face masks 20 times: every toggle lands."""
+    import dataclasses
+    import threading
+
+    from test_security import Browser, _wait
+
+    c = app.controller
+    masks = app.gui.show_masks
+    stop = threading.Event()
+
+    def storm():
+        k = 0
+        while not stop.is_set():
+            k += 1
+            c.update(lambda s, k=k: dataclasses.replace(s, message=f"progress {k}"))
+
+    t = threading.Thread(target=storm, daemon=True)
+    b = Browser(app.server.get_port())
+    t.start()
+    try:
+        _wait(lambda: b.messages, 10, "connected")
+        for _ in range(20):
+            want = not c.state.view.show_face_masks
+            b.set_value(masks, want)
+            _wait(lambda w=want: c.state.view.show_face_masks == w, 5, "the toggle to land")
+            _wait(lambda w=want: b.updates.get(masks._impl.uuid, [None])[-1] == w, 5, "echo")
+    finally:
+        stop.set()
+        t.join(timeout=5)
+        b.close()
