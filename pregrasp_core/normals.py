@@ -1,9 +1,18 @@
 """Surface normals of a point cloud by local PCA, oriented outwards.
 
-Estimation: for every point, its ``k`` nearest neighbours (``scipy.spatial.cKDTree``, the point
-itself included); the normal is the eigenvector of the smallest eigenvalue of their covariance
-(batched ``numpy.linalg.eigh`` over all points at once). ``curvature`` = l3 / (l1 + l2 + l3)
+Estimation: the normal is the eigenvector of the smallest eigenvalue of the covariance of a
+point's nearest neighbours (the point itself included); ``curvature`` = l3 / (l1 + l2 + l3)
 ("surface variation", 0 on a plane, 1/3 for isotropic noise) says how reliable each normal is.
+
+* With reference normals or a viewpoint (mesh-sampled clouds, single views): the ``k`` nearest
+  neighbours (``scipy.spatial.cKDTree``) and a batched ``numpy.linalg.eigh``.
+* Without (the clouds the orientation below has to work for): scale selection over k/2, 3k/4, k
+  and 3k/2 neighbours (:func:`pca_scales_of`), keeping the smallest neighbourhood whose surface
+  variation is below ``SCALE_FLAT`` (else the largest). A rim or lip a few millimetres thick
+  looks curved at k neighbours, its normal then lies across the truth, while a sheet thinner
+  than the point spacing (both faces sampled) only looks flat at the largest scale. The
+  neighbours come from an exact grid search and the 3x3 eigenproblems from a closed form,
+  compiled (:mod:`pregrasp_core.normal_kernels`, numba; the rows equal the k-d tree's).
 
 Orientation (PCA gives a line, not a direction), ``NormalParams.orient``:
 
@@ -14,18 +23,22 @@ Orientation (PCA gives a line, not a direction), ``NormalParams.orient``:
 * ``"viewpoint"``: every normal faces the camera at ``NormalParams.viewpoint`` (a surface a
   camera saw faces it; ``n . (viewpoint - p) >= 0``).
 * ``"visibility"``: the cloud is looked at from ``n_views`` directions spread evenly on a sphere
-  around it (orthographic depth buffers of 2 point spacings per pixel; a point is seen from a
-  direction when it lies within one spacing of the front-most point of its pixel). A seen
-  surface faces the viewer, so each sighting votes for the sign of ``n . d`` weighted by
-  ``|n . d|``. A point is decided when its votes agree (net over total above
-  ``VISIBILITY_AGREEMENT``); the others (points no direction sees, e.g. deep in a concavity,
-  and points seen from both sides of a wall thinner than the tolerance) take the sign of their
-  decided neighbours on the same side of the surface (neighbours across a thin wall, offset
-  along the normal, are left out), grown over the k-NN graph; what stays undecided after that
-  is oriented by ``"propagate"`` seeded at the decided points. Unlike the propagation alone, no
-  single wrong step can flip a whole region: every region a viewer can see is decided by
-  what it looks like from outside. Points inside the object (a mesh made of interpenetrating
-  bodies has sampled faces inside the solid) are never seen and get the propagated sign.
+  around it (orthographic depth buffers of 2 point spacings per pixel). A point is hidden from a
+  direction when it lies behind the tangent plane of its pixel's front-most point, by more than
+  ``VISIBILITY_DEPTH_TOL`` spacings plus what a convex surface of radius
+  ``VISIBILITY_CURVATURE`` spacings curves away over their distance: the back face of a wall a
+  millimetre thick is hidden behind the front face's plane, where a depth tolerance would have
+  to be a pixel deep. A seen surface faces the viewer, so each sighting votes for the sign of
+  ``n . d`` weighted by ``|n . d|``. A point is decided when its votes agree (net over total
+  above ``VISIBILITY_AGREEMENT``); the others (points no direction sees, e.g. deep in a
+  concavity) take the sign of their decided neighbours on the same side of the surface (a
+  neighbour's say falls off as ``exp(-(h / SAME_SIDE_SIGMA s)^2)`` with its offset h along the
+  normals: the other face of a thin wall has none), grown over the k-NN graph; what stays
+  undecided after that is oriented by ``"propagate"`` seeded at the decided points. Unlike the
+  propagation alone, no single wrong step can flip a whole region: every region a viewer can
+  see is decided by what it looks like from outside. Points inside the object (a mesh made of
+  interpenetrating bodies has sampled faces inside the solid) are never seen and get the
+  propagated sign.
 * ``"propagate"``: Hoppe et al. 1992: a minimum spanning tree over the k-NN graph with edge
   weight ``1 - |n_i . n_j| + 3 |cos(edge, n_i)|`` (the tree follows smooth surface; the second
   term, our addition, keeps it from jumping across thin walls, where neighbours sit along the
@@ -65,8 +78,13 @@ VISIBILITY_PIXEL: float = 2.0
 """Visibility orientation: depth-buffer pixel size in point spacings (the median distance to the
 4th nearest neighbour)."""
 
-VISIBILITY_DEPTH_TOL: float = 1.0
-"""Visibility orientation: a point is seen when within this many spacings of its pixel's front."""
+VISIBILITY_DEPTH_TOL: float = 0.3
+"""Visibility orientation: a point is hidden when it lies more than this many spacings behind
+the tangent plane of its pixel's front-most point (plus the curvature allowance below)."""
+
+VISIBILITY_CURVATURE: float = 10.0
+"""Visibility orientation: radius of curvature (spacings) allowed for: a point at image
+distance l from its pixel's front point may lie ``l^2 / (2 r)`` below its tangent plane."""
 
 VISIBILITY_AGREEMENT: float = 0.3
 """Visibility orientation: a point is decided when |net vote| / total vote exceeds this."""
@@ -74,13 +92,29 @@ VISIBILITY_AGREEMENT: float = 0.3
 VISIBILITY_MIN_VOTE: float = 0.3
 """Visibility orientation: ... and its total vote (sum of |n . d| over sightings) exceeds this."""
 
-SAME_SIDE_SLOPE: float = 2.5
-"""Filling undecided points: a neighbour's weight is ``1 - SAME_SIDE_SLOPE |cos|`` (clipped at
-0), cos = the angle of the offset to it with the normal: neighbours across a thin wall sit
-along the normal and get no say."""
+SAME_SIDE_SIGMA: float = 0.3
+"""Filling undecided points: a neighbour's weight is ``exp(-(h / (sigma s))^2)``, h its offset
+along the normals (s the spacing): neighbours across a thin wall get no say."""
 
-FILL_ROUNDS: int = 10
-"""Filling undecided points: rounds of growth from the decided points over the k-NN graph."""
+GRID_MAX_CELLS: int = 2_000_000
+"""Neighbour search: at most this many grid cells (larger cells for sparse, spread clouds)."""
+
+GRID_MAX_RING: int = 4
+"""Neighbour search: rings of cells searched before a row is handed to a k-d tree."""
+
+FILL_ROUNDS: int = 30
+"""Filling undecided points: at most this many rounds of growth over the k-NN graph."""
+
+SCALE_FLAT: float = 0.02
+"""Scale selection of the PCA (clouds without normals): the smallest neighbourhood whose surface
+variation is below this is used (a rim thinner than the neighbourhood looks curved at k)."""
+
+
+def pca_scales_of(k: int, n_points: int) -> tuple[int, ...]:
+    """Neighbourhood sizes tried by the scale selection for base size ``k``: k/2, 3k/4, k and
+    3k/2 (at least 3, at most the number of points), ascending."""
+    cand = {max(3, k // 2), max(3, (3 * k) // 4), k, (3 * k + 1) // 2}
+    return tuple(sorted(min(c, n_points) for c in cand))
 
 
 @dataclass(frozen=True)
@@ -206,59 +240,54 @@ def sphere_directions(n: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
+def _view_frames(n_views: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(V, 3) view directions (towards the viewer) and two (V, 3) unit axes of each image."""
+    d = sphere_directions(n_views)
+    helper = np.where(np.abs(d[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    u = np.cross(d, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    return d, u, np.cross(d, u)
+
+
 def _visibility_votes(
     points: np.ndarray, normals: np.ndarray, spacing: float, n_views: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """Net (N,) and total (N,) votes of the sightings (see the module docstring)."""
+    from . import normal_kernels
+
     p = points - 0.5 * (points.min(axis=0) + points.max(axis=0))
     radius = max(float(np.linalg.norm(p, axis=1).max()), GEOM_EPS)
     pix = max(VISIBILITY_PIXEL * spacing, radius * 1e-3)
     g = int(np.ceil(2.0 * radius / pix)) + 2  # pixels per side of every view's buffer
-    d = sphere_directions(n_views)  # (V, 3) towards the viewer
-    helper = np.where(np.abs(d[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    u = np.cross(d, helper)
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    w = np.cross(d, u)
-    ix = np.clip(((p @ u.T + radius) / pix).astype(np.int64), 0, g - 1)  # (N, V)
-    iy = np.clip(((p @ w.T + radius) / pix).astype(np.int64), 0, g - 1)
-    depth = p @ d.T  # (N, V), larger = nearer the viewer
-    cell = (np.arange(n_views)[None, :] * g + iy) * g + ix  # (N, V) pixel of each sighting
-    front = np.full(n_views * g * g, -np.inf)
-    np.maximum.at(front, cell.ravel(), depth.ravel())
-    seen = depth >= front[cell] - VISIBILITY_DEPTH_TOL * spacing  # (N, V)
-    nd = normals @ d.T  # (N, V)
-    weight = seen * np.abs(nd)
-    return (weight * np.sign(nd)).sum(axis=1), weight.sum(axis=1)
-
-
-def _same_side_weights(points: np.ndarray, normals: np.ndarray, nbr: np.ndarray) -> np.ndarray:
-    """(N, k) signed weights of each point's neighbours for sign filling: the sign of
-    ``n_i . n_j`` (a neighbour's sign in my frame) times |n_i . n_j| times the same-side factor."""
-    nn = np.einsum("nkj,nj->nk", normals[nbr], normals)  # (N, k)
-    off = points[nbr] - points[:, None, :]  # (N, k, 3)
-    length = np.linalg.norm(off, axis=2)
-    cos = np.abs(np.einsum("nkj,nj->nk", off, normals)) / np.maximum(length, GEOM_EPS)
-    side = np.clip(1.0 - SAME_SIDE_SLOPE * cos, 0.0, 1.0)
-    side[:, 0] = 0.0  # the point itself
-    return nn * side
+    d, u, w = _view_frames(n_views)
+    return normal_kernels.visibility_votes(
+        np.ascontiguousarray(p),
+        np.ascontiguousarray(normals),
+        d,
+        u,
+        w,
+        radius,
+        pix,
+        g,
+        VISIBILITY_DEPTH_TOL * spacing,
+        VISIBILITY_CURVATURE * spacing,
+    )
 
 
 def _orient_visibility(
     points: np.ndarray, normals: np.ndarray, nbr: np.ndarray, dist: np.ndarray, n_views: int
 ) -> np.ndarray:
     """Signs (N,) by visibility, filling and seeded propagation (see the module docstring)."""
+    from . import normal_kernels
+
     spacing = max(float(np.median(dist[:, min(4, dist.shape[1] - 1)])), GEOM_EPS)
     net, total = _visibility_votes(points, normals, spacing, n_views)
     decided = (np.abs(net) > VISIBILITY_AGREEMENT * total) & (total > VISIBILITY_MIN_VOTE)
     sign = np.where(decided, np.sign(net), 0.0)
     if decided.all():
         return sign
-    wts = _same_side_weights(points, normals, nbr)
-    for _ in range(FILL_ROUNDS):  # growth over the k-NN graph, decided points stay
-        grown = (sign[nbr] * wts).sum(axis=1)
-        sign = np.where(decided, sign, np.sign(grown))
-        if np.all(sign != 0.0):
-            break
+    wts = normal_kernels.same_side_weights(points, normals, nbr, SAME_SIDE_SIGMA * spacing)
+    sign = normal_kernels.fill_signs(sign, decided, nbr, wts, FILL_ROUNDS)
     left = sign == 0.0
     if left.any():
         if not decided.any():
@@ -273,6 +302,36 @@ def _orient_visibility(
         100.0 * left.mean(),
     )
     return sign
+
+
+def nearest_neighbours(points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Exact (N, k) distances and indices of the k nearest neighbours (the point itself first,
+    then by distance) on a grid of cells about the k-th neighbour's expected distance; the rare
+    rows the grid does not settle within a few rings (outliers) are asked of a k-d tree."""
+    from . import normal_kernels
+
+    lo = points.min(axis=0)
+    extent = np.maximum(points.max(axis=0) - lo, GEOM_EPS)
+    # surface area from the cells a coarse grid occupies -> spacing -> the k-th distance
+    h0 = float(np.linalg.norm(extent)) / 100.0
+    coarse = np.floor((points - lo) / h0).astype(np.int64)
+    n_occ = len(np.unique((coarse[:, 0] * 1_000_003 + coarse[:, 1]) * 1_000_003 + coarse[:, 2]))
+    area = n_occ * h0 * h0
+    h = max(float(np.sqrt(k * area / (np.pi * len(points)))), GEOM_EPS)
+    h = max(h, float(np.cbrt(np.prod(extent) / GRID_MAX_CELLS)))  # bounded memory
+    dims = np.minimum(np.floor(extent / h).astype(np.int64) + 1, GRID_MAX_CELLS)
+    dist, idx, unresolved = normal_kernels.knn_grid(
+        np.ascontiguousarray(points), k, h, lo, dims, GRID_MAX_RING
+    )
+    if unresolved.any():
+        rows = np.flatnonzero(unresolved)
+        d_t, i_t = cKDTree(points).query(points[rows], k=k)
+        # the point itself first (a duplicate point could come before it)
+        for r, row in enumerate(rows):  # outliers only: a few rows
+            order = np.r_[row, i_t[r][i_t[r] != row]][:k]
+            dist[row] = np.r_[0.0, d_t[r][i_t[r] != row]][:k]
+            idx[row] = order
+    return dist, idx
 
 
 def estimate_normals(
@@ -300,8 +359,18 @@ def estimate_normals(
             mode = "viewpoint" if params.viewpoint is not None else "visibility"
     if mode == "reference" and ref is None:
         raise ValueError("orient='reference' needs reference normals")
-    dist, nbr = cKDTree(pts).query(pts, k=params.k)  # (N, k), itself first
-    normals, curvature = _pca_normals(pts, nbr)
+    if mode in ("reference", "viewpoint"):
+        dist, nbr = cKDTree(pts).query(pts, k=params.k)  # (N, k), itself first
+        normals, curvature = _pca_normals(pts, nbr)
+    else:  # no normals to orient by: scale-selected PCA (thin rims), compiled kernels
+        from . import normal_kernels
+
+        scales = pca_scales_of(params.k, len(pts))
+        dist, nbr = nearest_neighbours(pts, scales[-1])
+        normals, curvature = normal_kernels.pca_scales(
+            pts, nbr, np.asarray(scales, dtype=np.int64), SCALE_FLAT
+        )
+        dist, nbr = dist[:, : params.k], nbr[:, : params.k]
     if mode == "reference":
         assert ref is not None  # checked above
         signs = np.where(np.einsum("ij,ij->i", normals, ref) < 0.0, -1.0, 1.0)

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from pregrasp_core.errors import DegenerateGeometryError
 from pregrasp_core.normals import NormalParams, estimate_normals
+from pregrasp_core.paths import OBJECTS_DIR, demo_objects
 
 
 def _sphere(n: int, r: float = 0.04) -> tuple[np.ndarray, np.ndarray]:
@@ -166,34 +169,151 @@ def test_viewpoint_normals_face_the_camera():
 
 
 def _exterior(mesh, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """(N,) bool: the point is on the object's outer surface, not on a face of one body that lies
-    inside another body (the demo meshes are unions of interpenetrating closed bodies)."""
+    """(N,) bool: the point is on the object's outer surface, not on a face that lies inside
+    the solid: the demo meshes are unions of interpenetrating bodies, some closed (inside: trimesh's
+    ray test), some open and closing each other (the bottle's shoulder and neck; inside: their
+    generalised winding number above 1/2), plus flat membranes between bodies (the disc at the
+    foot of the bottle's neck), whose both sides are inside."""
     bodies = mesh.split(only_watertight=False)
     if len(bodies) < 2:
         return np.ones(len(points), dtype=bool)
     probe = points + 1e-3 * normals  # 1 mm outside the surface the point was sampled on
     inside = np.zeros(len(points), dtype=bool)
+    open_tris = []
     for b in bodies:
-        inside |= b.contains(probe)
+        if b.is_watertight:
+            inside |= b.contains(probe)
+        elif abs(b.volume) > 1e-12:  # an open body with a volume, not a flat membrane
+            open_tris.append(b.triangles)
+    if open_tris:
+        inside |= _winding_number(np.concatenate(open_tris), probe) > 0.5
     return ~inside
 
 
-@pytest.mark.parametrize("name", ["mug_handle", "bowl", "tool_frypan", "thermos", "toy_car"])
+def _winding_number(tris: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """(Q,) generalised winding number of triangles (T, 3, 3) at points (Q, 3) (Van Oosterom and
+    Strackee's solid angle; chunked over the points)."""
+    out = np.empty(len(q))
+    for s in range(0, len(q), 2000):
+        a, b, c = (tris[None, :, i, :] - q[s : s + 2000, None, :] for i in range(3))
+        la, lb, lc = (np.linalg.norm(x, axis=2) for x in (a, b, c))
+        det = np.einsum("qti,qti->qt", a, np.cross(b, c))
+        den = (
+            la * lb * lc
+            + np.einsum("qti,qti->qt", a, b) * lc
+            + np.einsum("qti,qti->qt", b, c) * la
+            + np.einsum("qti,qti->qt", c, a) * lb
+        )
+        out[s : s + 2000] = np.arctan2(det, den).sum(axis=1) / (2 * np.pi)
+    return out
+
+
+def _bare_demo_cloud(path):
+    """A demo mesh sampled to 20,000 points as the pipeline samples it, its normals dropped (what a
+    PLY with xyz only gives), and the true outward normals of the sampled faces."""
+    from pregrasp_core.io import PointCloud, load_point_cloud
+
+    cloud = load_point_cloud(path, n_points=20000, seed=0)
+    bare = PointCloud(points=cloud.points, normals=None, source=cloud.source)
+    return bare, np.asarray(cloud.normals)
+
+
+DEMO_NAMES = [p.stem for p in demo_objects()]
+
+
+@functools.cache
+def _hand():
+    from pregrasp_core.hand import Hand
+
+    return Hand.load()
+
+
+@pytest.mark.parametrize("name", DEMO_NAMES)
 def test_visibility_on_demo_objects_agrees_with_the_true_mesh(name):
     """Demo meshes sampled WITHOUT normals (as a PLY with xyz only): the orientation agrees with
-    the true mesh's outward face normals on at least 98 % of the points of the outer surface
+    the true mesh's outward face normals on at least 99 % of the points of the outer surface
     (docs/benchmarks.md lists the figure per object; faces inside the solid are left out)."""
     import trimesh
 
-    from pregrasp_core.paths import OBJECTS_DIR
-
-    mesh = trimesh.load(OBJECTS_DIR / f"{name}.obj", force="mesh", process=True)
-    if mesh.volume < 0:
-        mesh.invert()
-    pts, fid = trimesh.sample.sample_surface(mesh, 20000, seed=0)
-    true = mesh.face_normals[fid]
-    cn = estimate_normals(pts, NormalParams())
-    ext = _exterior(mesh, pts, true)
+    path = OBJECTS_DIR / f"{name}.obj"
+    bare, true = _bare_demo_cloud(path)
+    cn = estimate_normals(bare.points, NormalParams())
+    assert cn.orient == "visibility"
+    mesh = trimesh.load(path, force="mesh", process=True)
+    ext = _exterior(mesh, np.asarray(bare.points), true)
     assert ext.mean() > 0.7
     agree = np.einsum("ij,ij->i", cn.normals, true) > 0
-    assert agree[ext].mean() > 0.98
+    assert agree[ext].mean() >= 0.99
+
+
+CONTACTS_KNOWN_WRONG = {  # contacts on rims and lips under the point spacing (docs/benchmarks.md)
+    "bowl": "20 of 977 contacts on the rolled rim",
+    "thermos": "6 of 1632 contacts on the 4 mm ring under the lid",
+    "can_soda": "1 of 148 contacts on the rim of the lid",
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "name",
+    [
+        pytest.param(n, marks=pytest.mark.xfail(reason=CONTACTS_KNOWN_WRONG[n], strict=True))
+        if n in CONTACTS_KNOWN_WRONG
+        else n
+        for n in DEMO_NAMES
+    ],
+)
+def test_every_contact_normal_of_every_kept_grasp_points_into_the_true_mesh(name):
+    """The whole pipeline at default settings on a demo mesh sampled WITHOUT normals: every
+    contact normal of every kept grasp points into the object, against the true outward normal
+    of the face its cloud point was sampled on (issue 11)."""
+    from pregrasp_core.pipeline import run_pipeline
+
+    bare, true = _bare_demo_cloud(OBJECTS_DIR / f"{name}.obj")
+    res = run_pipeline(bare, hand=_hand(), until="grasps")
+    assert res.grasps is not None
+    kept = [res.grasps.grasps[i] for i in res.grasps.ranking]
+    assert kept, "no kept grasp to check"
+    wrong = [
+        (rank, c.link, c.point_index)
+        for rank, g in enumerate(kept)
+        for c in g.contacts
+        if float(c.normal @ true[c.point_index]) >= 0.0
+    ]
+    assert not wrong, f"{len(wrong)} contact normals point out of the mesh: {wrong[:10]}"
+
+
+def test_grid_neighbours_equal_a_kd_tree():
+    """The compiled grid search gives the k-d tree's exact neighbours, also for far outliers
+    (handed to the tree) and duplicated points (the point itself stays first)."""
+    from scipy.spatial import cKDTree
+
+    from pregrasp_core.normals import nearest_neighbours
+
+    pts, _ = _torus(5000, seed=3)
+    pts = np.r_[pts, [[2.0, 0.0, 0.0], [-3.0, 1.0, 0.5]], pts[:50]]  # outliers, duplicates
+    dist, idx = nearest_neighbours(pts, 24)
+    d_ref, i_ref = cKDTree(pts).query(pts, k=25)  # one more: ties at the 24th
+    assert np.allclose(dist, d_ref[:, :24], atol=1e-15)
+    assert np.all(idx[:, 0] == np.arange(len(pts)))
+    plain = np.all(np.diff(d_ref, axis=1) > 0, axis=1)  # no tie: the same neighbours, in order
+    assert plain.mean() > 0.7
+    assert np.array_equal(idx[plain], i_ref[plain, :24])
+
+
+def test_compiled_pca_equals_numpy_eigh():
+    """The closed-form 3x3 eigen-solution at one scale equals numpy's eigh (normal up to sign,
+    surface variation), on a noisy sphere where every neighbourhood is a different matrix."""
+    from scipy.spatial import cKDTree
+
+    from pregrasp_core import normal_kernels
+
+    rng = np.random.default_rng(5)
+    pts, _ = _sphere(3000)
+    pts = pts + rng.normal(scale=1e-3, size=pts.shape)
+    _, nbr = cKDTree(pts).query(pts, k=16)
+    nb = pts[nbr] - pts[nbr].mean(axis=1, keepdims=True)
+    evals, evecs = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
+    normals, variation = normal_kernels.pca_scales(pts, nbr, np.array([16]), 0.0)
+    assert np.allclose(np.abs(np.einsum("ij,ij->i", normals, evecs[:, :, 0])), 1.0, atol=1e-8)
+    assert np.allclose(variation, evals[:, 0] / evals.sum(axis=1), atol=1e-10)

@@ -1,0 +1,384 @@
+"""Compiled kernels of :mod:`pregrasp_core.normals` (numba, ``cache=True``).
+
+Imported only when a cloud without normals is oriented (numba's import costs a few tenths of a
+second); each kernel is compiled on its first call, or by :func:`warm_up`, and cached on disk.
+Every loop is over points (or views, then points); no kernel allocates per point.
+
+* :func:`knn_grid`: exact k nearest neighbours on a uniform grid of cells (a ring of cells
+  around the query's cell grows until the k-th distance is inside it); rows sorted by
+  distance, the point itself first.
+* :func:`pca_scales`: the covariance of the first ``s`` neighbours for a few scales ``s`` from
+  one prefix sum, closed-form 3x3 eigenvalues (trigonometric solution), the normal of the
+  smallest scale whose surface variation is below a bound.
+* :func:`visibility_votes`: orthographic depth buffers, one per view direction; a point is
+  hidden when it lies behind the tangent plane of its pixel's front-most point.
+* :func:`fill_signs`: growth of the decided signs over the neighbour graph.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+
+@nb.njit(cache=True)
+def _insert(bd: np.ndarray, bi: np.ndarray, count: int, k: int, d2: float, j: int) -> int:
+    """Insert (d2, j) into the sorted top-k lists ``bd``/``bi`` holding ``count`` entries."""
+    if count == k and d2 >= bd[k - 1]:
+        return count
+    pos = count if count < k else k - 1
+    while pos > 0 and bd[pos - 1] > d2:
+        if pos < k:
+            bd[pos] = bd[pos - 1]
+            bi[pos] = bi[pos - 1]
+        pos -= 1
+    bd[pos] = d2
+    bi[pos] = j
+    return count + 1 if count < k else count
+
+
+@nb.njit(cache=True)
+def knn_grid(
+    p: np.ndarray, k: int, h: float, lo: np.ndarray, dims: np.ndarray, max_ring: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(N, k) distances, (N, k) indices (row i starts with i itself, then ascending distance)
+    and (N,) bool ``unresolved`` (rows whose k-th neighbour lies beyond ``max_ring`` rings of
+    cells: the caller answers those with a k-d tree). Cells are cubes of side ``h`` from
+    ``lo``, ``dims`` (3,) cells per axis."""
+    n = p.shape[0]
+    gx, gy, gz = dims[0], dims[1], dims[2]
+    cx = np.empty(n, np.int64)
+    cy = np.empty(n, np.int64)
+    cz = np.empty(n, np.int64)
+    key = np.empty(n, np.int64)
+    for i in range(n):
+        ix = min(max(int((p[i, 0] - lo[0]) / h), 0), gx - 1)
+        iy = min(max(int((p[i, 1] - lo[1]) / h), 0), gy - 1)
+        iz = min(max(int((p[i, 2] - lo[2]) / h), 0), gz - 1)
+        cx[i] = ix
+        cy[i] = iy
+        cz[i] = iz
+        key[i] = (ix * gy + iy) * gz + iz
+    order = np.argsort(key, kind="mergesort")
+    n_cells = gx * gy * gz
+    start = np.zeros(n_cells + 1, np.int64)
+    for i in range(n):
+        start[key[i] + 1] += 1
+    for c in range(n_cells):
+        start[c + 1] += start[c]
+    dist = np.empty((n, k))
+    idx = np.empty((n, k), np.int64)
+    unresolved = np.zeros(n, np.bool_)
+    bd = np.empty(k)
+    bi = np.empty(k, np.int64)
+    ps = np.empty((n, 3))  # the points in cell order (contiguous reads)
+    for t in range(n):
+        ps[t, 0] = p[order[t], 0]
+        ps[t, 1] = p[order[t], 1]
+        ps[t, 2] = p[order[t], 2]
+    for q in range(n):  # queries in cell order: neighbouring queries read the same cells
+        i = order[q]
+        px, py, pz = p[i, 0], p[i, 1], p[i, 2]
+        bd[0] = 0.0
+        bi[0] = i
+        count = 1
+        worst = np.inf if k > 1 else 0.0
+        c0 = key[i]  # its own cell first: the k-th distance falls fast
+        for t in range(start[c0], start[c0 + 1]):
+            j = order[t]
+            dx = ps[t, 0] - px
+            dy = ps[t, 1] - py
+            dz = ps[t, 2] - pz
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 < worst and j != i:
+                count = _insert(bd, bi, count, k, d2, j)
+                if count == k:
+                    worst = bd[k - 1]
+        r = 0
+        done = False
+        while not done:
+            r += 1
+            for ix in range(cx[i] - r, cx[i] + r + 1):
+                if ix < 0 or ix >= gx:
+                    continue
+                for iy in range(cy[i] - r, cy[i] + r + 1):
+                    if iy < 0 or iy >= gy:
+                        continue
+                    shell_xy = abs(ix - cx[i]) == r or abs(iy - cy[i]) == r
+                    for iz in range(cz[i] - r, cz[i] + r + 1):
+                        if iz < 0 or iz >= gz:
+                            continue
+                        if r > 1 and not shell_xy and abs(iz - cz[i]) != r:
+                            continue  # scanned in an earlier ring
+                        c = (ix * gy + iy) * gz + iz
+                        if c == c0:
+                            continue
+                        for t in range(start[c], start[c + 1]):
+                            j = order[t]
+                            dx = ps[t, 0] - px
+                            dy = ps[t, 1] - py
+                            dz = ps[t, 2] - pz
+                            d2 = dx * dx + dy * dy + dz * dz
+                            if d2 < worst and j != i:
+                                count = _insert(bd, bi, count, k, d2, j)
+                                if count == k:
+                                    worst = bd[k - 1]
+            # distance from the point to the outside of the scanned block of cells
+            m = np.inf
+            for a in range(3):
+                if a == 0:
+                    ca, g = cx[i], gx
+                elif a == 1:
+                    ca, g = cy[i], gy
+                else:
+                    ca, g = cz[i], gz
+                if ca - r > 0:
+                    m = min(m, p[i, a] - (lo[a] + (ca - r) * h))
+                if ca + r < g - 1:
+                    m = min(m, lo[a] + (ca + r + 1) * h - p[i, a])
+            if count == k and bd[k - 1] <= m * m:
+                done = True
+            elif m == np.inf:  # the block covers the whole grid
+                done = True
+            elif r >= max_ring:
+                unresolved[i] = True
+                done = True
+        for t in range(k):
+            dist[i, t] = math.sqrt(bd[t]) if t < count else np.inf
+            idx[i, t] = bi[t] if t < count else i
+    return dist, idx, unresolved
+
+
+@nb.njit(cache=True)
+def _smallest_eig(
+    a00: float, a01: float, a02: float, a11: float, a12: float, a22: float
+) -> tuple[float, float, float, float, float, float]:
+    """(l_min, l_mid, l_max) of a symmetric 3x3 matrix and the unit eigenvector of l_min."""
+    q = (a00 + a11 + a22) / 3.0
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p2 = b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * p1
+    if p2 <= 1e-300:
+        return q, q, q, 0.0, 0.0, 1.0
+    pp = math.sqrt(p2 / 6.0)
+    det = (
+        b00 * (b11 * b22 - a12 * a12)
+        - a01 * (a01 * b22 - a12 * a02)
+        + a02 * (a01 * a12 - b11 * a02)
+    )
+    r = det / (2.0 * pp * pp * pp)
+    r = min(max(r, -1.0), 1.0)
+    phi = math.acos(r) / 3.0
+    e1 = q + 2.0 * pp * math.cos(phi)
+    e3 = q + 2.0 * pp * math.cos(phi + 2.0 * math.pi / 3.0)
+    e2 = 3.0 * q - e1 - e3
+    # eigenvector of e3: the largest cross product of two rows of (A - e3 I)
+    r0x, r0y, r0z = a00 - e3, a01, a02
+    r1x, r1y, r1z = a01, a11 - e3, a12
+    r2x, r2y, r2z = a02, a12, a22 - e3
+    c0x, c0y, c0z = r0y * r1z - r0z * r1y, r0z * r1x - r0x * r1z, r0x * r1y - r0y * r1x
+    c1x, c1y, c1z = r0y * r2z - r0z * r2y, r0z * r2x - r0x * r2z, r0x * r2y - r0y * r2x
+    c2x, c2y, c2z = r1y * r2z - r1z * r2y, r1z * r2x - r1x * r2z, r1x * r2y - r1y * r2x
+    n0 = c0x * c0x + c0y * c0y + c0z * c0z
+    n1 = c1x * c1x + c1y * c1y + c1z * c1z
+    n2 = c2x * c2x + c2y * c2y + c2z * c2z
+    if n0 >= n1 and n0 >= n2:
+        vx, vy, vz, nn = c0x, c0y, c0z, n0
+    elif n1 >= n2:
+        vx, vy, vz, nn = c1x, c1y, c1z, n1
+    else:
+        vx, vy, vz, nn = c2x, c2y, c2z, n2
+    if nn <= 1e-300:
+        return e3, e2, e1, 0.0, 0.0, 1.0
+    s = 1.0 / math.sqrt(nn)
+    return e3, e2, e1, vx * s, vy * s, vz * s
+
+
+@nb.njit(cache=True)
+def pca_scales(
+    p: np.ndarray, idx: np.ndarray, scales: np.ndarray, flat: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) unit normals and (N,) surface variation l3 / (l1 + l2 + l3): per point, the
+    covariance of its first ``scales[s]`` neighbours (``idx`` rows sorted by distance, ascending
+    ``scales``); the smallest scale whose variation is below ``flat`` is kept, else the
+    largest."""
+    n = p.shape[0]
+    normals = np.empty((n, 3))
+    variation = np.empty(n)
+    n_s = scales.shape[0]
+    for i in range(n):
+        sx = sy = sz = 0.0
+        sxx = sxy = sxz = syy = syz = szz = 0.0
+        t = 0
+        for si in range(n_s):
+            m = scales[si]
+            while t < m:
+                j = idx[i, t]
+                x = p[j, 0] - p[i, 0]
+                y = p[j, 1] - p[i, 1]
+                z = p[j, 2] - p[i, 2]
+                sx += x
+                sy += y
+                sz += z
+                sxx += x * x
+                sxy += x * y
+                sxz += x * z
+                syy += y * y
+                syz += y * z
+                szz += z * z
+                t += 1
+            mx, my, mz = sx / m, sy / m, sz / m
+            l3, l2, l1, vx, vy, vz = _smallest_eig(
+                sxx / m - mx * mx,
+                sxy / m - mx * my,
+                sxz / m - mx * mz,
+                syy / m - my * my,
+                syz / m - my * mz,
+                szz / m - mz * mz,
+            )
+            total = l1 + l2 + l3
+            var = max(l3, 0.0) / total if total > 1e-300 else 0.0
+            if var < flat or si == n_s - 1:
+                normals[i, 0] = vx
+                normals[i, 1] = vy
+                normals[i, 2] = vz
+                variation[i] = min(var, 1.0 / 3.0)
+                break
+    return normals, variation
+
+
+@nb.njit(cache=True)
+def visibility_votes(
+    p: np.ndarray,
+    n: np.ndarray,
+    dirs: np.ndarray,
+    u: np.ndarray,
+    w: np.ndarray,
+    radius: float,
+    pix: float,
+    g: int,
+    tol: float,
+    curv_radius: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Net (N,) and total (N,) votes: for each view ``dirs[v]`` (towards the viewer; ``u[v]``,
+    ``w[v]`` span its image plane), the front-most point of every pixel of side ``pix``
+    (``g`` x ``g`` pixels over [-radius, radius]^2); a point is seen unless it lies more than
+    ``tol + l^2 / (2 curv_radius)`` behind the tangent plane of its pixel's front point (``l``
+    the image distance between the two, the allowance for a convex surface curving away); a
+    sighting votes ``sign(n . d) |n . d|``. ``p`` centred on the cloud."""
+    n_pts = p.shape[0]
+    n_views = dirs.shape[0]
+    net = np.zeros(n_pts)
+    tot = np.zeros(n_pts)
+    front = np.empty(g * g)
+    front_id = np.empty(g * g, np.int64)
+    cell = np.empty(n_pts, np.int64)
+    depth = np.empty(n_pts)
+    lx = np.empty(n_pts)
+    ly = np.empty(n_pts)
+    for v in range(n_views):
+        dx, dy, dz = dirs[v, 0], dirs[v, 1], dirs[v, 2]
+        ux, uy, uz = u[v, 0], u[v, 1], u[v, 2]
+        wx, wy, wz = w[v, 0], w[v, 1], w[v, 2]
+        front[:] = -np.inf
+        front_id[:] = -1
+        for i in range(n_pts):
+            x = p[i, 0] * ux + p[i, 1] * uy + p[i, 2] * uz
+            y = p[i, 0] * wx + p[i, 1] * wy + p[i, 2] * wz
+            d = p[i, 0] * dx + p[i, 1] * dy + p[i, 2] * dz
+            ix = min(max(int((x + radius) / pix), 0), g - 1)
+            iy = min(max(int((y + radius) / pix), 0), g - 1)
+            c = iy * g + ix
+            cell[i] = c
+            depth[i] = d
+            lx[i] = x
+            ly[i] = y
+            if d > front[c]:
+                front[c] = d
+                front_id[c] = i
+        for i in range(n_pts):
+            f = front_id[cell[i]]
+            if f != i:
+                fnd = n[f, 0] * dx + n[f, 1] * dy + n[f, 2] * dz
+                hgt = (
+                    (p[i, 0] - p[f, 0]) * n[f, 0]
+                    + (p[i, 1] - p[f, 1]) * n[f, 1]
+                    + (p[i, 2] - p[f, 2]) * n[f, 2]
+                )
+                if fnd < 0.0:
+                    hgt = -hgt  # the front point's normal turned towards the viewer
+                l2 = (lx[i] - lx[f]) ** 2 + (ly[i] - ly[f]) ** 2
+                if hgt < -(tol + 0.5 * l2 / curv_radius):
+                    continue  # behind the front surface of its pixel
+            nd = n[i, 0] * dx + n[i, 1] * dy + n[i, 2] * dz
+            a = abs(nd)
+            tot[i] += a
+            net[i] += a if nd > 0.0 else -a
+    return net, tot
+
+
+@nb.njit(cache=True)
+def same_side_weights(p: np.ndarray, n: np.ndarray, idx: np.ndarray, sigma: float) -> np.ndarray:
+    """(N, k) signed weights ``(n_i . n_j) exp(-(h / sigma)^2)`` of each point's neighbours,
+    ``h`` the larger of the neighbour's offset along ``n_i`` and the point's along ``n_j``
+    (a neighbour across a thin wall sits along the normal: no say); 0 for the point itself."""
+    n_pts, k = idx.shape
+    out = np.zeros((n_pts, k))
+    for i in range(n_pts):
+        for t in range(k):
+            j = idx[i, t]
+            if j == i:
+                continue
+            ox = p[j, 0] - p[i, 0]
+            oy = p[j, 1] - p[i, 1]
+            oz = p[j, 2] - p[i, 2]
+            h1 = abs(ox * n[i, 0] + oy * n[i, 1] + oz * n[i, 2])
+            h2 = abs(ox * n[j, 0] + oy * n[j, 1] + oz * n[j, 2])
+            h = max(h1, h2) / sigma
+            nn = n[i, 0] * n[j, 0] + n[i, 1] * n[j, 1] + n[i, 2] * n[j, 2]
+            out[i, t] = nn * math.exp(-h * h)
+    return out
+
+
+@nb.njit(cache=True)
+def fill_signs(
+    sign: np.ndarray, decided: np.ndarray, idx: np.ndarray, wts: np.ndarray, rounds: int
+) -> np.ndarray:
+    """Signs (N,) grown from the decided points: each round, every undecided point takes the
+    sign of the weighted sum of its neighbours' signs (0 while none has a say)."""
+    n_pts, k = idx.shape
+    cur = sign.copy()
+    nxt = sign.copy()
+    for _ in range(rounds):
+        changed = False
+        for i in range(n_pts):
+            if decided[i]:
+                continue
+            acc = 0.0
+            for t in range(k):
+                acc += cur[idx[i, t]] * wts[i, t]
+            s = 1.0 if acc > 0.0 else (-1.0 if acc < 0.0 else 0.0)
+            if s != cur[i]:
+                changed = True
+            nxt[i] = s
+        cur, nxt = nxt, cur
+        nxt[:] = cur
+        if not changed:
+            break
+    return cur
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) every kernel on a tiny cloud."""
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(64, 3))
+    dist, idx, _ = knn_grid(p, 8, 0.5, p.min(axis=0), np.array([8, 8, 8], np.int64), 3)
+    normals, _ = pca_scales(p, idx, np.array([4, 8], np.int64), 0.02)
+    d = np.array([[0.0, 0.0, 1.0]])
+    visibility_votes(
+        p, normals, d, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]), 4.0, 1.0, 8, 0.1, 1.0
+    )
+    wts = same_side_weights(p, normals, idx, 0.1)
+    fill_signs(np.zeros(64), np.zeros(64, np.bool_), idx, wts, 2)
