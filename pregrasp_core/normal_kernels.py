@@ -41,12 +41,18 @@ def _insert(bd: np.ndarray, bi: np.ndarray, count: int, k: int, d2: float, j: in
 
 @nb.njit(cache=True)
 def knn_grid(
-    p: np.ndarray, k: int, h: float, lo: np.ndarray, dims: np.ndarray, max_ring: int
+    p: np.ndarray,
+    queries: np.ndarray,
+    k: int,
+    h: float,
+    lo: np.ndarray,
+    dims: np.ndarray,
+    max_ring: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(N, k) distances, (N, k) indices (row i starts with i itself, then ascending distance)
-    and (N,) bool ``unresolved`` (rows whose k-th neighbour lies beyond ``max_ring`` rings of
-    cells: the caller answers those with a k-d tree). Cells are cubes of side ``h`` from
-    ``lo``, ``dims`` (3,) cells per axis."""
+    """(Q, k) distances, (Q, k) indices (row r starts with ``queries[r]`` itself, then ascending
+    distance) and (Q,) bool ``unresolved`` (rows whose k-th neighbour lies beyond ``max_ring``
+    rings of cells: the caller answers those with a k-d tree), for the point indices
+    ``queries``. Cells are cubes of side ``h`` from ``lo``, ``dims`` (3,) cells per axis."""
     n = p.shape[0]
     gx, gy, gz = dims[0], dims[1], dims[2]
     cx = np.empty(n, np.int64)
@@ -68,9 +74,10 @@ def knn_grid(
         start[key[i] + 1] += 1
     for c in range(n_cells):
         start[c + 1] += start[c]
-    dist = np.empty((n, k))
-    idx = np.empty((n, k), np.int64)
-    unresolved = np.zeros(n, np.bool_)
+    n_q = queries.shape[0]
+    dist = np.empty((n_q, k))
+    idx = np.empty((n_q, k), np.int64)
+    unresolved = np.zeros(n_q, np.bool_)
     bd = np.empty(k)
     bi = np.empty(k, np.int64)
     ps = np.empty((n, 3))  # the points in cell order (contiguous reads)
@@ -78,8 +85,13 @@ def knn_grid(
         ps[t, 0] = p[order[t], 0]
         ps[t, 1] = p[order[t], 1]
         ps[t, 2] = p[order[t], 2]
-    for q in range(n):  # queries in cell order: neighbouring queries read the same cells
-        i = order[q]
+    qkey = np.empty(n_q, np.int64)
+    for r in range(n_q):
+        qkey[r] = key[queries[r]]
+    qorder = np.argsort(qkey, kind="mergesort")
+    for qq in range(n_q):  # queries in cell order: neighbouring queries read the same cells
+        row = qorder[qq]
+        i = queries[row]
         px, py, pz = p[i, 0], p[i, 1], p[i, 2]
         bd[0] = 0.0
         bi[0] = i
@@ -143,11 +155,11 @@ def knn_grid(
             elif m == np.inf:  # the block covers the whole grid
                 done = True
             elif r >= max_ring:
-                unresolved[i] = True
+                unresolved[row] = True
                 done = True
         for t in range(k):
-            dist[i, t] = math.sqrt(bd[t]) if t < count else np.inf
-            idx[i, t] = bi[t] if t < count else i
+            dist[row, t] = math.sqrt(bd[t]) if t < count else np.inf
+            idx[row, t] = bi[t] if t < count else i
     return dist, idx, unresolved
 
 
@@ -200,11 +212,11 @@ def _smallest_eig(
 def pca_scales(
     p: np.ndarray, idx: np.ndarray, scales: np.ndarray, flat: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 3) unit normals and (N,) surface variation l3 / (l1 + l2 + l3): per point, the
-    covariance of its first ``scales[s]`` neighbours (``idx`` rows sorted by distance, ascending
-    ``scales``); the smallest scale whose variation is below ``flat`` is kept, else the
-    largest."""
-    n = p.shape[0]
+    """(R, 3) unit normals and (R,) surface variation l3 / (l1 + l2 + l3): per row of ``idx``
+    (a point's neighbours, itself first, then by distance), the covariance of its first
+    ``scales[s]`` entries (ascending ``scales``); the smallest scale whose variation is below
+    ``flat`` is kept, else the largest."""
+    n = idx.shape[0]
     normals = np.empty((n, 3))
     variation = np.empty(n)
     n_s = scales.shape[0]
@@ -212,13 +224,14 @@ def pca_scales(
         sx = sy = sz = 0.0
         sxx = sxy = sxz = syy = syz = szz = 0.0
         t = 0
+        c = idx[i, 0]  # the point itself: coordinates relative to it
         for si in range(n_s):
             m = scales[si]
             while t < m:
                 j = idx[i, t]
-                x = p[j, 0] - p[i, 0]
-                y = p[j, 1] - p[i, 1]
-                z = p[j, 2] - p[i, 2]
+                x = p[j, 0] - p[c, 0]
+                y = p[j, 1] - p[c, 1]
+                z = p[j, 2] - p[c, 2]
                 sx += x
                 sy += y
                 sz += z
@@ -374,7 +387,8 @@ def warm_up() -> None:
     """Compile (or load from the cache) every kernel on a tiny cloud."""
     rng = np.random.default_rng(0)
     p = rng.normal(size=(64, 3))
-    dist, idx, _ = knn_grid(p, 8, 0.5, p.min(axis=0), np.array([8, 8, 8], np.int64), 3)
+    cells = np.array([8, 8, 8], np.int64)
+    dist, idx, _ = knn_grid(p, np.arange(64), 8, 0.5, p.min(axis=0), cells, 3)
     normals, _ = pca_scales(p, idx, np.array([4, 8], np.int64), 0.02)
     d = np.array([[0.0, 0.0, 1.0]])
     visibility_votes(

@@ -304,12 +304,16 @@ def _orient_visibility(
     return sign
 
 
-def nearest_neighbours(points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Exact (N, k) distances and indices of the k nearest neighbours (the point itself first,
-    then by distance) on a grid of cells about the k-th neighbour's expected distance; the rare
-    rows the grid does not settle within a few rings (outliers) are asked of a k-d tree."""
+def nearest_neighbours(
+    points: np.ndarray, k: int, queries: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exact (Q, k) distances and indices of the k nearest neighbours of the points ``queries``
+    (default: all; each row starts with the point itself, then by distance) on a grid of cells
+    about the k-th neighbour's expected distance; the rare rows the grid does not settle within
+    a few rings (outliers) are asked of a k-d tree."""
     from . import normal_kernels
 
+    q = np.arange(len(points)) if queries is None else np.asarray(queries, dtype=np.int64)
     lo = points.min(axis=0)
     extent = np.maximum(points.max(axis=0) - lo, GEOM_EPS)
     # surface area from the cells a coarse grid occupies -> spacing -> the k-th distance
@@ -321,17 +325,43 @@ def nearest_neighbours(points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarr
     h = max(h, float(np.cbrt(np.prod(extent) / GRID_MAX_CELLS)))  # bounded memory
     dims = np.minimum(np.floor(extent / h).astype(np.int64) + 1, GRID_MAX_CELLS)
     dist, idx, unresolved = normal_kernels.knn_grid(
-        np.ascontiguousarray(points), k, h, lo, dims, GRID_MAX_RING
+        np.ascontiguousarray(points), q, k, h, lo, dims, GRID_MAX_RING
     )
     if unresolved.any():
         rows = np.flatnonzero(unresolved)
-        d_t, i_t = cKDTree(points).query(points[rows], k=k)
+        d_t, i_t = cKDTree(points).query(points[q[rows]], k=k)
         # the point itself first (a duplicate point could come before it)
         for r, row in enumerate(rows):  # outliers only: a few rows
-            order = np.r_[row, i_t[r][i_t[r] != row]][:k]
-            dist[row] = np.r_[0.0, d_t[r][i_t[r] != row]][:k]
-            idx[row] = order
+            own = q[row]
+            idx[row] = np.r_[own, i_t[r][i_t[r] != own]][:k]
+            dist[row] = np.r_[0.0, d_t[r][i_t[r] != own]][:k]
     return dist, idx
+
+
+def scale_selected_normals(
+    points: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Normals (N, 3), surface variation (N,) by scale selection (:func:`pca_scales_of`), and the
+    (N, k) distances and indices of the k nearest neighbours. The largest scale's neighbours
+    are searched only for the points that are flat at none of the smaller ones."""
+    from . import normal_kernels
+
+    scales = pca_scales_of(k, len(points))
+    small = tuple(s for s in scales if s <= k)
+    dist, nbr = nearest_neighbours(points, small[-1])
+    normals, variation = normal_kernels.pca_scales(
+        points, nbr, np.asarray(small, dtype=np.int64), SCALE_FLAT
+    )
+    if scales[-1] > small[-1]:
+        rough = np.flatnonzero(variation >= SCALE_FLAT)
+        if len(rough):
+            _, nbr_big = nearest_neighbours(points, scales[-1], rough)
+            n_big, v_big = normal_kernels.pca_scales(
+                points, nbr_big, np.asarray(scales[-1:], dtype=np.int64), SCALE_FLAT
+            )
+            normals[rough] = n_big
+            variation[rough] = v_big
+    return normals, variation, dist[:, :k], nbr[:, :k]
 
 
 def estimate_normals(
@@ -363,14 +393,7 @@ def estimate_normals(
         dist, nbr = cKDTree(pts).query(pts, k=params.k)  # (N, k), itself first
         normals, curvature = _pca_normals(pts, nbr)
     else:  # no normals to orient by: scale-selected PCA (thin rims), compiled kernels
-        from . import normal_kernels
-
-        scales = pca_scales_of(params.k, len(pts))
-        dist, nbr = nearest_neighbours(pts, scales[-1])
-        normals, curvature = normal_kernels.pca_scales(
-            pts, nbr, np.asarray(scales, dtype=np.int64), SCALE_FLAT
-        )
-        dist, nbr = dist[:, : params.k], nbr[:, : params.k]
+        normals, curvature, dist, nbr = scale_selected_normals(pts, params.k)
     if mode == "reference":
         assert ref is not None  # checked above
         signs = np.where(np.einsum("ij,ij->i", normals, ref) < 0.0, -1.0, 1.0)
