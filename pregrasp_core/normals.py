@@ -122,7 +122,8 @@ class NormalParams:
     """Parameters of normal estimation."""
 
     k: int = 16
-    """Neighbours per point (the point itself included), >= 3."""
+    """Neighbours per point (the point itself included), >= 3; a cloud without normals tries
+    k/2, 3k/4, k and 3k/2 per point and keeps the smallest that looks flat."""
     orient: str = "auto"
     """One of ``ORIENT_MODES`` (see the module docstring)."""
     viewpoint: tuple[float, float, float] | None = None
@@ -156,7 +157,7 @@ class CloudNormals:
     curvature: np.ndarray
     """(N,) float64 surface variation l3 / (l1 + l2 + l3) of each neighbourhood, in [0, 1/3]."""
     orient: str
-    """The orientation rule that was applied ('reference', 'propagate' or 'centroid')."""
+    """The orientation rule that was applied (one of ``ORIENT_MODES`` but ``'auto'``)."""
 
 
 def _pca_normals(points: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
