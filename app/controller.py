@@ -593,9 +593,10 @@ class Controller:
         return self._request(params=params)
 
     def _rerun(self, gen: int) -> AppState:
-        """Re-run the stages downstream of a threshold change outside the lock (re-planning when
-        grasps were planned, with the progress bar); commit under the lock on top of the state
-        as it is then, unless a newer request has arrived (it then includes this change)."""
+        """Re-run the stages downstream of a threshold change outside the lock and commit the
+        new scene (boxes, masks, pool) under it; when grasps were planned, then re-plan (the
+        progress bar shows it) and commit the new grasps. Each commit builds on the state as it
+        is then, unless a newer request has arrived (it then includes this change)."""
         with self._lock:
             self._check(gen)
             s = self._state
@@ -604,12 +605,9 @@ class Controller:
                 return self._settle(gen, dataclasses.replace(s, params=params))
             if s.loaded is not None:
                 raise InputError(loaded_result_notice(s.loaded))
-            if s.planned:
-                self._commit(dataclasses.replace(s, busy="plan", progress=0.0), render=False)
+        replan = s.planned
         t0 = time.perf_counter()
-        result = self._run(
-            s.result.cloud, params, previous=s.result, plan=s.planned, gen=gen, show=s.planned
-        )
+        result = self._run(s.result.cloud, params, previous=s.result, plan=False, gen=gen)
         dt = time.perf_counter() - t0
         msg = f"{len(result.tree.leaves())} parts, pool {len(result.pool)} ({dt * 1000:.0f} ms)"
         with self._lock:
@@ -620,20 +618,46 @@ class Controller:
             view = now.view
             if result.tree is not s.result.tree:
                 view = dataclasses.replace(view, level=None, selected_node=None, ghost_node=None)
-            if result is not s.result:
-                view = dataclasses.replace(
-                    view, selected_grasp=0 if s.planned else None, anim_t=0.0, playing=s.planned
-                )
-            return self._settle(
+            if replan or result is not s.result:
+                view = dataclasses.replace(view, selected_grasp=None, playing=False)
+            state = self._settle(
                 gen,
                 dataclasses.replace(
                     now,
                     params=params,
                     result=result,
+                    planned=False,
+                    view=view,
+                    busy="plan" if replan else "",
+                    progress=0.0,
+                    message=msg + ("; planning the grasps again" if replan else ""),
+                    error="",
+                ),
+            )
+        if not replan:
+            return state
+        t1 = time.perf_counter()
+        planned = self._run(result.cloud, params, previous=result, plan=True, gen=gen, show=True)
+        n = len(ranked_grasps(planned))
+        with self._lock:
+            self._check(gen)
+            now = self._state
+            if now.result is not result:
+                raise Superseded
+            view = dataclasses.replace(
+                now.view, selected_grasp=0 if n else None, anim_t=0.0, playing=bool(n)
+            )
+            return self._settle(
+                gen,
+                dataclasses.replace(
+                    now,
+                    result=planned,
+                    planned=True,
                     view=view,
                     busy="",
                     progress=0.0,
-                    message=msg,
+                    message=f"{msg}; planned again: {n} grasps kept "
+                    f"({time.perf_counter() - t1:.1f} s)",
                     error="",
                 ),
             )

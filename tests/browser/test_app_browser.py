@@ -1,6 +1,8 @@
 """The real app in headless Chromium: load the page, change a threshold and see the number of
-boxes change (and a second tab see the same), plan and see the ranked table, pick a grasp, save
-screenshots, upload a broken file and see the error notification.
+boxes change (and a second tab see the same), hide the face masks and show the ghosts, plan and
+see the ranked table, pick a grasp, open a result file, save screenshots, upload a broken file
+and see the error notification. Each action is timed from the action to its change on screen
+(the page's text, or the canvas's pixels) and must show within :data:`ACTION_S`.
 
 What the page shows is checked against what the server's scene holds (the box handles under
 their fixed names), so the "boxes: N" label cannot drift from the scene.
@@ -11,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
+import time
 
 import numpy as np
 import pytest
@@ -46,6 +49,22 @@ def page(browser_context, live_app):
     page.close()
 
 
+ACTION_S = 2.0
+"""Longest time from an action to its change on screen (issue 14)."""
+
+
+def _canvas_changed(page, before: np.ndarray, timeout: float = 30.0) -> float:
+    """Seconds until the canvas differs from ``before`` (more than 0.2 % of its pixels)."""
+    import time
+
+    t0 = time.perf_counter()
+    while True:
+        now = _canvas_png(page, frames=1)
+        if now.shape != before.shape or (np.abs(now - before).max(axis=2) > 12).mean() > 0.002:
+            return time.perf_counter() - t0
+        assert time.perf_counter() - t0 < timeout, "the canvas never changed"
+
+
 FC_TEXT = re.compile(r"^\d+ force-closure of \d+ kept$")
 """The planner's summary line in the Planner panel."""
 
@@ -53,10 +72,10 @@ OBJECT_LAYERS = ("cloud", "box_edges", "faces_free", "faces_blocked", "subfaces"
 """Scene layers of the object itself (with the boxes), hidden to see the background."""
 
 
-def _canvas_png(page) -> np.ndarray:
+def _canvas_png(page, frames: int = 3) -> np.ndarray:
     import imageio.v3 as iio
 
-    for _ in range(3):  # two frames drawn after the last change
+    for _ in range(frames):  # frames drawn after the last change
         page.evaluate(
             "() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))"
         )
@@ -126,8 +145,12 @@ def test_threshold_change_changes_the_boxes(page, live_app, shots_dir):
         pytest.fail("no volume ratio changes the number of parts of the default object")
     box = page.get_by_label("volume ratio", exact=True)
     box.fill(ratio)
+    t0 = time.perf_counter()
     box.press("Enter")
     page.get_by_text(f"boxes: {expected}", exact=True).wait_for(timeout=LOAD_TIMEOUT_MS)
+    dt = time.perf_counter() - t0  # the edit rests 0.3 s (debounce), then runs and is drawn
+    print(f"threshold change shown in {dt:.2f} s")  # noqa: T201 - a figure for the log
+    assert dt < ACTION_S, f"the threshold change took {dt:.2f} s to show"
     assert _boxes_in_page(page) == expected == _scene_box_count(live_app)
     assert live_app.controller.state.params.decomposition.volume_ratio == float(ratio)
     # a second browser sees the same shared state (docs/app.md: one state per server)
@@ -141,15 +164,66 @@ def test_threshold_change_changes_the_boxes(page, live_app, shots_dir):
         other.close()
 
 
+def test_face_masks_and_ghosts_show_and_hide(page, live_app, shots_dir):
+    """Untick the face masks, tick the hand ghosts: each shows on the canvas within 2 s, the
+    panel says how many ghosts are drawn, and the scene holds what the panel says."""
+    masks = page.get_by_label("face masks", exact=True)
+    assert masks.is_checked() and live_app.scene.n_faces_shown != (0, 0)
+    before = _canvas_png(page)
+    t0 = time.perf_counter()
+    masks.uncheck()
+    dt = time.perf_counter() - t0 + _canvas_changed(page, before)
+    print(f"face masks hidden on screen in {dt:.2f} s")  # noqa: T201
+    assert dt < ACTION_S
+    assert live_app.scene.n_faces_shown == (0, 0) and not masks.is_checked()
+    ghosts = page.get_by_label("hand ghosts", exact=True)
+    before = _canvas_png(page)
+    t0 = time.perf_counter()
+    ghosts.check()
+    drawn = re.compile(r"pool: \d+ pre-grasps, \d+ pass the filters, [1-9]\d* ghosts drawn")
+    page.get_by_text(drawn).wait_for(timeout=LOAD_TIMEOUT_MS)
+    dt = time.perf_counter() - t0 + _canvas_changed(page, before)
+    print(f"ghosts shown on screen in {dt:.2f} s")  # noqa: T201
+    assert dt < ACTION_S
+    n = live_app.scene.n_ghosts_shown
+    assert 0 < n <= live_app.scene.max_ghosts
+    assert f", {n} ghosts drawn" in page.get_by_text(drawn).inner_text()
+    page.screenshot(path=str(shots_dir / "browser_ghosts.png"))
+    fraction = _object_fraction(page, live_app)
+    assert fraction >= 0.2, f"the object covers {fraction:.1%} of the canvas"
+    ghosts.uncheck()  # back to the first screen's layers
+    masks.check()
+    page.get_by_text(re.compile(r", 0 ghosts drawn")).wait_for(timeout=LOAD_TIMEOUT_MS)
+
+
 def test_plan_shows_ranked_table_and_pick_a_grasp(page, live_app, shots_dir):
+    c = live_app.controller
+    for _ in range(900):  # the start-up plan has finished: a new plan starts from a quiet app
+        if c.idle() and c.state.planned:
+            break
+        page.wait_for_timeout(100)
+    # a fresh cloud (one point more), so that the plan runs the planner (the start-up plan's
+    # grasps would be reused as they are)
+    c.set_n_points(c.state.n_points + 1)
+    assert not c.state.planned
     v0 = live_app.controller.state.version
+    t0 = time.perf_counter()
     page.get_by_role("button", name="plan grasps").click()
+    page.wait_for_function(
+        "() => [...document.querySelectorAll('button')].some(b => b.innerText.includes("
+        "'planning...')) || document.querySelector('[role=progressbar]') !== null",
+        timeout=LOAD_TIMEOUT_MS,
+    )
+    dt = time.perf_counter() - t0
+    print(f"plan started on screen in {dt:.2f} s")  # noqa: T201
+    assert dt < ACTION_S, f"the plan took {dt:.2f} s to show that it runs"
     for _ in range(900):  # the plan is committed (the button is enabled again)
         s = live_app.controller.state
         if s.version > v0 and s.planned and live_app.controller.idle():
             break
         page.wait_for_timeout(100)
     page.get_by_text(FC_TEXT).wait_for(timeout=LOAD_TIMEOUT_MS)
+    print(f"plan to ranked table: {time.perf_counter() - t0:.2f} s")  # noqa: T201
     s = live_app.controller.state
     ranked = ranked_grasps(s.result)
     assert ranked and s.planned
@@ -158,11 +232,18 @@ def test_plan_shows_ranked_table_and_pick_a_grasp(page, live_app, shots_dir):
     if len(ranked) < 2:
         pytest.fail("the default object should give at least two ranked grasps")
     page.get_by_label("grasp", exact=True).click()
-    page.get_by_role("option", name=re.compile(r"^#2 ")).click()
+    option = page.get_by_role("option", name=re.compile(r"^#2 "))
+    option.wait_for()
+    before = _canvas_png(page)
+    t0 = time.perf_counter()
+    option.click()
     page.wait_for_function(
         "() => [...document.querySelectorAll('input')].some(i => i.value.startsWith('#2 '))",
         timeout=LOAD_TIMEOUT_MS,
     )
+    dt = time.perf_counter() - t0 + _canvas_changed(page, before)  # the hand moves
+    print(f"grasp choice shown on screen in {dt:.2f} s")  # noqa: T201
+    assert dt < ACTION_S
     # the server saw the choice and posed the URDF hand at that grasp
     for _ in range(100):
         if live_app.controller.state.view.selected_grasp == 1:
@@ -242,15 +323,29 @@ def test_html_in_an_uploaded_file_name_is_shown_as_text(page, live_app):
     assert page.locator("img[src=x], iframe[srcdoc]").count() == 0
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="known race (open bug, issue 16): in about 1 run in 3 one tab keeps its own edit "
-    "while the other tab's value was used; the app-level test in tests/app/test_security.py "
-    "passes",
+TYPED = (
+    "([el, v, at]) => { window.__fired = null; setTimeout(() => {"
+    " Object.getOwnPropertyDescriptor(HTMLInputElement.prototype, 'value').set.call(el, v);"
+    " el.dispatchEvent(new Event('input', {bubbles: true})); window.__fired = Date.now(); },"
+    " at - Date.now()); }"
 )
+"""Types ``v`` into the input ``el`` at the epoch time ``at`` (ms), as a user would."""
+
+
+def _round_trip_ms(page) -> float:
+    t0 = time.perf_counter()
+    page.evaluate("() => 0")
+    return (time.perf_counter() - t0) * 1000.0
+
+
 def test_two_browsers_editing_one_threshold_end_with_the_same_value(page, live_app):
-    """Two tabs type into the volume ratio within 100 ms: both end showing the value the
-    result was computed with (before, each kept the other's echo: 5 of 5 trials differed)."""
+    """Two tabs type into the volume ratio at one agreed instant: both end showing the value
+    the result was computed with (before, each kept the other's echo: 5 of 5 trials differed).
+
+    The two edits are scheduled in the tabs ahead of time (each tab's timer fires at the agreed
+    instant) and the test waits until both tabs have typed and the server has applied every
+    edit: a loaded machine can delay a tab's script by seconds (the earlier version of this test
+    checked before the second tab had typed, and failed about 1 run in 3)."""
     other = page.context.new_page()
     other.set_default_timeout(LOAD_TIMEOUT_MS)
     try:
@@ -259,37 +354,104 @@ def test_two_browsers_editing_one_threshold_end_with_the_same_value(page, live_a
         a = page.get_by_label("volume ratio", exact=True)
         b = other.get_by_label("volume ratio", exact=True)
         c = live_app.controller
-        # start from a quiet app: no start-up or earlier plan still running (edits during a
-        # background plan are another case; see docs/app.md)
-        for _ in range(600):
-            if c.idle() and not live_app.gui._timers:
+
+        def quiet() -> bool:
+            return c.idle() and not live_app.gui._timers and not live_app.gui._editing()
+
+        for _ in range(600):  # start from a quiet app (no plan or edit still running)
+            if quiet():
                 break
             page.wait_for_timeout(100)
-        version = live_app.controller.state.version
-        # both edits leave at the same instant, before either browser hears of the other's (as
-        # two users typing at the same moment): each tab sets its input at one agreed time
-        typed = (
-            "([el, v, at]) => setTimeout(() => { Object.getOwnPropertyDescriptor("
-            "HTMLInputElement.prototype, 'value').set.call(el, v); el.dispatchEvent("
-            "new Event('input', {bubbles: true})); }, at - Date.now())"
-        )
-        at = page.evaluate("() => Date.now()") + 500
-        a.evaluate(f"el => ({typed})([el, '0.6', {at}])")
-        b.evaluate(f"el => ({typed})([el, '0.95', {at}])")
-        page.wait_for_timeout(600)
-        for _ in range(600):
-            if c.state.version > version and c.idle() and not live_app.gui._timers:
-                break
-            page.wait_for_timeout(100)
-        used = c.state.params.decomposition.volume_ratio
-        assert used in (0.6, 0.95)
-        for p, box in ((page, a), (other, b)):
-            for _ in range(100):
-                if box.input_value() and float(box.input_value()) == used:
+        skews = []
+        for va, vb in (("0.6", "0.95"), ("0.7", "0.85"), ("0.5", "0.9")):
+            version = c.state.version
+            lead = max(1000.0, 3 * max(_round_trip_ms(page), _round_trip_ms(other)))
+            at = page.evaluate("() => Date.now()") + lead
+            a.evaluate(f"el => ({TYPED})([el, '{va}', {at}])")
+            b.evaluate(f"el => ({TYPED})([el, '{vb}', {at}])")
+            fired = [
+                p.wait_for_function("() => window.__fired").json_value() for p in (page, other)
+            ]
+            skews.append(abs(fired[0] - fired[1]))
+            page.wait_for_timeout(600)  # both edits reach the server (a tab sends at once)
+            for _ in range(600):
+                if c.state.version > version and quiet():
                     break
-                p.wait_for_timeout(100)
-            assert float(box.input_value()) == used
-        want = len(c.state.tree.leaves())
-        other.get_by_text(f"boxes: {want}", exact=True).wait_for(timeout=LOAD_TIMEOUT_MS)
+                page.wait_for_timeout(100)
+            used = c.state.params.decomposition.volume_ratio
+            assert used in (float(va), float(vb))
+            for p, box in ((page, a), (other, b)):
+                for _ in range(100):
+                    if box.input_value() and float(box.input_value()) == used:
+                        break
+                    p.wait_for_timeout(100)
+                assert float(box.input_value()) == used, (va, vb, used, box.input_value())
+            assert c.state.params.decomposition.volume_ratio == used  # no late edit came after
+            want = len(c.state.tree.leaves())
+            for p in (page, other):
+                p.get_by_text(f"boxes: {want}", exact=True).wait_for(timeout=LOAD_TIMEOUT_MS)
+        print(f"the two tabs typed {', '.join(f'{x:.0f}' for x in skews)} ms apart")  # noqa: T201
     finally:
         other.close()
+
+
+def test_open_a_result_file(page, live_app, shots_dir):
+    """Upload a pregrasp/1 result file (as `pregrasp plan -o` writes it): the page says what it
+    holds and that it has no points, shows its boxes, force-closure line and best epsilon, and
+    draws the boxes and the file's best grasp covering at least a fifth of the canvas; the
+    status shows within 2 s of the upload."""
+    from pregrasp_core import pipeline as ppl
+
+    c = live_app.controller
+    for _ in range(900):
+        if c.idle():
+            break
+        page.wait_for_timeout(100)
+    c.load_demo("mug_handle")  # the object the result is computed from (by the core here)
+    res = ppl.run_pipeline(c.state.cloud, c.state.params, c.hand, until="grasps")
+    doc = ppl.result_document(res)
+    data = json.dumps(doc).encode()
+    t0 = time.perf_counter()
+    page.locator("input[type=file]").first.set_input_files(
+        files=[{"name": "mug.result.json", "mimeType": "application/json", "buffer": data}]
+    )
+    status = page.get_by_text("mug.result.json: result file of", exact=False)
+    status.first.wait_for(timeout=LOAD_TIMEOUT_MS)
+    dt = time.perf_counter() - t0
+    print(f"result file ({len(data) / 1e6:.1f} MB) shown in {dt:.2f} s")  # noqa: T201
+    assert dt < ACTION_S, f"the result file took {dt:.2f} s to show"
+    assert "holds no points" in status.first.inner_text()
+    leaves = doc["tree"]["leaves"]
+    page.get_by_text(f"boxes: {len(leaves)}", exact=True).wait_for(timeout=LOAD_TIMEOUT_MS)
+    assert live_app.scene.box_ids == leaves
+    kept, n_fc = doc["grasps"]["n_kept"], doc["grasps"]["n_force_closure"]
+    line = page.get_by_text(FC_TEXT)
+    line.wait_for(timeout=LOAD_TIMEOUT_MS)
+    assert line.inner_text() == f"{n_fc} force-closure of {kept} kept"
+    best = doc["grasps"]["items"][doc["best"]]
+    assert page.get_by_role("cell", name=f"{best['epsilon']:.4f}").count() >= 1
+    for _ in range(300):  # the file's best grasp plays and stops on the closed hand
+        s = c.state
+        if not s.view.playing and s.view.anim_t == 1.0 and live_app.scene.rendered is s:
+            break
+        page.wait_for_timeout(100)
+    frame = live_app.scene.handle("hand_frame")
+    assert frame.visible
+    assert abs(frame.position - np.asarray(best["T_world_hand"])[:3, 3]).max() < 1e-9
+    page.screenshot(path=str(shots_dir / "browser_result_file.png"))
+    fraction = _object_fraction(page, live_app)
+    print(f"the result file's boxes cover {fraction:.1%} of the canvas")  # noqa: T201
+    assert fraction >= 0.2, f"the object covers {fraction:.1%} of the canvas"
+    # a threshold edit is answered by a notice, the file stays shown
+    box = page.get_by_label("volume ratio", exact=True)
+    box.fill("0.5")
+    box.press("Enter")
+    note = page.locator(".mantine-Notification-root", has_text="is a loaded result file")
+    note.first.wait_for(timeout=LOAD_TIMEOUT_MS)
+    assert c.state.loaded is not None and c.state.result.tree is not None
+    want = doc["parameters"]["decomposition"]["volume_ratio"]
+    for _ in range(100):  # the widget shows the file's value again
+        if box.input_value() and float(box.input_value()) == want:
+            break
+        page.wait_for_timeout(100)
+    assert float(box.input_value()) == want
