@@ -370,6 +370,10 @@ def _grasps(doc: dict[str, Any], hand: Any, pool: PreGraspPool | None) -> GraspS
                 rank=None if rank is None else int(rank),
                 rejection=it.get("rejection"),
                 detail=str(it.get("detail", "")),
+                # bounds of issue 15 (files written before it hold exact scores only)
+                epsilon_exact=bool(it.get("epsilon_exact", True)),
+                volume_exact=bool(it.get("volume_exact", True)),
+                quality_bound=str(it.get("quality_bound", "")),
             )
         )
     ranking = _array(

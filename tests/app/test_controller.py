@@ -483,6 +483,11 @@ def test_a_result_file_is_shown_as_it_holds_it_without_recomputing(app, tmp_path
     g_file = s.result.grasps.grasps[doc["best"]]
     for a, b in zip(g_live.contacts, g_file.contacts, strict=True):
         np.testing.assert_allclose(b.tangent, a.tangent, atol=1e-9)
+    # which scores are bounds (issue 15) is read back too, so no bound is shown as exact
+    flags = [
+        (g["epsilon_exact"], g["volume_exact"], g["quality_bound"]) for g in doc["grasps"]["items"]
+    ]
+    assert [(g.epsilon_exact, g.volume_exact, g.quality_bound) for g in s.result.grasps] == flags
     n_fc = doc["grasps"]["n_force_closure"]
     assert f"{n_fc} force-closure of {doc['grasps']['n_kept']} kept" in app.gui.table.content
     assert f"{best['epsilon']:.4f}" in app.gui.table.content
