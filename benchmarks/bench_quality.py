@@ -75,7 +75,8 @@ def bench_object(path, n_points: int, repeats: int, hand) -> dict[str, object]:
         return [score_grasp(q, frame, LEVEL_EXACT, g) if g.kept else g for g in gs.grasps]
 
     def bounded():
-        first = [score_grasp(q, frame, first_level(q), g) if g.kept else g for g in gs.grasps]
+        level = first_level(q, len(gs))
+        first = [score_grasp(q, frame, level, g) if g.kept else g for g in gs.grasps]
         return settle_exact(first, q, frame)
 
     def plan(prm):

@@ -130,7 +130,7 @@ def _plan_chunks(
     prm, clock, done = ctx.params, ctx.clock, 0
     # GraspIt's torque origin: the object's centroid and largest radius (docs/quality.md)
     frame = quality_frame(prm.quality, ctx.points)
-    score = functools.partial(score_grasp, prm.quality, frame, first_level(prm.quality))
+    score = functools.partial(score_grasp, prm.quality, frame, first_level(prm.quality, P))
     for c0 in range(0, P, _CHUNK):  # loop over chunks of pre-grasps
         t0 = time.perf_counter()
         preps = each(functools.partial(prepare, ctx, pool), list(range(c0, min(P, c0 + _CHUNK))))

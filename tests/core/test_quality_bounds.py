@@ -270,6 +270,12 @@ def test_bounded_ranking_equals_the_exact_ranking_on_every_demo_object(demo_plan
         gs = res.grasps
         k = res.params.planner.quality.exact_top
         _assert_same_ranking(list(gs.grasps), exact, k)
+        # the bounds from the start on every object, small pools too (the planner scores a
+        # pool of at most 3 x exact_top exactly at once, rank.SMALL_POOL_FACTOR)
+        q = res.params.planner.quality
+        frame = quality_frame(q, res.cloud.points)
+        first = [score_grasp(q, frame, LEVEL_CHEAPEST, g) if g.kept else g for g in gs.grasps]
+        _assert_same_ranking(settle_exact(first, q, frame)[0], exact, k)
         assert np.array_equal(gs.ranking, rank_grasps(gs.grasps)), name
         assert gs.n_force_closure == sum(g.epsilon > 0 for g in exact), name
         if gs.best is not None:
@@ -283,7 +289,7 @@ def test_exact_all_scores_every_grasp_exactly(demo_plans):
     """The planner with ``exact_all`` gives exactly the exact scores of the fixture (every kept
     grasp exact), so the bounded ranking above was compared with the real ``--exact-all``."""
     hand, plans = demo_plans
-    res, exact = plans["box_cereal"]
+    res, exact = plans["mug"]
     prm = dataclasses.replace(res.params.planner, quality=QualityParams(exact_all=True), threads=1)
     support = res.masks.support if res.masks is not None else None
     full = plan_grasps(res.cloud.points, res.normals, res.pool, hand, prm, support=support)
