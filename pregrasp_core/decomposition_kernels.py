@@ -29,7 +29,8 @@ def _fma(a, b, c):  # pragma: no cover - replaced by the llvm.fma intrinsic in k
 def _kernel_mask(q, lo, ext, grid):  # pragma: no cover - compiled by numba
     # numpy: cells = minimum(((q - lo) / ext * grid).astype(int64), grid - 1); per axis a the
     # column cell = cells[b] * grid + cells[c]; maximum.at / minimum.at per column; the first
-    # (lowest index) point of each column equal to its top and to its bottom is kept.
+    # (lowest index) point of each column equal to its top and to its bottom is kept. (Values
+    # are finite: a column's first value always beats the -inf / inf start.)
     n = q.shape[1]
     keep = np.zeros(n, dtype=np.bool_)
     cells = np.empty((3, n), dtype=np.int64)
@@ -43,27 +44,22 @@ def _kernel_mask(q, lo, ext, grid):  # pragma: no cover - compiled by numba
     bottom = np.empty(g2)
     first_top = np.empty(g2, dtype=np.int64)
     first_bottom = np.empty(g2, dtype=np.int64)
-    col = np.empty(n, dtype=np.int64)
     for a in range(3):
         b, c = (a + 1) % 3, (a + 2) % 3
         top[:] = -np.inf
         bottom[:] = np.inf
         first_top[:] = n
         first_bottom[:] = n
+        # One pass: the index moves only on a strictly larger (smaller) value, so it ends at the
+        # first point equal to the column's maximum (minimum), as numpy's hit test found it.
         for i in range(n):
             k = cells[b, i] * grid + cells[c, i]
-            col[i] = k
             v = q[a, i]
             if v > top[k]:
                 top[k] = v
+                first_top[k] = i
             if v < bottom[k]:
                 bottom[k] = v
-        for i in range(n):
-            k = col[i]
-            v = q[a, i]
-            if v >= top[k] and first_top[k] == n:
-                first_top[k] = i
-            if v <= bottom[k] and first_bottom[k] == n:
                 first_bottom[k] = i
         for k in range(g2):
             if first_top[k] < n:
