@@ -151,7 +151,7 @@ class VisibilityMap:
         depth = float(np.median(rng))
         self.cell = bin_factor * max(self.spacing, 1e-6) / depth  # normalised image units
         self.lo = uv.min(axis=0) - 3 * self.cell
-        ij = self._bins(uv)
+        ij = self.bins(uv)
         self.shape = tuple(int(x) + 3 for x in ij.max(axis=0))
         D = np.full(self.shape, np.inf)
         np.minimum.at(D, (ij[:, 0], ij[:, 1]), rng)
@@ -176,7 +176,8 @@ class VisibilityMap:
         z = np.maximum(qc[..., 2], 1e-9)
         return qc[..., :2] / z[..., None], np.linalg.norm(qc, axis=-1)
 
-    def _bins(self, uv: np.ndarray) -> np.ndarray:
+    def bins(self, uv: np.ndarray) -> np.ndarray:
+        """(..., 2) int64 bin indices (row, column) of image coordinates ``uv`` (..., 2)."""
         return np.floor((uv - self.lo) / self.cell).astype(np.int64)
 
     def excess(self, q: np.ndarray) -> np.ndarray:
@@ -184,7 +185,7 @@ class VisibilityMap:
         in front of the seen surface or below the table (0 when hidden behind the seen surface),
         inf where the camera saw past them (free space, behind the camera)."""
         uv, rng = self.project(q)
-        ij = self._bins(uv)
+        ij = self.bins(uv)
         inside = np.all((ij >= 0) & (ij < np.array(self.shape)), axis=-1)
         ijc = np.where(inside[..., None], ij, 0)
         D = np.where(inside, self.D[ijc[..., 0], ijc[..., 1]], np.inf)

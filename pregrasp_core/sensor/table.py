@@ -40,6 +40,7 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
@@ -48,8 +49,15 @@ from ..errors import DegenerateGeometryError, InputError
 from ..facemask import SupportPlane
 from ..geometry import as_points
 from ..tolerances import GEOM_EPS
+from .completion import VisibilityMap
 
 logger = logging.getLogger(__name__)
+
+IMAGE_BIN_FACTOR: float = 1.5
+"""Side of the image bins of ``hidden_gap``'s test, in median point spacings."""
+
+FOOT_NEIGHBOURS: int = 16
+"""Nearest points whose median height decides a band point of the raised foot."""
 
 MAD_TO_SIGMA: float = 1.4826
 """Median absolute deviation to standard deviation for Gaussian residuals."""
@@ -83,7 +91,24 @@ class SegmentParams:
     join it: parts of the object cut off by its own occlusion (a mug's handle seen past the
     body). Objects standing closer than this are one object (0: off)."""
     merge_min_points: int = 10
-    """Smallest cluster that ``merge_gap`` merges (keeps clumps of table noise out)."""
+    """Smallest cluster that ``merge_gap`` and ``hidden_gap`` merge (keeps clumps of table noise
+    out)."""
+    hidden_gap: float = 0.1
+    """With a viewpoint: clusters of at least ``merge_min_points`` points that come within this
+    of the object join it when their image touches the object's, seen from the camera, with no
+    table seen between them: only an occlusion parts them, and nothing in the view says that
+    the object does not continue behind it (a hammer's head whose junction with the handle is
+    out of sight, a teddy's arm in front of its body). Objects with the table seen between them
+    stay apart; one object partly hidden behind another within this distance joins it (``pick``
+    cannot part them then). 0: off."""
+    foot_window: float = 0.008
+    """Radius of the neighbourhood whose mean height above the plane decides whether a band
+    point is part of the object's foot (a bottom that leaves the table at a shallow angle)."""
+    foot_sigmas: float = 4.0
+    """A band point belongs to the object when the median height of its neighbours within
+    ``foot_window`` exceeds ``max(foot_sigmas * 1.2533 * sigma / sqrt(count), band / 2)`` and
+    it connects to the object through such points: the inside floor of a pan, a bottom that
+    leaves the table at a shallow angle (0: off)."""
     min_neighbours: int = 2
     """A point above the band with fewer than this many others above the band within
     ``neighbour_spacings`` median spacings is isolated noise, not part of a cluster (0: off).
@@ -95,12 +120,13 @@ class SegmentParams:
     """Seed of the RANSAC sampling: same seed, same result."""
 
     def __post_init__(self) -> None:
-        for name in ("ransac_threshold", "min_band", "cluster_radius", "foot_radius"):
+        for name in ("ransac_threshold", "min_band", "cluster_radius", "foot_radius",
+                     "foot_window"):  # fmt: skip
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0.0):
                 raise ValueError(f"{name} must be a positive length in metres, got {v!r}")
             object.__setattr__(self, name, v)
-        for name in ("band_sigmas", "foot_height", "merge_gap"):
+        for name in ("band_sigmas", "foot_height", "merge_gap", "hidden_gap", "foot_sigmas"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v >= 0.0):
                 raise ValueError(f"{name} must be >= 0, got {v!r}")
@@ -252,6 +278,99 @@ def remove_outliers(points: np.ndarray, k: int = 16, std_ratio: float = 2.0) -> 
     return mean_d <= mean_d.mean() + std_ratio * mean_d.std()
 
 
+def merge_hidden(
+    above: np.ndarray,
+    lab: np.ndarray,
+    mine: np.ndarray,
+    counts: np.ndarray,
+    viewpoint: np.ndarray,
+    plane: SupportPlane,
+    params: SegmentParams,
+) -> np.ndarray:
+    """``mine`` (A,) bool over the points ``above`` the band (cluster labels ``lab``, sizes
+    ``counts``) grown by the clusters that ``params.hidden_gap`` merges: the clusters of at least
+    ``merge_min_points`` points whose image, seen from ``viewpoint``, touches the object's through
+    bins where the camera saw something above the table (one 8-connected region of the
+    :class:`~.completion.VisibilityMap` of the points above the band: only an occlusion parts
+    them) and that come within ``hidden_gap`` of it in space. Repeated until nothing joins."""
+    vis = VisibilityMap(above, viewpoint, plane, IMAGE_BIN_FACTOR)
+    region, _ = ndimage.label(np.isfinite(vis.D), structure=np.ones((3, 3), dtype=bool))
+    uv, _ = vis.project(above)
+    ij = vis.bins(uv)
+    reg = region[ij[:, 0], ij[:, 1]]  # (A,) image region of every point
+    mine = mine.copy()
+    todo = [int(c) for c in np.nonzero(counts >= params.merge_min_points)[0]]
+    todo = [c for c in todo if not np.any(mine & (lab == c))]
+    grown = True
+    while grown and todo:  # loop over merges (at most the number of clusters)
+        grown = False
+        tree = cKDTree(above[mine])
+        regions = np.unique(reg[mine])
+        for c in list(todo):  # loop over the candidate clusters
+            sel = lab == c
+            if not np.any(np.isin(reg[sel], regions)):
+                continue
+            gap, _ = tree.query(above[sel], distance_upper_bound=params.hidden_gap)
+            if np.any(np.isfinite(gap)):
+                mine |= sel
+                todo.remove(c)
+                grown = True
+    return mine
+
+
+def raised_foot(
+    pts: np.ndarray,
+    dist: np.ndarray,
+    in_band: np.ndarray,
+    object_mask: np.ndarray,
+    band: float,
+    sigma: float,
+    params: SegmentParams,
+) -> np.ndarray:
+    """(N,) bool: band points that belong to the object because their neighbourhood stands
+    above the table (see ``SegmentParams.foot_sigmas``): the band points near the object whose
+    ``FOOT_NEIGHBOURS`` nearest points within ``foot_window`` (among those from the band's
+    bottom to twice its top) have a median height above the plane over
+    ``max(foot_sigmas * 1.2533 * sigma / sqrt(count), band / 2)`` (1.2533: the spread of a
+    median of Gaussian heights), kept when they connect to the object through such points or its
+    own (steps of at most ``foot_window``)."""
+    out = np.zeros(len(pts), dtype=bool)
+    w = params.foot_window
+    low_obj = object_mask & (dist <= 2.0 * band + w)
+    if not np.any(low_obj):
+        return out
+    # only the surroundings of the object's lower part matter (the chain must reach it)
+    lo = pts[low_obj].min(axis=0) - 3.0 * w
+    hi = pts[low_obj].max(axis=0) + 3.0 * w
+    zone = (dist >= -band) & (dist <= 2.0 * band) & np.all((pts >= lo) & (pts <= hi), axis=1)
+    zi = np.nonzero(zone)[0]
+    ci = zi[in_band[zi] & ~object_mask[zi]]
+    if len(ci) == 0:
+        return out
+    k = min(FOOT_NEIGHBOURS, len(zi))
+    d, j = cKDTree(pts[zi]).query(pts[ci], k=k, distance_upper_bound=w)  # (C, k)
+    ok = np.isfinite(d)
+    heights = np.where(ok, dist[zi[np.minimum(j, len(zi) - 1)]], np.nan)
+    count = ok.sum(axis=1)
+    med = np.nanmedian(heights, axis=1)
+    thresh = np.maximum(
+        params.foot_sigmas * 1.2533 * sigma / np.sqrt(np.maximum(count, 1)), 0.5 * band
+    )
+    cand = ci[(count >= 3) & (med > thresh)]
+    if len(cand) == 0:
+        return out
+    obj = np.nonzero(low_obj)[0]
+    nodes = np.concatenate([obj, cand])
+    pairs = cKDTree(pts[nodes]).query_pairs(w, output_type="ndarray")
+    graph = coo_matrix(
+        (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(nodes), len(nodes))
+    )
+    _, comp = connected_components(graph, directed=False)
+    keep = np.isin(comp[len(obj) :], np.unique(comp[: len(obj)]))
+    out[cand[keep]] = True
+    return out
+
+
 def _plane_basis(n: np.ndarray) -> np.ndarray:
     """(3, 2) two unit vectors spanning the plane perpendicular to ``n``."""
     a = np.eye(3)[int(np.argmin(np.abs(n)))]
@@ -334,8 +453,14 @@ def segment_table(
             near = np.bincount(lab[~mine][np.isfinite(gap)], minlength=n_clusters)
             merge = np.nonzero((near > 0) & (counts >= params.merge_min_points))[0]
             mine |= np.isin(lab, merge)
+        if vp is not None and params.hidden_gap > 0.0 and n_clusters > 1:
+            plane = SupportPlane(normal=n, height=h)
+            mine = merge_hidden(pts[above], lab, mine, counts, vp, plane, params)
         object_mask[above[mine]] = True
-        # the object's foot inside the band: band points under its lowest slice
+        # the object's foot inside the band: band points whose neighbourhood stands above the
+        # table, then the band points under the lowest slice of all that
+        if params.foot_sigmas > 0.0 and np.any(in_band):
+            object_mask |= raised_foot(pts, dist, in_band, object_mask, band, sigma, params)
         low = object_mask & (dist <= band + params.foot_height)
         if np.any(low) and np.any(in_band):
             B = _plane_basis(n)  # (3, 2)

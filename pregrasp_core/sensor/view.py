@@ -1,8 +1,9 @@
 """One call from a depth-camera scene to the object cloud the pipeline takes: :func:`prepare_view`.
 
 Chain: optional statistical outlier removal of the scene, :func:`~.table.segment_table` (the
-support plane, the table's points, the object), optional :func:`~.completion.complete_view`
-(the unseen back, flagged ``assumed``). The result, :class:`SensorView`, carries everything the
+support plane, the table's points, the object), on a noisy view the object's points projected
+onto their local planes (:func:`~.smooth.smooth_view`: the range noise off the contacts),
+optional :func:`~.completion.complete_view` (the unseen back, flagged ``assumed``). The result, :class:`SensorView`, carries everything the
 pipeline, the planner and the viewer need: the object's points, which of them are assumed, the
 viewpoint, the support plane (as face-mask parameters too) and the masks over the scene.
 
@@ -28,7 +29,16 @@ from ..errors import InputError
 from ..facemask import FaceMaskParams, SupportPlane
 from ..geometry import as_points
 from .completion import CompletedView, CompletionParams, complete_view
+from .smooth import smooth_view
 from .table import SegmentParams, TableSegmentation, remove_outliers, segment_table
+
+SMOOTH_K: int = 24
+"""Neighbours of the projection that takes the range noise off the object's points
+(:func:`~.smooth.smooth_view`), when the table shows noise."""
+
+SMOOTH_MIN_SIGMA: float = 0.0003
+"""Metres: the object's points are smoothed when the table's residual spread reaches this (a
+noise-free view, such as one rendered without noise, is left exactly as it is)."""
 
 PCD_HEADER_BYTES: int = 64 * 1024
 """Most bytes read looking for a PCD header's ``VIEWPOINT`` line."""
@@ -94,13 +104,17 @@ def prepare_view(
     segment: SegmentParams | None = None,
     completion: CompletionParams | None = None,
     outliers: tuple[int, float] | None = None,
+    smooth: int | None = None,
 ) -> SensorView:
     """The object of the scene ``points`` (N, 3) seen from ``viewpoint`` (see the module).
 
     ``pick``: a point near the wanted object (default: the largest cluster). ``complete``: add
     the unseen back (``completion`` parameters; default tolerance ``max(3 mm, 3 sigma)`` of the
     table's noise). ``outliers``: ``(k, std_ratio)`` of a statistical outlier removal run first
-    (default: none).
+    (default: none). ``smooth``: neighbours of the projection of the object's points onto their
+    local planes (:func:`~.smooth.smooth_view`); None = ``SMOOTH_K`` when the table's noise
+    ``sigma`` reaches ``SMOOTH_MIN_SIGMA``, 0 = never. The segmentation's masks and points
+    stay those of the scene.
     """
     pts = as_points(points)
     vp = np.asarray(viewpoint, dtype=np.float64)
@@ -111,6 +125,10 @@ def prepare_view(
         kept = remove_outliers(pts, k=outliers[0], std_ratio=outliers[1])
     seg = segment_table(pts[kept], viewpoint=vp, pick=pick, params=segment)
     obj = seg.object_points
+    if smooth is None:
+        smooth = SMOOTH_K if seg.sigma >= SMOOTH_MIN_SIGMA else 0
+    if smooth:
+        obj = smooth_view(obj, smooth)
     done = None
     if complete:
         params = completion or CompletionParams(tolerance=max(0.003, 3.0 * seg.sigma))
