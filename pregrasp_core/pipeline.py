@@ -263,6 +263,7 @@ def run_pipeline(
                 params.planner,
                 support=None if masks is None else masks.support,
                 progress=_plan_progress,
+                assumed=cloud.assumed,
             )
             return {"grasps": gs}
 

@@ -220,6 +220,7 @@ STAGE_OPTIONS: dict[str, Options[Any]] = {
             "slice_resolution": Flag(metavar="D"),
             "contact_distance": Flag(metavar="D"),
             "penetration_tol": Flag(metavar="D"),
+            "assumed_clearance": Flag(metavar="D"),
             "threads": Flag(metavar="T"),
         },
         nested={

@@ -87,9 +87,14 @@ class Context:
         hand: Hand,
         params: PlannerParams,
         support: SupportPlane | None,
+        surface: np.ndarray | None = None,
+        assumed: np.ndarray | None = None,
     ) -> None:
         """points, normals: (N, 3) float64, world (outward unit normals); support: the table
-        or None."""
+        or None; surface: (N, 3) the contacts' positions when they differ from the points the
+        hand clears (assumed points, ``planner/assumed.py``); assumed: (N,) bool or None."""
+        self.surface = points if surface is None else surface
+        self.assumed = np.zeros(len(points), dtype=bool) if assumed is None else assumed
         self.points = points
         self.normals = normals
         self.hand = hand

@@ -18,6 +18,7 @@ import numpy as np
 from ..geometry import as_points, as_points_like
 from ..normals import NormalParams, estimate_normals
 from .approach import Prepared, prepare
+from .assumed import assumed_mask, obstacle_points
 from .context import Context
 from .rank import first_level, quality_frame, score_grasp, settle_exact
 from .slicing import ClosedFinger, Slice, close_slices, closing_records, finger_slices
@@ -185,13 +186,16 @@ def plan_grasps(
     params: PlannerParams | None = None,
     support: SupportPlane | None = None,
     progress: Callable[[int, int], None] | None = None,
+    assumed: np.ndarray | None = None,
 ) -> GraspSet:
     """Plan every pre-grasp of ``pool`` against the cloud.
 
     points: (N, 3) metres, world; normals: (N, 3) unit outward normals of the cloud (see
     :func:`cloud_normals`); pool: a ``PreGraspPool`` (``T_world_hand`` (P, 4, 4), ``q`` (P, J),
     ``spread`` (P,), ``grasp_type`` (P,)); hand: ``pregrasp_core.hand.Hand``; support: the
-    ``SupportPlane`` (normal, height) or None; progress: called as ``progress(done, total)``.
+    ``SupportPlane`` (normal, height) or None; progress: called as ``progress(done, total)``;
+    assumed: (N,) bool, the points a single view's completion assumed (the hand keeps
+    ``params.assumed_clearance`` from them, ``planner/assumed.py``), or None.
     """
     prm = PlannerParams() if params is None else params
     pts = as_points(points)
@@ -202,7 +206,9 @@ def plan_grasps(
         raise ValueError(
             f"pool.q has {np.shape(pool.q)[1]} joints, the hand has {len(joint_names)}"
         )
-    ctx = Context(pts, nrm, hand, prm, support)
+    am = assumed_mask(assumed, len(pts))
+    geom = obstacle_points(pts, nrm, am, prm.assumed_clearance)
+    ctx = Context(geom, nrm, hand, prm, support, surface=pts, assumed=am)
     grasps: list[Grasp] = []
     # chunks of pre-grasps: approach and slicing per pre-grasp, the closing of every finger of
     # the chunk in one call of the batched closing model, verification and quality per

@@ -53,6 +53,7 @@ def grasp_to_dict(
         "volume_exact": g.volume_exact,
         "quality_bound": g.quality_bound,
         "n_contacts": g.n_contacts,
+        "n_assumed_contacts": sum(c.assumed for c in g.contacts),
         "simulation": None if simulation is None else dict(simulation),
         "T_world_hand": g.T_world_hand.tolist(),
         "approach_distance": g.approach_distance,
@@ -78,6 +79,7 @@ def grasp_to_dict(
                 "normal": c.normal.tolist(),
                 "point_index": c.point_index,
                 "distance": c.distance,
+                "assumed": c.assumed,
             }
             for c in g.contacts
         ],

@@ -12,6 +12,7 @@ import numpy as np
 from ..normals import NormalParams
 from ..quality import QualityParams
 from ..tolerances import CONTACT_DISTANCE, PENETRATION_TOL
+from .assumed import MAX_ASSUMED_CLEARANCE
 
 REJECTION_REASONS: dict[str, str] = {
     "nothing_ahead": "the hand meets no cloud point within max_approach along its approach",
@@ -57,6 +58,10 @@ class PlannerParams:
     """Friction coefficient, cone edges and torque scale of the quality measure."""
     normals: NormalParams = field(default_factory=NormalParams)
     """Normal estimation (computed once per cloud)."""
+    assumed_clearance: float = 0.002
+    """The hand keeps this far from points a single view's completion assumed (moved out along
+    their normals for the approach, the closing and the checks; contacts keep the assumed point
+    itself): the copies lie 1-3 mm inside the true surface (``planner/assumed.py``)."""
     threads: int = 0
     """Threads for the per-pre-grasp phases (approach and slicing, verification, quality: numpy,
     and qhull release Python's global lock for most of their work); 0 = one per
@@ -70,6 +75,8 @@ class PlannerParams:
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0.0):
                 raise ValueError(f"{name} must be a finite length >= 0, got {v}")
+        if not 0.0 <= self.assumed_clearance <= MAX_ASSUMED_CLEARANCE:
+            raise ValueError(f"assumed_clearance must be in [0, {MAX_ASSUMED_CLEARANCE}] m")
         if not self.max_approach > 0.0:
             raise ValueError(f"max_approach must be > 0, got {self.max_approach}")
         if not self.contact_distance >= self.closing_margin:
@@ -104,6 +111,8 @@ class Contact:
     """Signed distance (metres) from the link's box to the point (< 0: inside by that much)."""
     tangent: np.ndarray
     """(3,) float64 unit, world: first friction-cone edge direction (the link box's y axis)."""
+    assumed: bool = False
+    """The touched point was assumed by a single view's completion (``planner/assumed.py``)."""
 
 
 @dataclass(frozen=True)

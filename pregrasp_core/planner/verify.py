@@ -160,8 +160,8 @@ def _contacts(
     normals_in = -ctx.normals[pid]
     return tuple(
         Contact(
-            ctx.points[p].copy(), normals_in[k].copy(), ctx.link_names[j], int(p), dist[k],
-            tangents[k].copy(),
+            ctx.surface[p].copy(), normals_in[k].copy(), ctx.link_names[j], int(p), dist[k],
+            tangents[k].copy(), bool(ctx.assumed[p]),
         )
         for k, (j, p) in enumerate(zip(links, pid, strict=True))
     )  # fmt: skip

@@ -3,9 +3,10 @@
 Chain: optional statistical outlier removal of the scene, :func:`~.table.segment_table` (the
 support plane, the table's points, the object), on a noisy view the object's points projected
 onto their local planes (:func:`~.smooth.smooth_view`: the range noise off the contacts),
-optional :func:`~.completion.complete_view` (the unseen back, flagged ``assumed``). The result, :class:`SensorView`, carries everything the
-pipeline, the planner and the viewer need: the object's points, which of them are assumed, the
-viewpoint, the support plane (as face-mask parameters too) and the masks over the scene.
+optional :func:`~.completion.complete_view` (the unseen back, flagged ``assumed``). The
+result, :class:`SensorView`, carries everything the pipeline, the planner and the viewer
+need: the object's points, which of them are assumed, the viewpoint, the support plane (as
+face-mask parameters too) and the masks over the scene.
 
 Normals of a single view: orient the **visible** points' normals toward the viewpoint; the
 assumed points take the normals of the visible points they were copied from, moved by the

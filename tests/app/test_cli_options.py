@@ -65,6 +65,7 @@ FLAGS: dict[str, tuple[list[str], str, object]] = {
     "--slice-resolution": (["0.0005"], "params.planner.slice_resolution", 0.0005),
     "--contact-distance": (["0.004"], "params.planner.contact_distance", 0.004),
     "--penetration-tol": (["0.003"], "params.planner.penetration_tol", 0.003),
+    "--assumed-clearance": (["0.003"], "params.planner.assumed_clearance", 0.003),
     "--threads": (["1"], "params.planner.threads", 1),
     "--mu": (["0.8"], "params.planner.quality.mu", 0.8),
     "--cone-edges": (["6"], "params.planner.quality.n_edges", 6),
