@@ -657,9 +657,9 @@ LEGEND = (
     ("ghost shade", "brighter or darker by the box face the pre-grasp was sampled from"),
     ("yellow dots", "contacts of the chosen grasp"),
     ("yellow cones", "their friction cones, as scored (half-angle atan mu)"),
-    ("pink points", "the unseen back of a single depth view, assumed by symmetry (completion)"),
-    ("orange dots and cones", "contacts on assumed (pink) points: the grasp rests on a guess"),
-    ("grey points", "the table of a depth-camera scene (removed from the object)"),
+    ("dark slate points", "the unseen back of a single depth view, assumed by symmetry"),
+    ("orange dots and cones", "contacts on assumed (dark) points: the grasp rests on a guess"),
+    ("light grey points", "the table of a depth-camera scene (removed from the object)"),
     ("brown points", "other objects of the scene: tick 'click picks the object', click one"),
 )
 """(what, meaning) of each row of the legend panel."""

@@ -331,10 +331,11 @@ def subface_segments(state: AppState, shown: list[int], shrink: float = 0.85) ->
 
 
 # ---------------------------------------------------------------------- depth-camera scenes
-ASSUMED_RGB = (240, 120, 200)
-"""Colour of the points assumed by the completion of a single view (pink): the unseen back."""
-TABLE_RGB = (120, 120, 120)
-"""Colour of the scene's table points (grey), drawn behind the object."""
+ASSUMED_RGB = (55, 55, 70)
+"""Colour of the points assumed by the completion of a single view (dark slate; the parts'
+colours are all bright, :func:`node_color`): the unseen back."""
+TABLE_RGB = (200, 200, 200)
+"""Colour of the scene's table points (light grey), drawn around the object."""
 OTHER_RGB = (175, 140, 100)
 """Colour of the scene's points that are neither the table nor the kept object (brown)."""
 MIN_PICK_CLUSTER = 10

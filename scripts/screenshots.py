@@ -3,9 +3,12 @@
 Starts the app on a free port (default object unless INPUT is given), opens it in Debian's
 Chromium through Python playwright, sets up each view through the app's controller (the same
 actions the GUI runs) and saves ``docs/screenshots/{decomposition,face_masks,pregrasps,
-grasp}.png``.
+grasp}.png``, then ``depth_demo.png``: the depth-camera demo (``assets/objects/mug_depth.png``
+opened as ``pregrasp view`` opens it, planned on start) with its best grasp closed
+(:func:`depth_demo_shot`; ``--depth`` takes only that one).
 
     .venv/bin/python scripts/screenshots.py [INPUT] [--out docs/screenshots] [--points 20000]
+    .venv/bin/python scripts/screenshots.py --depth
 """
 
 from __future__ import annotations
@@ -57,13 +60,105 @@ def _zoom(server, factor: float) -> None:
         cam.position = cam.look_at + factor * (cam.position - cam.look_at)
 
 
+def _wait_idle(controller, timeout_s: float = 300.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not controller.idle():
+        if time.monotonic() > deadline:
+            raise TimeoutError("the app did not finish planning")
+        time.sleep(0.1)
+
+
+def _view_behind_the_hand(server, state, elevation: float = 0.75) -> None:
+    """Aim every camera at the object from the side away from the chosen grasp's hand (the
+    hand would hide the object), ``elevation`` radians above the horizontal, at the framing
+    distance the app uses, 1.4 times."""
+    import numpy as np
+
+    from app.scene import camera_offset
+    from app.scene_data import selected_grasp
+
+    pts = np.asarray(state.cloud.points)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    center = (lo + hi) / 2.0
+    away = center - np.asarray(selected_grasp(state).T_world_hand)[:3, 3]
+    away[2] = 0.0
+    away /= max(float(np.linalg.norm(away)), 1e-9)
+    diag, fov = float(np.linalg.norm(hi - lo)), float(server.initial_camera.fov)
+    dist = 1.4 * float(np.linalg.norm(camera_offset(diag, fov)))
+    d = np.cos(elevation) * away + np.array([0.0, 0.0, np.sin(elevation)])
+    for client in server.get_clients().values():  # position first: it moves look_at along
+        client.camera.position = center + dist * d
+        client.camera.look_at = center
+
+
+def depth_demo_shot(out: Path, chromium: str) -> int:
+    """``out/depth_demo.png``: the depth demo in the viewer as ``pregrasp view
+    assets/objects/mug_depth.png`` starts it (the table found and removed, drawn grey behind the
+    mug, the completed back in dark slate, the best grasp planned on start), the hand closed,
+    seen from the side away from the hand, the Object panel and the legend open."""
+    import viser
+    from playwright.sync_api import sync_playwright
+
+    from app.server import ViewerConfig, run
+    from pregrasp_core.paths import OBJECTS_DIR
+
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    app = run(ViewerConfig(input=OBJECTS_DIR / "mug_depth.png", plan_on_start=True), server)
+    c = app.controller
+    try:
+        _wait_idle(c)
+        if c.state.view.selected_grasp is None:
+            print("no grasp was planned on the depth demo: depth_demo.png not written",
+                  file=sys.stderr)  # fmt: skip
+            return 1
+        c.set_face_masks_visible(False)
+        c.set_anim_t(1.0)  # the closed hand
+        with sync_playwright() as p:
+            ctx = launch(
+                p,
+                tempfile.mkdtemp(prefix="pregrasp-shots-"),
+                chromium,
+                viewport={"width": 1600, "height": 900},
+            )
+            page = ctx.new_page()
+            page.goto(f"http://127.0.0.1:{server.get_port()}")
+            page.get_by_text(re.compile(r"^boxes: \d+$")).wait_for(timeout=120_000)
+            # hidden, not closed: under load a software-WebGL page may not take clicks for minutes
+            page.add_style_tag(content=".mantine-Notification-root { display: none !important; }")
+            _view_behind_the_hand(server, c.state)
+            fc = re.compile(r"^\d+ force-closure of \d+ kept$")
+            page.get_by_text(fc).wait_for(timeout=120_000)
+            _settle(page, app)
+            for folder in ("Decomposition", "Face masks and pre-grasps", "Planner", "Legend"):
+                # fold the long panels, open the legend (the scene's colours)
+                page.get_by_text(folder, exact=True).click(timeout=300_000)
+            page.get_by_text("dark slate points", exact=True).wait_for(timeout=300_000)
+            page.wait_for_load_state("networkidle")
+            for _ in range(3):
+                page.evaluate(
+                    "() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))"
+                )
+            path = out / "depth_demo.png"
+            page.screenshot(path=str(path), timeout=180_000)
+            print(f"wrote {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}")
+            ctx.close()
+    finally:
+        app.close()
+        server.stop()
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description="documentation screenshots of the real app")
     ap.add_argument("input", nargs="?", type=Path, help="object to show (default: the mug)")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "screenshots")
     ap.add_argument("--points", type=int, default=20000)
     ap.add_argument("--chromium", default=CHROMIUM)
+    ap.add_argument("--depth", action="store_true", help="only the depth demo (depth_demo.png)")
     args = ap.parse_args()
+    if args.depth:
+        args.out.mkdir(parents=True, exist_ok=True)
+        return depth_demo_shot(args.out, args.chromium)
 
     import viser
     from playwright.sync_api import sync_playwright
@@ -124,7 +219,7 @@ def main() -> int:
     finally:
         app.close()
         server.stop()
-    return 0
+    return depth_demo_shot(args.out, args.chromium)
 
 
 if __name__ == "__main__":

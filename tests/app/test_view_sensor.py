@@ -156,7 +156,12 @@ def test_assumed_points_and_their_contacts_have_their_own_colours(demo_app) -> N
     assert demo_app.scene.n_assumed_contacts_shown == int(unseen.sum())
     assert f"({int(unseen.sum())} assumed)" in grasp_table(s)
     colours = " ".join(a for a, _ in LEGEND)
-    assert "pink points" in colours and "orange dots" in colours and "grey points" in colours
+    assert "dark slate points" in colours and "orange dots" in colours
+    assert "light grey points" in colours and "brown points" in colours
+    # the assumed colour is darker than every part's colour (so it reads as its own)
+    from app.scene_data import node_colors
+
+    assert node_colors(np.arange(500)).max(axis=1).min() > 2 * max(ASSUMED_RGB)
 
 
 # ---------------------------------------------------------------------- picking
