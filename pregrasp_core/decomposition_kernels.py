@@ -14,7 +14,7 @@ purpose, e.g. at the start of a server, so that the first decomposition does not
 
 from __future__ import annotations
 
-import functools
+import threading
 import time
 from collections.abc import Callable
 from typing import NamedTuple
@@ -415,10 +415,23 @@ class Kernels(NamedTuple):
     cut_scan: Callable[[np.ndarray, np.ndarray, int, int, int], tuple[int, float]]
 
 
-@functools.cache
+_LOCK = threading.Lock()
+_KERNELS: Kernels | None = None
+
+
 def kernels() -> Kernels:
     """The compiled kernels; the first call imports numba and compiles them (or loads them from
-    numba's cache)."""
+    numba's cache), once per process even when several threads ask at the same time."""
+    global _KERNELS
+    if _KERNELS is None:
+        with _LOCK:
+            if _KERNELS is None:
+                _KERNELS = _build()
+    return _KERNELS
+
+
+def _build() -> Kernels:
+    """Import numba and wrap the kernels (compiled lazily, on their first call)."""
     import numba
     from numba.core.extending import intrinsic
 
