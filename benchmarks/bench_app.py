@@ -1,10 +1,21 @@
-"""App latency: a threshold change until the updated scene has been sent to a browser.
+"""App latency: a threshold change until the updated scene, and until the new best grasp, has
+reached every browser, with 1 and 4 browsers connected.
 
 The app runs on a real ``ViserServer``; one websocket client (speaking viser's wire format: zstd
 msgpack frames) stays connected like a browser. Each trial sets the volume-ratio GUI input from
 Python, which runs exactly the callback a browser's edit runs (re-run the decomposition and
 everything downstream, redraw, update the GUI), and stops the clock when the client has received
 the frame carrying the new "boxes: N" label, which the app sends after the scene update.
+
+Second table (``--clients``): after planning, one client sends a volume-ratio edit exactly as
+viser's browser client does (a GuiUpdateMessage; the app applies a browser's number edit once it
+has rested 0.3 s, the debounce, which the times include); "scene" = until every client has
+received the new "boxes: N" label (sent after the boxes, masks and pool are drawn), "best
+grasp" = until every client has received the new "N force-closure of M kept" line (sent after
+the re-plan is committed and drawn). The clients are websocket connections speaking viser's
+protocol (zstd msgpack frames), as the security tests use: every broadcast is serialised and
+sent to each, which is what several tabs cost the server; headless Chromium pages would add
+their own rendering (software WebGL) to the machine's load and measure that instead.
 
 Rows: a volume-ratio change (re-runs the decomposition and everything downstream) and a level
 slider change (no pipeline stage: boxes, colours and face masks redrawn). Columns: pipeline =
@@ -14,6 +25,7 @@ until the client has received the new scene (median, min and max over the trials
 are wall-clock on one machine; under load they are noisy, so compare rows of one run.
 
     .venv/bin/python benchmarks/bench_app.py [--points 20000 200000] [--trials 7]
+        [--clients 1 4] [--client-points 5000] [--client-trials 5]
 """
 
 from __future__ import annotations
@@ -46,15 +58,34 @@ from app.server import ViewerConfig, run  # noqa: E402
 BOXES = re.compile(rb"boxes: (\d+)")
 
 
+FC_LINE = re.compile(rb"\d+ force-closure of \d+ kept")
+
+
 class Listener:
-    """A websocket client that records when each "boxes: N" label arrives."""
+    """A websocket client that records when each "boxes: N" label and each force-closure line
+    arrives; it registers with the server as viser's client does (its camera first)."""
 
     def __init__(self, port: int) -> None:
+        from viser import _messages
+
         self.ws = connect(
             f"ws://127.0.0.1:{port}",
             subprotocols=[f"viser-v{viser.__version__}"],
             max_size=None,
             open_timeout=30,
+        )
+        self.send(
+            _messages.ViewerCameraMessage(
+                wxyz=(1.0, 0.0, 0.0, 0.0),
+                position=(0.5, -0.5, 0.4),
+                fov=1.0,
+                near=0.01,
+                far=100.0,
+                image_height=480,
+                image_width=640,
+                look_at=(0.0, 0.0, 0.0),
+                up_direction=(0.0, 0.0, 1.0),
+            )
         )
         self.dctx = zstandard.ZstdDecompressor()
         self.events: list[tuple[float, bytes]] = []
@@ -74,6 +105,8 @@ class Listener:
                 with self.cond:
                     for m in BOXES.finditer(text):
                         self.events.append((t, m.group(0)))
+                    for _m in FC_LINE.finditer(text):
+                        self.events.append((t, b"fc"))
                     self.cond.notify_all()
         except Exception:  # noqa: BLE001 - closed at the end of the run
             pass
@@ -90,6 +123,9 @@ class Listener:
                 if left <= 0:
                     raise TimeoutError(f"{label!r} never arrived")
                 self.cond.wait(left)
+
+    def send(self, message) -> None:
+        self.ws.send(msgspec.msgpack.encode(message.as_serializable_dict()))
 
     def close(self) -> None:
         self.ws.close()
@@ -159,10 +195,65 @@ def bench(n_points: int, trials: int) -> list[dict]:
         server.stop()
 
 
+def bench_clients(n_points: int, n_clients: int, trials: int) -> dict:
+    """After planning, a browser's volume-ratio edit until every one of ``n_clients`` clients
+    has the new scene and the new best grasp (medians over ``trials``, after one warm-up)."""
+    from viser import _messages
+
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    app = run(ViewerConfig(n_points=n_points), server)
+    clients = [Listener(server.get_port()) for _ in range(n_clients)]
+    c = app.controller
+    try:
+        time.sleep(1.0)
+        c.plan()
+        h = app.gui.params[("decomposition", "volume_ratio")]
+        scene, best, plan_s = [], [], []
+        for k in range(trials + 1):
+            value = (0.5, 0.9)[k % 2]
+            while not (c.idle() and not app.gui._timers):
+                time.sleep(0.01)
+            t0 = time.perf_counter()
+            clients[0].send(_messages.GuiUpdateMessage(h._impl.uuid, {"value": value}))
+            deadline = time.perf_counter() + 600
+            while not (c.state.params.decomposition.volume_ratio == value and c.state.planned):
+                assert time.perf_counter() < deadline, "the edit never applied"
+                time.sleep(0.005)
+            s = c.state
+            assert s.error == "", s.error
+            label = f"boxes: {len(s.tree.leaves())}".encode()
+            t_scene = max(cl.wait_for(label, after=t0) for cl in clients)
+            t_best = max(cl.wait_for(b"fc", after=t_scene) for cl in clients)
+            if k == 0:
+                continue  # warm-up
+            scene.append(t_scene - t0)
+            best.append(t_best - t0)
+            plan_s.append(s.result.timings.get("grasps", float("nan")))
+        return {
+            "points": n_points,
+            "clients": n_clients,
+            "pool": len(c.state.result.pool),
+            "scene": statistics.median(scene),
+            "scene_max": max(scene),
+            "best": statistics.median(best),
+            "best_max": max(best),
+            "planner": statistics.median(plan_s),
+        }
+    finally:
+        for cl in clients:
+            cl.close()
+        app.close()
+        server.stop()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, nargs="+", default=[20000, 200000])
     ap.add_argument("--trials", type=int, default=7)
+    ap.add_argument("--clients", type=int, nargs="+", default=[1, 4])
+    ap.add_argument("--client-points", type=int, default=5000)
+    ap.add_argument("--client-trials", type=int, default=5)
+    ap.add_argument("--skip-single", action="store_true", help="only the clients table")
     args = ap.parse_args()
     print(
         f"# {platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}, "
@@ -171,6 +262,28 @@ def main() -> None:
     print(
         f"# {args.trials} changes per row after one warm-up; medians in ms (min, max of received)"
     )
+    if not args.skip_single:
+        single_table(args)
+    print()
+    print(
+        f"# after planning: a browser's volume-ratio edit (0.3 s debounce included) until every "
+        f"client has it; {args.client_trials} changes per row after one warm-up, medians (max)"
+    )
+    print()
+    print("| points | clients | pool | new scene (ms) | max | new best grasp (ms) | max "
+          "| planner (ms) |")  # fmt: skip
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for n in args.clients:
+        r = bench_clients(args.client_points, n, args.client_trials)
+        print(
+            f"| {r['points']:,} | {r['clients']} | {r['pool']} | {r['scene'] * 1e3:.0f} | "
+            f"{r['scene_max'] * 1e3:.0f} | {r['best'] * 1e3:.0f} | {r['best_max'] * 1e3:.0f} | "
+            f"{r['planner'] * 1e3:.0f} |",
+            flush=True,
+        )
+
+
+def single_table(args) -> None:
     print()
     print(
         "| points | change | pool | pipeline (ms) | callback (ms) | received (ms) | min | max "
