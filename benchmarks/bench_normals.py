@@ -120,14 +120,15 @@ def main() -> None:
     cloud = clouds[20000]
     pts = np.asarray(cloud.points)
     prm = new.NormalParams()
-    nrm, _, d16, n16 = new.scale_selected_normals(pts, prm.k)
+    nrm, var, d16, n16 = new.scale_selected_normals(pts, prm.k)
+    rough = var >= new.SCALE_FLAT
     spacing = float(np.median(d16[:, 4]))
     stages = {
         "neighbours (grid, k = 16)": lambda: new.nearest_neighbours(pts, prm.k),
         "neighbours and scale-selected PCA": lambda: new.scale_selected_normals(pts, prm.k),
         "visibility votes (64 views)": lambda: new._visibility_votes(pts, nrm, spacing, 64),
-        "orientation (votes, fill, propagation)": lambda: new._orient_visibility(
-            pts, nrm, n16, d16, 64
+        "orientation (votes, crests, fill, propagation)": lambda: new._orient_visibility(
+            pts, nrm, n16, d16, 64, rough
         ),
     }
     print("\n| stage at 20,000 points | CPU ms | wall ms |\n|---|---:|---:|")

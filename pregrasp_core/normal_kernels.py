@@ -266,6 +266,7 @@ def pca_scales(
 def visibility_votes(
     p: np.ndarray,
     n: np.ndarray,
+    m: np.ndarray,
     dirs: np.ndarray,
     u: np.ndarray,
     w: np.ndarray,
@@ -274,8 +275,9 @@ def visibility_votes(
     g: int,
     tol: float,
     curv_radius: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Net (N,) and total (N,) votes: for each view ``dirs[v]`` (towards the viewer; ``u[v]``,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Net (N,) and total (N,) votes, and the net votes (N,) of the second directions ``m``
+    (same sightings): for each view ``dirs[v]`` (towards the viewer; ``u[v]``,
     ``w[v]`` span its image plane), the front-most point of every pixel of side ``pix``
     (``g`` x ``g`` pixels over [-radius, radius]^2); a point is seen unless it lies more than
     ``tol + l^2 / (2 curv_radius)`` behind the tangent plane of its pixel's front point (``l``
@@ -285,6 +287,7 @@ def visibility_votes(
     n_views = dirs.shape[0]
     net = np.zeros(n_pts)
     tot = np.zeros(n_pts)
+    net_m = np.zeros(n_pts)
     front = np.empty(g * g)
     front_id = np.empty(g * g, np.int64)
     cell = np.empty(n_pts, np.int64)
@@ -329,7 +332,8 @@ def visibility_votes(
             a = abs(nd)
             tot[i] += a
             net[i] += a if nd > 0.0 else -a
-    return net, tot
+            net_m[i] += m[i, 0] * dx + m[i, 1] * dy + m[i, 2] * dz
+    return net, tot, net_m
 
 
 @nb.njit(cache=True)
@@ -391,8 +395,7 @@ def warm_up() -> None:
     dist, idx, _ = knn_grid(p, np.arange(64), 8, 0.5, p.min(axis=0), cells, 3)
     normals, _ = pca_scales(p, idx, np.array([4, 8], np.int64), 0.02)
     d = np.array([[0.0, 0.0, 1.0]])
-    visibility_votes(
-        p, normals, d, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]), 4.0, 1.0, 8, 0.1, 1.0
-    )
+    u, w = np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]])
+    visibility_votes(p, normals, normals, d, u, w, 4.0, 1.0, 8, 0.1, 1.0)
     wts = same_side_weights(p, normals, idx, 0.1)
     fill_signs(np.zeros(64), np.zeros(64, np.bool_), idx, wts, 2)

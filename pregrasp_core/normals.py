@@ -25,20 +25,23 @@ Orientation (PCA gives a line, not a direction), ``NormalParams.orient``:
 * ``"visibility"``: the cloud is looked at from ``n_views`` directions spread evenly on a sphere
   around it (orthographic depth buffers of 2 point spacings per pixel). A point is hidden from a
   direction when it lies behind the tangent plane of its pixel's front-most point, by more than
-  ``VISIBILITY_DEPTH_TOL`` spacings plus what a convex surface of radius
-  ``VISIBILITY_CURVATURE`` spacings curves away over their distance: the back face of a wall a
-  millimetre thick is hidden behind the front face's plane, where a depth tolerance would have
-  to be a pixel deep. A seen surface faces the viewer, so each sighting votes for the sign of
-  ``n . d`` weighted by ``|n . d|``. A point is decided when its votes agree (net over total
-  above ``VISIBILITY_AGREEMENT``); the others (points no direction sees, e.g. deep in a
-  concavity) take the sign of their decided neighbours on the same side of the surface (a
-  neighbour's say falls off as ``exp(-(h / SAME_SIDE_SIGMA s)^2)`` with its offset h along the
-  normals: the other face of a thin wall has none), grown over the k-NN graph; what stays
-  undecided after that is oriented by ``"propagate"`` seeded at the decided points. Unlike the
-  propagation alone, no single wrong step can flip a whole region: every region a viewer can
-  see is decided by what it looks like from outside. Points inside the object (a mesh made of
-  interpenetrating bodies has sampled faces inside the solid) are never seen and get the
-  propagated sign.
+  ``VISIBILITY_DEPTH_TOL`` spacings plus what a convex surface of radius ``VISIBILITY_CURVATURE``
+  spacings curves away over their distance: the back face of a wall a millimetre thick is hidden
+  behind the front face's plane, where a depth tolerance would have to be a pixel deep. A seen
+  surface faces the viewer, so each sighting votes for the sign of ``n . d`` weighted by ``|n .
+  d|``. A point is decided when its votes agree (net over total above ``VISIBILITY_AGREEMENT``). A
+  point flat at no scale (a crest: the top of a rolled rim, an edge) has no trustworthy PCA line;
+  the direction from its neighbours' centroid to it becomes its normal when the same sightings see
+  it from that side (net vote of that direction above the same agreement): on a convex crest it is
+  the crest's normal, in a concave crease it points into the solid and the viewers see it from the
+  other side. The others (points no direction sees, e.g. deep in a concavity) take the sign of their
+  decided neighbours on the same side of the surface (a neighbour's say falls off as ``exp(-(h /
+  SAME_SIDE_SIGMA s)^2)`` with its offset h along the normals: the other face of a thin wall has
+  none), grown over the k-NN graph; what stays undecided after that is oriented by ``"propagate"``
+  seeded at the decided points. Unlike the propagation alone, no single wrong step can flip a whole
+  region: every region a viewer can see is decided by what it looks like from outside. Points inside
+  the object (a mesh made of interpenetrating bodies has sampled faces inside the solid) are never
+  seen and get the propagated sign.
 * ``"propagate"``: Hoppe et al. 1992: a minimum spanning tree over the k-NN graph with edge
   weight ``1 - |n_i . n_j| + 3 |cos(edge, n_i)|`` (the tree follows smooth surface; the second
   term, our addition, keeps it from jumping across thin walls, where neighbours sit along the
@@ -251,9 +254,14 @@ def _view_frames(n_views: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _visibility_votes(
-    points: np.ndarray, normals: np.ndarray, spacing: float, n_views: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Net (N,) and total (N,) votes of the sightings (see the module docstring)."""
+    points: np.ndarray,
+    normals: np.ndarray,
+    spacing: float,
+    n_views: int,
+    second: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Net (N,) and total (N,) votes of the sightings (see the module docstring), and the net
+    votes (N,) the same sightings give the directions ``second`` (N, 3) (default: normals)."""
     from . import normal_kernels
 
     p = points - 0.5 * (points.min(axis=0) + points.max(axis=0))
@@ -261,9 +269,11 @@ def _visibility_votes(
     pix = max(VISIBILITY_PIXEL * spacing, radius * 1e-3)
     g = int(np.ceil(2.0 * radius / pix)) + 2  # pixels per side of every view's buffer
     d, u, w = _view_frames(n_views)
+    nrm = np.ascontiguousarray(normals)
     return normal_kernels.visibility_votes(
         np.ascontiguousarray(p),
-        np.ascontiguousarray(normals),
+        nrm,
+        nrm if second is None else np.ascontiguousarray(second),
         d,
         u,
         w,
@@ -276,23 +286,41 @@ def _visibility_votes(
 
 
 def _orient_visibility(
-    points: np.ndarray, normals: np.ndarray, nbr: np.ndarray, dist: np.ndarray, n_views: int
-) -> np.ndarray:
-    """Signs (N,) by visibility, filling and seeded propagation (see the module docstring)."""
+    points: np.ndarray,
+    normals: np.ndarray,
+    nbr: np.ndarray,
+    dist: np.ndarray,
+    n_views: int,
+    rough: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Normals (N, 3) and their signs (N,) by visibility, filling and seeded propagation (see
+    the module docstring); ``rough`` (N,) bool: the points flat at no scale, whose normal becomes
+    the direction from their neighbours' centroid when the viewers see them from that side."""
     from . import normal_kernels
 
     spacing = max(float(np.median(dist[:, min(4, dist.shape[1] - 1)])), GEOM_EPS)
-    net, total = _visibility_votes(points, normals, spacing, n_views)
+    crest = None
+    if rough is not None and rough.any():
+        away = points - points[nbr].mean(axis=1)
+        away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), GEOM_EPS)
+        crest = np.where(rough[:, None], away, normals)
+    net, total, net_crest = _visibility_votes(points, normals, spacing, n_views, crest)
     decided = (np.abs(net) > VISIBILITY_AGREEMENT * total) & (total > VISIBILITY_MIN_VOTE)
     sign = np.where(decided, np.sign(net), 0.0)
+    if crest is not None and rough is not None:
+        # a crest seen from the side away from its neighbours: that side is its normal
+        ridge = rough & (net_crest > VISIBILITY_AGREEMENT * total) & (total > VISIBILITY_MIN_VOTE)
+        normals = np.where(ridge[:, None], crest, normals)
+        decided = decided | ridge
+        sign = np.where(ridge, 1.0, sign)
     if decided.all():
-        return sign
+        return normals, sign
     wts = normal_kernels.same_side_weights(points, normals, nbr, SAME_SIDE_SIGMA * spacing)
     sign = normal_kernels.fill_signs(sign, decided, nbr, wts, FILL_ROUNDS)
     left = sign == 0.0
     if left.any():
         if not decided.any():
-            return _orient_propagate(points, normals, nbr)
+            return normals, _orient_propagate(points, normals, nbr)
         seeds = np.flatnonzero(~left)
         prop = _orient_propagate(points, normals, nbr, seeds=seeds, seed_signs=sign[seeds])
         sign[left] = prop[left]
@@ -302,7 +330,7 @@ def _orient_visibility(
         100.0 * (1.0 - decided.mean() - left.mean()),
         100.0 * left.mean(),
     )
-    return sign
+    return normals, sign
 
 
 def nearest_neighbours(
@@ -402,7 +430,8 @@ def estimate_normals(
         to_cam = np.asarray(params.viewpoint, dtype=np.float64) - pts
         signs = np.where(np.einsum("ij,ij->i", normals, to_cam) < 0.0, -1.0, 1.0)
     elif mode == "visibility":
-        signs = _orient_visibility(pts, normals, nbr, dist, params.n_views)
+        rough = curvature >= SCALE_FLAT
+        normals, signs = _orient_visibility(pts, normals, nbr, dist, params.n_views, rough)
     elif mode == "centroid":
         out = pts - pts.mean(axis=0)
         signs = np.where(np.einsum("ij,ij->i", normals, out) < 0.0, -1.0, 1.0)
