@@ -102,6 +102,10 @@ along the normals (s the spacing): neighbours across a thin wall get no say."""
 GRID_MAX_CELLS: int = 2_000_000
 """Neighbour search: at most this many grid cells (larger cells for sparse, spread clouds)."""
 
+GRID_CROWDED: int = 8
+"""Neighbour search: a cell may hold at most this many times k points (else smaller cells, or
+the k-d tree for a clump no cell size splits)."""
+
 GRID_MAX_RING: int = 4
 """Neighbour search: rings of cells searched before a row is handed to a k-d tree."""
 
@@ -300,19 +304,25 @@ def _orient_visibility(
 
     spacing = max(float(np.median(dist[:, min(4, dist.shape[1] - 1)])), GEOM_EPS)
     crest = None
-    if rough is not None and rough.any():
-        away = points - points[nbr].mean(axis=1)
+    rows = np.flatnonzero(rough) if rough is not None else np.zeros(0, dtype=np.int64)
+    if len(rows):
+        away = points[rows] - points[nbr[rows]].mean(axis=1)
         away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), GEOM_EPS)
-        crest = np.where(rough[:, None], away, normals)
+        crest = normals.copy()
+        crest[rows] = away
     net, total, net_crest = _visibility_votes(points, normals, spacing, n_views, crest)
     decided = (np.abs(net) > VISIBILITY_AGREEMENT * total) & (total > VISIBILITY_MIN_VOTE)
     sign = np.where(decided, np.sign(net), 0.0)
-    if crest is not None and rough is not None:
+    if crest is not None:
         # a crest seen from the side away from its neighbours: that side is its normal
-        ridge = rough & (net_crest > VISIBILITY_AGREEMENT * total) & (total > VISIBILITY_MIN_VOTE)
-        normals = np.where(ridge[:, None], crest, normals)
-        decided = decided | ridge
-        sign = np.where(ridge, 1.0, sign)
+        seen = (net_crest[rows] > VISIBILITY_AGREEMENT * total[rows]) & (
+            total[rows] > VISIBILITY_MIN_VOTE
+        )
+        ridge = rows[seen]
+        normals = normals.copy()
+        normals[ridge] = crest[ridge]
+        decided[ridge] = True
+        sign[ridge] = 1.0
     if decided.all():
         return normals, sign
     wts = normal_kernels.same_side_weights(points, normals, nbr, SAME_SIDE_SIGMA * spacing)
@@ -351,19 +361,36 @@ def nearest_neighbours(
     n_occ = len(np.unique((coarse[:, 0] * 1_000_003 + coarse[:, 1]) * 1_000_003 + coarse[:, 2]))
     area = n_occ * h0 * h0
     h = max(float(np.sqrt(k * area / (np.pi * len(points)))), GEOM_EPS)
-    h = max(h, float(np.cbrt(np.prod(extent) / GRID_MAX_CELLS)))  # bounded memory
-    dims = np.minimum(np.floor(extent / h).astype(np.int64) + 1, GRID_MAX_CELLS)
+    h_min = float(np.cbrt(np.prod(extent) / GRID_MAX_CELLS))  # bounded memory
+    for _ in range(4):  # far outliers inflate the estimate: halve the cells while one is crowded
+        h = max(h, h_min)
+        cell = np.floor((points - lo) / h).astype(np.int64)
+        dims = cell.max(axis=0) + 1
+        _, counts = np.unique((cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2],
+                              return_counts=True)  # fmt: skip
+        if counts.max() <= GRID_CROWDED * k or h <= h_min:
+            break
+        h *= 0.5
+    if counts.max() > GRID_CROWDED * k:  # a clump the grid cannot split: the k-d tree
+        return _tree_rows(points, q, k)
     dist, idx, unresolved = normal_kernels.knn_grid(
         np.ascontiguousarray(points), q, k, h, lo, dims, GRID_MAX_RING
     )
-    if unresolved.any():
+    if unresolved.any():  # outliers: a few rows
         rows = np.flatnonzero(unresolved)
-        d_t, i_t = cKDTree(points).query(points[q[rows]], k=k)
-        # the point itself first (a duplicate point could come before it)
-        for r, row in enumerate(rows):  # outliers only: a few rows
-            own = q[row]
-            idx[row] = np.r_[own, i_t[r][i_t[r] != own]][:k]
-            dist[row] = np.r_[0.0, d_t[r][i_t[r] != own]][:k]
+        dist[rows], idx[rows] = _tree_rows(points, q[rows], k)
+    return dist, idx
+
+
+def _tree_rows(points: np.ndarray, q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """(Q, k) distances and indices of the k nearest of ``points[q]`` by a k-d tree, each row
+    starting with the point itself (a duplicate of it could come first)."""
+    dist, idx = cKDTree(points).query(points[q], k=k)
+    for r in np.flatnonzero(idx[:, 0] != q):  # duplicates only
+        own = q[r]
+        other = idx[r] != own
+        dist[r] = np.r_[0.0, dist[r][other]][:k]
+        idx[r] = np.r_[own, idx[r][other]][:k]
     return dist, idx
 
 

@@ -304,6 +304,22 @@ def test_grid_neighbours_equal_a_kd_tree():
     assert np.array_equal(idx[plain], i_ref[plain, :24])
 
 
+def test_neighbours_of_a_cloud_with_a_far_clump_and_many_duplicates():
+    """A cloud whose grid the far outliers would make coarse (one crowded cell), and a clump of
+    40 copies of one point: still the exact neighbours, the point itself first."""
+    from scipy.spatial import cKDTree
+
+    from pregrasp_core.normals import nearest_neighbours
+
+    pts, _ = _sphere(3000)
+    pts = np.r_[pts, [[500.0, 0.0, 0.0], [0.0, -800.0, 3.0]], np.tile(pts[:1], (40, 1))]
+    dist, idx = nearest_neighbours(pts, 16)
+    d_ref, _ = cKDTree(pts).query(pts, k=16)
+    assert np.allclose(dist, d_ref, atol=1e-12)
+    assert np.all(idx[:, 0] == np.arange(len(pts)))
+    assert np.allclose(np.linalg.norm(pts[idx] - pts[:, None], axis=2), dist, atol=1e-12)
+
+
 def test_compiled_pca_equals_numpy_eigh():
     """The closed-form 3x3 eigen-solution at one scale equals numpy's eigh (normal up to sign,
     surface variation), on a noisy sphere where every neighbourhood is a different matrix."""
