@@ -131,6 +131,15 @@ def _as_vectors(x: np.ndarray, name: str) -> np.ndarray:
     return arr
 
 
+def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross(a, b)`` of (..., 3) arrays (broadcast), by the same products and differences
+    in the same order (so equal to the bit), without ``np.cross``'s axis handling (a third of
+    the wrenches' construction time)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def tangent_frames(normals: np.ndarray, tangents: np.ndarray | None = None) -> np.ndarray:
     """Orthonormal frames ``(K, 3, 3)`` whose columns are ``a, b, n`` for each unit normal.
 
@@ -153,7 +162,7 @@ def tangent_frames(normals: np.ndarray, tangents: np.ndarray | None = None) -> n
         ref = np.where(ok[:, None], t, ref)
     a = ref - np.sum(ref * n, axis=1, keepdims=True) * n
     a /= np.linalg.norm(a, axis=1, keepdims=True)
-    b = np.cross(n, a)
+    b = cross3(n, a)
     return np.stack([a, b, n], axis=2)
 
 
@@ -203,7 +212,7 @@ def contact_wrenches(
     if rho is None:
         rho = float(np.max(np.linalg.norm(r, axis=1))) if len(p) else 0.0
     rho = max(rho, GEOM_EPS)
-    tau = np.cross(r[:, None, :], f) / rho  # (K, m, 3)
+    tau = cross3(r[:, None, :], f) / rho  # (K, m, 3)
     return np.concatenate([f, tau], axis=2).reshape(-1, 6)
 
 
@@ -325,7 +334,7 @@ def wrench_frame(wrenches: np.ndarray, n_edges: int) -> np.ndarray:
     a, n = a / na, n / nn
     a = a - (a @ n) * n
     a /= np.linalg.norm(a)
-    return np.stack([a, np.cross(n, a), n], axis=1)
+    return np.stack([a, cross3(n, a), n], axis=1)
 
 
 def direction_bound(wrenches: np.ndarray, frame: np.ndarray | None = None) -> float:

@@ -361,3 +361,15 @@ def test_closure_certificate_agrees_with_linear_programming():
         if fc:
             assert 0.0 < lower <= eps + 1e-12
     assert decided >= 100
+
+
+def test_cross3_equals_numpy_cross_to_the_bit():
+    """The wrenches' cross products (cross3) give exactly np.cross's values, so no exact score
+    moved when it replaced np.cross (the broadcast shapes of contact_wrenches included)."""
+    from pregrasp_core.quality import cross3
+
+    rng = np.random.default_rng(2)
+    for sa, sb in (((7, 3), (7, 3)), ((5, 1, 3), (5, 8, 3)), ((3,), (3,)), ((4, 3), (3,))):
+        a = rng.normal(size=sa) * 10.0 ** rng.integers(-8, 8, size=sa)
+        b = rng.normal(size=sb)
+        assert np.array_equal(cross3(a, b), np.cross(a, b))
