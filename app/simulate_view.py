@@ -67,6 +67,8 @@ class LiftPlayback:
     """CPU seconds (this thread) of the simulated run."""
     wall: float
     """Seconds from the button press to the result (the first frame is drawn at once)."""
+    pressed: float = 0.0
+    """``time.perf_counter()`` when the server got the press (benchmarks split the latency)."""
 
     @property
     def duration(self) -> float:
@@ -341,6 +343,7 @@ class LiftRunner:
             build_cpu=build_cpu,
             run_cpu=run_cpu,
             wall=time.perf_counter() - t_press,
+            pressed=t_press,
         )
         shown = self.controller.update(lambda st: _with_playback(st, s.result.grasps, pb))
         if current_lift(shown) is None:  # a new plan or object arrived meanwhile
