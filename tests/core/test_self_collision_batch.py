@@ -259,3 +259,23 @@ def test_shapes_and_empty_batch(hand):
         hand.self_collisions_many(Q, hand.box_poses(Q[0]))
     with pytest.raises(ValueError, match=rf"box_poses must have shape \(0, {L}, 4, 4\)"):
         hand.self_collisions_many(np.zeros((0, J)), np.zeros((1, L, 4, 4)))
+
+
+def test_one_pair_checked_alone_gets_the_verdict_of_python_fcl(hand, monkeypatch):
+    """``collisions_of(Tb, only=[k])`` (the planner's check of one colliding pair along a
+    finger's path) says pair k collides exactly where brute-force python-fcl says so, with the
+    separating-axis filter on and off, for every checked pair on closed-hand-like hands."""
+    rng = np.random.default_rng(7)
+    Q = _closed_like(hand, rng, 120)
+    expected = [_brute_force(hand, q) for q in Q]
+    checker = hand.self_collision_checker
+    Tb = hand.box_poses(Q)
+    n_hit = 0
+    for min_pairs in (0, 10**9):  # filter always / never
+        monkeypatch.setattr(collision_module, "SAT_MIN_PAIRS", min_pairs)
+        for k, pair in enumerate(checker.pairs):  # loop over the checked pairs
+            got = checker.collisions_of(Tb, np.array([k]))
+            assert [bool(g) for g in got] == [pair in e for e in expected]
+            assert all(g in ([], [pair]) for g in got)
+            n_hit += sum(bool(g) for g in got)
+    assert n_hit > 20  # colliding pairs were among them
