@@ -75,6 +75,8 @@ FLAGS: dict[str, tuple[list[str], str, object]] = {
     "--viewpoint": (["0.5", "0", "1"], "params.planner.normals.viewpoint", (0.5, 0.0, 1.0)),
     "--normals-views": (["32"], "params.planner.normals.n_views", 32),
     "--torque-origin": (["contacts"], "params.planner.quality.torque_origin", "contacts"),
+    "--exact-top": (["30"], "params.planner.quality.exact_top", 30),
+    "--exact-all": ([], "params.planner.quality.exact_all", True),
     "--top": (["3"], "output.top", 3),
     "--output": (["out.json"], "output.output", "out.json"),
     "--report": (["r.csv"], "output.report", "r.csv"),
@@ -89,6 +91,7 @@ FLAGS: dict[str, tuple[list[str], str, object]] = {
 FLAGS["--support"] = ([], "params.facemask.support", True)
 FLAGS["--fallback"] = ([], "params.sampling.fallback", True)
 FLAGS["--pinch"] = ([], "params.sampling.pinch", True)
+FLAGS["--no-exact-all"] = ([], "params.planner.quality.exact_all", False)
 
 COMMANDS = {"decompose": decompose, "pregrasps": pregrasps, "plan": plan, "view": view}
 
@@ -207,12 +210,13 @@ def test_every_pipeline_flag_reaches_the_result_file(tmp_path, capsys):
     file's ``parameters`` section (the file the planner's run wrote)."""
     argv = ["plan", str(LEMON), "--points", "2500", "-o", str(tmp_path / "r.json")]
     for flag in PIPELINE_FLAGS:
-        if flag not in ("--support", "--fallback", "--pinch"):  # their --no- forms are set here
+        if flag not in ("--support", "--fallback", "--pinch", "--no-exact-all"):  # the other
+            # spelling of each is set here
             argv += [flag, *FLAGS[flag][0]]
     assert main(argv) == 0, capsys.readouterr().err
     doc = json.loads((tmp_path / "r.json").read_text())
     for flag in PIPELINE_FLAGS:
-        if flag in ("--support", "--fallback", "--pinch"):
+        if flag in ("--support", "--fallback", "--pinch", "--no-exact-all"):
             continue
         _, place, expected = FLAGS[flag]
         got: Any = doc["parameters"]
