@@ -6,9 +6,13 @@ threw furthest toward the finger: at 2 mm of noise the contacts of the best gras
 the true surface (``docs/partial-views.md``). :func:`smooth_view` moves every point onto the
 least-squares plane of its ``k`` nearest neighbours (itself included) along that plane's normal,
 one pass of a moving-least-squares projection of degree 1 (PCL's ``MovingLeastSquares`` without
-the polynomial): the noise along the normal drops by about ``sqrt(k)``; a curved surface of
+the polynomial). The noise along the normal drops by ``sqrt(k)`` only when it is small against
+the neighbourhood; at 2 mm of noise on a 1.6 mm spacing the neighbourhood (4 mm at ``k = 24``)
+tilts with the noise and the noise halves (a plane: 2.0 to 0.94 mm, measured in
+``tests/core/test_partial_grasps.py``); on the generated views the share of visible contacts
+more than 3 mm off the true surface fell from 30 % to 4 % at 2 mm of noise. A curved surface of
 radius ``R`` is pulled in by about ``r**2 / (4 R)`` with ``r`` the neighbourhood's radius (0.1 mm
-for a 25 mm can at ``k = 24``), and sharp edges are rounded over about ``r``.
+on a 30 mm sphere), and sharp edges are rounded over about ``r``.
 """
 
 from __future__ import annotations
