@@ -258,7 +258,9 @@ class SceneRenderer:
         cam = self.server.initial_camera
         cam.look_at, cam.position = center, eye
         for client in self.server.get_clients().values():
-            client.camera.look_at, client.camera.position = center, eye
+            # position first: a client camera's position setter moves its look_at along
+            client.camera.position = eye
+            client.camera.look_at = center
         self._handles["table"] = self.server.scene.add_grid(
             "/table",
             width=3 * diag,

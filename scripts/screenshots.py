@@ -57,7 +57,9 @@ def _zoom(server, factor: float) -> None:
     """Move every browser's camera ``factor`` times as far from its target (docs framing)."""
     for client in server.get_clients().values():
         cam = client.camera
-        cam.position = cam.look_at + factor * (cam.position - cam.look_at)
+        target = cam.look_at.copy()
+        cam.position = target + factor * (cam.position - target)
+        cam.look_at = target  # a client camera's position setter moves its look_at along
 
 
 def _wait_idle(controller, timeout_s: float = 300.0) -> None:

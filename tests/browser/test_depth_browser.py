@@ -104,6 +104,11 @@ def test_click_on_the_canvas_picks_the_other_box(browser_context, scene_app, sho
             time.sleep(0.2)
         s = c.state
         assert s.error == "" and s.planned and s.cloud.points[:, 2].max() < 0.06
+        # the browser's camera is framed on the new object (it looks at its centre)
+        lo, hi = s.cloud.points.min(axis=0), s.cloud.points.max(axis=0)
+        while np.linalg.norm(np.asarray(client.camera.look_at) - (lo + hi) / 2) > 1e-3:
+            assert time.monotonic() < deadline, f"camera looks at {client.camera.look_at}"
+            time.sleep(0.1)
         page.get_by_text(re.compile(r"kept the cluster nearest")).first.wait_for()
         page.screenshot(path=str(shots_dir / "browser_depth_pick.png"))
     finally:
