@@ -42,6 +42,10 @@ MAX_LENGTH: float = 10.0
 length of kilometres would make every slab cover every box (or overflow to inf in the
 separating-axis test)."""
 
+MAX_ASSUMED_CLEARANCE: float = 0.02
+"""Metres: upper bound of ``PlannerParams.assumed_clearance``, the distance the hand keeps from
+a completion's assumed points (a finger is about 2 cm wide; more would keep it off the back)."""
+
 MAX_HEIGHT: float = 1.0e6
 """Metres: bound of ``|FaceMaskParams.support_height|`` (finite and far from float overflow)."""
 

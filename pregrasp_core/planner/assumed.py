@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-MAX_ASSUMED_CLEARANCE: float = 0.02
-"""Metres: upper bound of ``PlannerParams.assumed_clearance`` (a finger is about 2 cm wide)."""
+from ..limits import MAX_ASSUMED_CLEARANCE
+
+__all__ = ["MAX_ASSUMED_CLEARANCE", "assumed_mask", "obstacle_points"]
 
 
 def assumed_mask(assumed: np.ndarray | None, n_points: int) -> np.ndarray | None:
