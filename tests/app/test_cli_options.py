@@ -92,6 +92,8 @@ FLAGS["--support"] = ([], "params.facemask.support", True)
 FLAGS["--fallback"] = ([], "params.sampling.fallback", True)
 FLAGS["--pinch"] = ([], "params.sampling.pinch", True)
 FLAGS["--no-exact-all"] = ([], "params.planner.quality.exact_all", False)
+# view's second result file is read by the command itself (no options dataclass)
+FLAGS["--compare"] = (["b.json"], "args.compare", "b.json")
 
 COMMANDS = {"decompose": decompose, "pregrasps": pregrasps, "plan": plan, "view": view}
 
@@ -117,6 +119,7 @@ def _built(name: str, ns: argparse.Namespace) -> dict[str, Any]:
         "input": common.INPUT_OPTIONS.build(ns),
         "params": mod.PIPELINE_OPTIONS.build(ns),
     }
+    out["args"] = ns
     if name == "view":
         out["serve"] = view.SERVE_OPTIONS.build(ns)
     else:
@@ -172,7 +175,7 @@ def test_commands_take_the_flags_of_their_stages():
     assert plan_pipeline == set(PIPELINE_FLAGS)
     assert _flags_of("view") == plan_pipeline | {"--points", "--seed", "--scale", "--pick",
                                                  "--intrinsics", "--scene", "--no-scene",
-                                                 "--host", "--port"}  # fmt: skip
+                                                 "--host", "--port", "--compare"}  # fmt: skip
 
 
 def test_help_lists_every_flag_grouped_by_stage(capsys):
