@@ -219,7 +219,9 @@ class SceneRenderer:
         pts = np.asarray(state.cloud.points, dtype=np.float32)
         if len(pts) == 0:  # a result file keeps no points: frame the boxes instead
             self._remove("cloud")
-            self._frame_object(state.tree.root.box.corners())
+            box = state.tree.root.box  # a cube of the box's diagonal: framed as its cloud would be
+            h = float(np.linalg.norm(box.extents)) / (2.0 * np.sqrt(3.0))
+            self._frame_object(np.asarray(box.center) + np.array([[-h] * 3, [h] * 3]))
             return
         diag = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0))) if len(pts) else 1.0
         self._handles["cloud"] = self.server.scene.add_point_cloud(
