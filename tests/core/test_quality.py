@@ -126,7 +126,7 @@ def test_rigid_motion_invariance_random_grasps():
         assert permuted.epsilon == pytest.approx(base.epsilon, abs=1e-8)
 
 
-def _origin_strictly_inside_lp(w: np.ndarray) -> bool:
+def origin_strictly_inside_lp(w: np.ndarray) -> bool:
     """Independent force-closure test: no direction u with w . u <= -s for all wrenches, s > 0.
 
     maximise s subject to w u + s <= 0, -1 <= u <= 1; the origin is strictly inside the hull iff
@@ -154,7 +154,7 @@ def test_force_closure_agrees_with_linear_programming():
         n = -p + rng.normal(scale=0.8 if trial % 2 else 0.2, size=(k, 3))
         q = grasp_quality(p, n)
         w = contact_wrenches(p, n / np.linalg.norm(n, axis=1, keepdims=True))
-        fc = _origin_strictly_inside_lp(w)
+        fc = origin_strictly_inside_lp(w)
         if abs(q.epsilon) > 1e-6 or not fc:
             assert q.force_closure == fc, (trial, q)
         n_fc += fc

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scipy.optimize import linprog
 from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
@@ -39,6 +38,7 @@ from pregrasp_core.quality import (
     hull_quality,
     wrench_frame,
 )
+from tests.core.test_quality import origin_strictly_inside_lp
 
 
 def _contact_set(rng, k, spread=0.8):
@@ -52,19 +52,6 @@ def _contact_set(rng, k, spread=0.8):
     t = rng.normal(size=(k, 3))
     center = rng.normal(scale=0.01, size=3)
     return p, n, t, center, 0.08
-
-
-def _lp_force_closure(w: np.ndarray) -> bool:
-    """Independent test: no u with w . u <= -s < 0 for every wrench, and full rank."""
-    m, d = w.shape
-    res = linprog(
-        np.r_[np.zeros(d), -1.0],
-        A_ub=np.c_[w, np.ones(m)],
-        b_ub=np.zeros(m),
-        bounds=[(-1, 1)] * d + [(None, 1)],
-        method="highs",
-    )
-    return -res.fun < 1e-9 and np.linalg.matrix_rank(w - w.mean(axis=0)) == d
 
 
 def test_bounds_bound_the_exact_scores_and_force_closure_stays_exact():
@@ -86,7 +73,7 @@ def test_bounds_bound_the_exact_scores_and_force_closure_stays_exact():
         n_fc += exact.force_closure
         if trial % 4 == 0:  # an independent check of force closure on a quarter of them
             w = contact_wrenches(p, n, prm, tangents=t, center=c, radius=r)
-            fc = _lp_force_closure(w)
+            fc = origin_strictly_inside_lp(w)
             if abs(exact.epsilon) > 1e-6 or not fc:
                 assert exact.force_closure == fc, trial
         for level in (LEVEL_CHEAPEST, LEVEL_HALF_CONES):
@@ -357,7 +344,7 @@ def test_closure_certificate_agrees_with_linear_programming():
         eps, _, _ = hull_quality(w)
         assert fc == (eps > 0.0), trial
         if trial % 3 == 0:
-            assert fc == _lp_force_closure(w), trial
+            assert fc == origin_strictly_inside_lp(w), trial
         if fc:
             assert 0.0 < lower <= eps + 1e-12
     assert decided >= 100
