@@ -322,10 +322,7 @@ class Controller:
                 planned=loaded.planned,
                 loaded=loaded,
                 compare=None,
-                view=ViewState(
-                    show_face_masks=s.view.show_face_masks,
-                    show_ghosts=s.view.show_ghosts,
-                    speed=s.view.speed,
+                view=s.view.for_new_object(
                     selected_grasp=best_rank,
                     anim_t=0.0 if best_rank is not None else 1.0,
                     playing=best_rank is not None,
@@ -565,11 +562,7 @@ class Controller:
                 planned=False,
                 loaded=None,
                 compare=None,
-                view=ViewState(
-                    show_face_masks=s.view.show_face_masks,
-                    show_ghosts=s.view.show_ghosts,
-                    speed=s.view.speed,
-                ),
+                view=s.view.for_new_object(),
                 busy="",
                 progress=0.0,
                 message=msg + ("; " + "; ".join(warn) if warn else ""),

@@ -68,6 +68,16 @@ class ViewState:
     lift_t: float = 0.0
     """Playback clock of the shown lift: seconds of simulated time."""
 
+    def for_new_object(self, **changes: Any) -> ViewState:
+        """The view of a newly shown object: selections, filters and the clock reset, the
+        user's layer toggles and animation speed kept; ``changes`` set other fields."""
+        return ViewState(
+            show_face_masks=self.show_face_masks,
+            show_ghosts=self.show_ghosts,
+            speed=self.speed,
+            **changes,
+        )
+
 
 @dataclass(frozen=True)
 class AppState:
