@@ -3,9 +3,11 @@ as ``python benchmarks/bench_x.py``, whose folder is then first on ``sys.path``)
 
 from __future__ import annotations
 
+import json
 import os
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
@@ -29,3 +31,13 @@ def pin_one_core() -> str:
         return "pinned to one CPU"
     except (AttributeError, OSError):
         return "not pinned"
+
+
+def views_manifest(views: Path) -> list[dict] | None:
+    """The entries of ``views/manifest.json`` (written by ``scripts/make_views.py``), or None
+    after saying how to make them when the file is missing."""
+    path = views / "manifest.json"
+    if not path.is_file():
+        print(f"{path} not found: run .venv/bin/python scripts/make_views.py first")  # noqa: T201
+        return None
+    return json.loads(path.read_text())

@@ -30,13 +30,13 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
-import json  # noqa: E402
 import platform  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
+from _timing import views_manifest  # noqa: E402
 
 from pregrasp_core.decomposition import decompose  # noqa: E402
 from pregrasp_core.hand import Hand  # noqa: E402
@@ -73,11 +73,9 @@ def main() -> int:
     parser.add_argument("--no-smooth", action="store_true", help="no smoothing of noisy views")
     parser.add_argument("--no-parts", action="store_true", help="skip the parts count")
     args = parser.parse_args()
-    manifest_path = args.views / "manifest.json"
-    if not manifest_path.is_file():
-        print(f"{manifest_path} not found: run .venv/bin/python scripts/make_views.py first")
+    manifest = views_manifest(args.views)
+    if manifest is None:
         return 1
-    manifest = json.loads(manifest_path.read_text())
     objects = None if args.all else set(args.objects or DEFAULT_OBJECTS)
     manifest = [e for e in manifest if objects is None or e["object"] in objects]
     if args.no_smooth:

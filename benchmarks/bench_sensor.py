@@ -29,13 +29,13 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import platform  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
+from _timing import views_manifest  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
 from pregrasp_core.decomposition import decompose  # noqa: E402
@@ -71,11 +71,9 @@ def main() -> int:
         help="with --completion: decomposition parts of the visible and the completed cloud",
     )  # fmt: skip
     args = parser.parse_args()
-    manifest_path = args.views / "manifest.json"
-    if not manifest_path.is_file():
-        print(f"{manifest_path} not found: run .venv/bin/python scripts/make_views.py first")
+    manifest = views_manifest(args.views)
+    if manifest is None:
         return 1
-    manifest = json.loads(manifest_path.read_text())
     print(f"# {platform.node()} {platform.processor() or platform.machine()}, "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {len(manifest)} views, "
           "one BLAS thread")  # fmt: skip
