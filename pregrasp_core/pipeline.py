@@ -234,13 +234,21 @@ def run_pipeline(
             _pool,
         )
         tick(3)
+    normals_same = (
+        prev is not None
+        and prev.normals is not None
+        and prev.params.planner.normals == params.planner.normals
+    )
+    if last < 4 and normals_same:
+        # carried through a run that stops before the planner (the viewer's threshold change
+        # shows the new pool first, then plans from that result: no second normal estimation)
+        assert prev is not None
+        out["normals"] = prev.normals
+        timings["normals"] = prev.timings.get("normals", 0.0)
     if last >= 4:
         # normals depend on the cloud only (computed once per cloud; timed as "normals")
-        if (
-            prev is not None
-            and prev.normals is not None
-            and prev.params.planner.normals == params.planner.normals
-        ):
+        if normals_same:
+            assert prev is not None
             out["normals"] = prev.normals
             timings["normals"] = prev.timings.get("normals", 0.0)
         else:

@@ -225,3 +225,26 @@ def test_limits_reach_the_stages(first, hand, params):
             previous=first,
             limits=WorkLimits(max_face_mask_pairs=n_nodes * n_cut - 1),
         )
+
+
+def test_normals_are_carried_through_a_run_that_stops_at_the_pool(first, hand, params):
+    """The viewer's threshold change runs to the pool (new scene), then plans from that result:
+    the cloud's normals (a function of the cloud and the normal parameters only) are computed
+    once, not again for every re-plan."""
+    from pregrasp_core.normals import NormalParams
+    from pregrasp_core.pipeline import view_normals
+
+    nrm = view_normals(first.cloud, params.planner.normals)
+    planned = dataclasses.replace(first, normals=nrm, timings={**first.timings, "normals": 1.5})
+    p2 = dataclasses.replace(params, sampling=SamplingParams(interval=0.05))
+    shown = run_pipeline(first.cloud, p2, hand, previous=planned, until="pool")
+    assert shown.normals is nrm and shown.timings["normals"] == 1.5
+    replanned = run_pipeline(first.cloud, p2, hand, previous=shown, until="grasps")
+    assert replanned.normals is nrm and replanned.grasps is not None
+    # other normal parameters or another cloud: not carried
+    p3 = dataclasses.replace(
+        p2, planner=dataclasses.replace(p2.planner, normals=NormalParams(k=12))
+    )
+    assert run_pipeline(first.cloud, p3, hand, previous=planned, until="pool").normals is None
+    other = l_shape_cloud(seed=1)
+    assert run_pipeline(other, p2, hand, previous=planned, until="pool").normals is None
