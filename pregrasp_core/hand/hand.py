@@ -25,6 +25,9 @@ from .model import (
     grasp_type_name,
 )
 
+_PLANE_CACHE: int = 4096
+"""Flexion planes :meth:`Hand.flexion_plane` keeps (then it starts again)."""
+
 
 @dataclass(frozen=True, eq=False)
 class Hand(HandModel):
@@ -82,8 +85,26 @@ class Hand(HandModel):
 
     def flexion_plane(self, finger: str | Finger, spread: float = 0.0) -> FlexionPlane:
         """The finger's flexion plane in the hand frame for a spread angle (ignored for the
-        thumb). Independent of the flexion angles."""
-        return kinematics.flexion_plane(self, finger, spread)
+        thumb). Independent of the flexion angles. Computed once per (finger, spread) value
+        (a pure function of the hand; the pool builds it for hundreds of pinches), each call
+        given its own copy."""
+        f = self.finger(finger)
+        if not any(f is g for g in self.fingers):  # a finger of another model
+            return kinematics.flexion_plane(self, f, spread)
+        key = (f.name, float(spread).hex())  # the bits: -0.0 is not 0.0 here
+        hit = self._flexion_planes.get(key)
+        if hit is None:
+            hit = kinematics.flexion_plane(self, f, spread)
+            if len(self._flexion_planes) >= _PLANE_CACHE:
+                self._flexion_planes.clear()
+            self._flexion_planes[key] = hit
+        return FlexionPlane(
+            origin=hit.origin.copy(), u=hit.u.copy(), v=hit.v.copy(), normal=hit.normal.copy()
+        )
+
+    @functools.cached_property
+    def _flexion_planes(self) -> dict[tuple[str, str], FlexionPlane]:
+        return {}
 
     @property
     def palm_box(self) -> OrientedBox:

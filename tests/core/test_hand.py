@@ -214,6 +214,20 @@ def test_flexion_planes(hand):
     assert abs((p2.origin - p1.origin) @ p1.normal) == pytest.approx(0.024)
 
 
+def test_flexion_planes_are_computed_once_and_each_call_gets_a_copy(hand):
+    from pregrasp_core.hand import kinematics
+
+    for s in (0.0, -0.0, 0.3, math.pi / 3):
+        for f in hand.fingers:
+            want = kinematics.flexion_plane(hand, f, s)  # forward kinematics, no cache
+            for name in (f, f.name):
+                got = hand.flexion_plane(name, s)
+                for a in ("origin", "u", "v", "normal"):
+                    assert getattr(got, a).tobytes() == getattr(want, a).tobytes()
+            got.origin[:] = 9.0  # a caller's change stays with its copy
+            assert hand.flexion_plane(f, s).origin.tobytes() == want.origin.tobytes()
+
+
 # ------------------------------------------------------------------------------ grasp types
 
 
