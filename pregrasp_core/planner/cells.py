@@ -20,9 +20,15 @@ class Cells:
         """points: (N, 3) float64, world; size: the cells' side (metres)."""
         n = len(points)
         key = np.floor(points / size).astype(np.int64)
-        cell = np.unique(key, axis=0, return_inverse=True)[1].ravel() if n else np.zeros(0, int)
+        if n:  # one integer per cell, in the lexicographic order of its (x, y, z) keys
+            key -= key.min(axis=0)
+            dim = key.max(axis=0) + 1
+            cell = (key[:, 0] * dim[1] + key[:, 1]) * dim[2] + key[:, 2]
+        else:
+            cell = np.zeros(0, dtype=np.int64)
         self.order = np.argsort(cell, kind="stable")
-        """(N,) cloud indices grouped by cell, ascending within a cell."""
+        """(N,) cloud indices grouped by cell (cells in the lexicographic order of their integer
+        coordinates), ascending within a cell."""
         sc = cell[self.order]
         self.start = np.flatnonzero(np.r_[True, sc[1:] != sc[:-1]]) if n else np.zeros(0, int)
         """(C,) where each cell's points begin in ``order``."""
