@@ -20,6 +20,10 @@ if TYPE_CHECKING:
     from .approach import Prepared
     from .slicing import ClosedFinger
 
+SUPPORT_PRETEST_MARGIN: float = 1e-6
+"""Metres: a link box whose lowest point is this far above the support's collision plane is
+not handed to fcl (fcl would report no contact; the margin is far above the rounding)."""
+
 CONTACT_TIE: float = 1e-12
 """Metres: cloud points this close to a link's least distance tie for its contact."""
 
@@ -247,12 +251,18 @@ def support_collision(ctx: Context, T: np.ndarray, q: np.ndarray) -> str | None:
     if ctx.support is None:
         return None
     n = np.asarray(ctx.support.normal, dtype=np.float64)
-    table = fcl.CollisionObject(
-        fcl.Halfspace(n, float(ctx.support.height) - ctx.params.penetration_tol), fcl.Transform()
-    )
+    level = float(ctx.support.height) - ctx.params.penetration_tol
     Tb = T @ ctx.boxes(q)[0]  # (L, 4, 4) world
+    # the lowest point of each box along n; fcl reports a box whose lowest point is at or below
+    # the plane, so a box clearly above it (by far more than any rounding) needs no fcl call
+    low = Tb[:, :3, 3] @ n - np.sum(np.abs(np.einsum("lji,j->li", Tb[:, :3, :3], n)) * ctx.half, 1)
+    near = np.flatnonzero(low - level <= SUPPORT_PRETEST_MARGIN)
+    if len(near) == 0:
+        return None
+    table = fcl.CollisionObject(fcl.Halfspace(n, level), fcl.Transform())
     req = fcl.CollisionRequest()
-    for i, name in enumerate(ctx.link_names):  # loop over the ~10 links
+    for i in near.tolist():  # the links near the table, in link order
+        name = ctx.link_names[i]
         obj = fcl.CollisionObject(
             fcl.Box(*(2.0 * ctx.half[i])), fcl.Transform(Tb[i, :3, :3], Tb[i, :3, 3])
         )

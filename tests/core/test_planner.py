@@ -266,6 +266,51 @@ def test_support_collision_check_uses_fcl_half_space(hand):
             assert got in hand.link_names
 
 
+def test_support_collision_pretest_gives_what_fcl_gives_for_every_link(hand):
+    """The pre-test (boxes clearly above the plane skip fcl) changes no answer: the first link
+    fcl finds below the plane, over random poses, tilted planes and heights at each box's
+    lowest point (within 1e-7 m, on both sides of it)."""
+    import fcl
+
+    from pregrasp_core.planner.context import Context
+    from pregrasp_core.planner.verify import support_collision
+
+    rng = np.random.default_rng(5)
+    pts = np.zeros((20, 3))
+    prm = PlannerParams()
+    q = hand.preshape("cylindrical")
+    n_hit = n_free = 0
+    for trial in range(40):
+        a = rng.normal(size=3)
+        T = np.eye(4)
+        T[:3, :3] = np.linalg.qr(rng.normal(size=(3, 3)))[0] * np.sign(rng.uniform(-1, 1))
+        if np.linalg.det(T[:3, :3]) < 0:
+            T[:3, :3] *= -1.0
+        T[:3, 3] = rng.normal(scale=0.05, size=3)
+        n = a / np.linalg.norm(a)
+        ctx0 = Context(pts, pts, hand, prm, None)
+        Tb = T @ ctx0.boxes(q)[0]
+        # each box's lowest point along n (only to put the plane near one of them)
+        low = [
+            Tb[k, :3, 3] @ n - np.abs(Tb[k, :3, :3].T @ n) @ ctx0.half[k] for k in range(len(Tb))
+        ]
+        i = int(np.argmin(low)) if trial % 2 else int(rng.integers(len(Tb)))
+        height = low[i] + prm.penetration_tol + rng.uniform(-1e-7, 1e-7)
+        ctx = Context(pts, pts, hand, prm, SupportPlane(normal=n, height=height))
+        table = fcl.CollisionObject(fcl.Halfspace(n, height - prm.penetration_tol), fcl.Transform())
+        want = None
+        for k, name in enumerate(hand.link_names):
+            box = fcl.CollisionObject(
+                fcl.Box(*(2.0 * ctx.half[k])), fcl.Transform(Tb[k, :3, :3], Tb[k, :3, 3])
+            )
+            if fcl.collide(box, table, fcl.CollisionRequest(), fcl.CollisionResult()) > 0:
+                want = name
+                break
+        assert support_collision(ctx, T, q) == want
+        n_hit, n_free = n_hit + (want is not None), n_free + (want is None)
+    assert n_hit > 5 and n_free > 5
+
+
 def test_ranking_by_epsilon_then_volume(cylinder_plan, box_plan):
     for _, _, _, gs in (cylinder_plan, box_plan):
         eps = [gs.grasps[k].epsilon for k in gs.ranking]
