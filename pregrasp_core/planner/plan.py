@@ -8,8 +8,10 @@ import dataclasses
 import functools
 import logging
 import os
+import pickle
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, TypeVar
 
@@ -117,11 +119,13 @@ def _plan_chunks(
     ex: ThreadPoolExecutor | None,
     grasps: list[Grasp],
     progress: Callable[[int, int], None] | None,
+    starts: Sequence[int] | None = None,
 ) -> None:
     """Plan the pre-grasps of ``pool`` chunk by chunk into ``grasps`` (see :func:`plan_grasps`).
     The per-pre-grasp phases run on the thread pool ``ex`` when there is one (numpy and qhull
     release Python's global lock for most of their work); every pre-grasp is planned
-    independently, so the results never depend on the threads."""
+    independently, so the results never depend on the threads. ``starts``: the first
+    pre-grasp of each chunk to plan (default: every chunk, ``range(0, P, _CHUNK)``)."""
 
     def each(fn: Callable[[_In], _Out], items: list[_In]) -> list[_Out]:
         return (
@@ -132,7 +136,7 @@ def _plan_chunks(
     # GraspIt's torque origin: the object's centroid and largest radius (docs/quality.md)
     frame = quality_frame(prm.quality, ctx.points)
     score = functools.partial(score_grasp, prm.quality, frame, first_level(prm.quality, P))
-    for c0 in range(0, P, _CHUNK):  # loop over chunks of pre-grasps
+    for c0 in range(0, P, _CHUNK) if starts is None else starts:  # loop over chunks
         t0 = time.perf_counter()
         preps = each(functools.partial(prepare, ctx, pool), list(range(c0, min(P, c0 + _CHUNK))))
         todo = [p for p in preps if isinstance(p, Prepared)]
@@ -163,6 +167,100 @@ def _plan_chunks(
         done += len(chunk)
         if progress is not None:
             progress(done, P)
+
+
+def _can_fork() -> bool:
+    """Whether this process may plan chunks in forked copies of itself: a POSIX fork, from a
+    process running one thread only (a fork copies no other thread, so a lock another thread
+    held would stay locked in the copy: the viewer's server, the test runners with threads and
+    any caller with a thread pool use threads instead)."""
+    return hasattr(os, "fork") and threading.active_count() == 1
+
+
+def _plan_forked(
+    ctx: Context,
+    pool: PreGraspPool,
+    P: int,
+    n_proc: int,
+    grasps: list[Grasp],
+    progress: Callable[[int, int], None] | None,
+) -> None:
+    """:func:`_plan_chunks` of every chunk on ``n_proc`` processes: this one and ``n_proc - 1``
+    forked copies of it (all of the context inherited, nothing rebuilt), chunk ``c`` planned by
+    process ``c % n_proc``; each copy sends back its grasps (pickled, which keeps every float's
+    bits) and its phase clocks, and ``grasps`` gets every chunk in pool order. The chunks are
+    those of one process, and every pre-grasp is planned independently, so the grasps are
+    those of a single process, bit for bit. A copy that dies without an answer has its chunks
+    planned here; an exception in a copy is raised here."""
+    starts = list(range(0, P, _CHUNK))
+    mine = [starts[w::n_proc] for w in range(n_proc)]
+    children: list[tuple[int, int, list[int]]] = []  # (pid, read end, chunks)
+    for w in range(1, n_proc):  # fork the copies before this process starts working
+        r, wfd = os.pipe()
+        pid = os.fork()
+        if pid == 0:  # the copy: plan its chunks, send them, leave without any clean-up
+            code = 0
+            try:
+                os.close(r)
+                out: list[Grasp] = []
+                _plan_chunks(ctx, pool, P, None, out, None, mine[w])
+                payload = pickle.dumps((True, out, ctx.clock), pickle.HIGHEST_PROTOCOL)
+            except BaseException as exc:  # noqa: BLE001 - sent to the parent, raised there
+                try:
+                    payload = pickle.dumps((False, exc, None), pickle.HIGHEST_PROTOCOL)
+                except Exception:  # noqa: BLE001 - an exception that does not pickle
+                    payload = pickle.dumps((False, RuntimeError(repr(exc)), None))
+            try:
+                with os.fdopen(wfd, "wb") as fh:
+                    fh.write(payload)
+            except BaseException:  # noqa: BLE001
+                code = 1
+            os._exit(code)
+        os.close(wfd)
+        children.append((pid, r, mine[w]))
+    by_start: dict[int, list[Grasp]] = {}
+    results: list[tuple[bool, object, dict[str, float] | None]] = []
+    try:
+        own: list[Grasp] = []
+        _plan_chunks(ctx, pool, P, None, own, progress, mine[0])
+        _split_chunks(own, mine[0], P, by_start)
+    finally:  # always collect the copies (no zombie, no open pipe)
+        for pid, r, _ in children:
+            with os.fdopen(r, "rb") as fh:
+                data = fh.read()
+            os.waitpid(pid, 0)
+            results.append(pickle.loads(data) if data else (False, None, None))
+    for (_, _, chunks), (ok, value, clock) in zip(children, results, strict=True):
+        if ok:
+            assert isinstance(value, list) and clock is not None
+            _split_chunks(value, chunks, P, by_start)
+            for k, v in clock.items():
+                ctx.clock[k] += v
+        elif value is not None:
+            raise value if isinstance(value, BaseException) else RuntimeError(str(value))
+        else:  # the copy died (e.g. killed): plan its chunks here
+            logger.warning("a planner process ended without an answer; planning its chunks here")
+            redo: list[Grasp] = []
+            _plan_chunks(ctx, pool, P, None, redo, None, chunks)
+            _split_chunks(redo, chunks, P, by_start)
+    for c0 in starts:
+        grasps.extend(by_start[c0])
+    if progress is not None:
+        progress(P, P)
+
+
+def _split_chunks(
+    got: list[Grasp], chunks: list[int], P: int, by_start: dict[int, list[Grasp]]
+) -> None:
+    """The grasps of the chunks ``chunks`` (first pre-grasps, planned in this order) into
+    ``by_start``."""
+    k = 0
+    for c0 in chunks:
+        n = min(P, c0 + _CHUNK) - c0
+        by_start[c0] = got[k : k + n]
+        k += n
+    if k != len(got):
+        raise RuntimeError(f"a planner process returned {len(got)} grasps for {k} pre-grasps")
 
 
 def rank_grasps(grasps: list[Grasp] | tuple[Grasp, ...]) -> np.ndarray:
@@ -214,9 +312,16 @@ def plan_grasps(
     # the chunk in one call of the batched closing model, verification and quality per
     # pre-grasp; the per-pre-grasp phases on a thread pool when prm.threads allows one
     n_threads = min(_n_threads(prm.threads), _CHUNK)
-    ex = ThreadPoolExecutor(n_threads) if n_threads > 1 and P > 1 else None
+    n_proc = min(n_threads, -(-P // _CHUNK))  # forked processes: at most one per chunk
+    fork = n_proc > 1 and _can_fork()
+    ex = ThreadPoolExecutor(n_threads) if n_threads > 1 and P > 1 and not fork else None
     try:
-        _plan_chunks(ctx, pool, P, ex, grasps, progress)
+        if fork:
+            _plan_forked(ctx, pool, P, n_proc, grasps, progress)
+            if n_threads > 1:  # the copies are gone: threads for the exact scores
+                ex = ThreadPoolExecutor(n_threads)
+        else:
+            _plan_chunks(ctx, pool, P, ex, grasps, progress)
         t0 = time.perf_counter()  # exact scores wherever they decide the ranking's top
         grasps, _ = settle_exact(grasps, prm.quality, quality_frame(prm.quality, pts), ex)
         ctx.clock["quality"] += time.perf_counter() - t0

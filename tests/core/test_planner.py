@@ -467,6 +467,89 @@ def test_threads_change_no_result(hand):
         PlannerParams(threads=-1)
 
 
+def _seventy_cylinder_pregrasps(hand):
+    """A cylinder and 70 cylindrical pre-grasps about it (two chunks of the planner)."""
+    mesh = trimesh.creation.cylinder(radius=0.03, height=0.15)
+    angles = np.linspace(0.0, 2 * np.pi, 70, endpoint=False)
+    Ts = [
+        _pose(hand, "cylindrical", [np.cos(a), np.sin(a), 0.0], [-np.sin(a), np.cos(a), 0.0],
+              np.array([0.0, 0.0, 0.01 * (k % 7) - 0.03]), 0.09)
+        for k, a in enumerate(angles)
+    ]  # fmt: skip
+    pts, nrm = _cloud(mesh, n=6000)
+    return pts, nrm, _pool(hand, Ts, "cylindrical")
+
+
+def _same_grasps(a, b):
+    assert np.array_equal(a.ranking, b.ranking)
+    for x, y in zip(a.grasps, b.grasps, strict=True):
+        assert (x.pregrasp, x.epsilon, x.volume, x.rank, x.rejection, x.detail) == (
+            y.pregrasp, y.epsilon, y.volume, y.rank, y.rejection, y.detail,
+        )  # fmt: skip
+        assert x.q.tobytes() == y.q.tobytes()
+        assert x.T_world_hand.tobytes() == y.T_world_hand.tobytes()
+        assert [
+            (c.link, c.point_index, c.point.tobytes(), c.normal.tobytes()) for c in x.contacts
+        ] == [(c.link, c.point_index, c.point.tobytes(), c.normal.tobytes()) for c in y.contacts]
+        assert [f.q.tobytes() for f in x.fingers] == [f.q.tobytes() for f in y.fingers]
+
+
+def test_forked_processes_threads_and_one_thread_give_the_same_grasps(hand, monkeypatch):
+    """From a process running one thread, threads > 1 plans the chunks in forked copies of the
+    process; with another thread alive it uses a thread pool: both give the grasps of one
+    thread bit for bit. A copy that dies has its chunks planned by the parent; an exception
+    in a copy is raised in the parent."""
+    import os
+    import threading
+
+    from pregrasp_core.planner import plan as plan_mod
+
+    pts, nrm, pool = _seventy_cylinder_pregrasps(hand)
+    one = plan_grasps(pts, nrm, pool, hand, PlannerParams(threads=1))
+    assert plan_mod._can_fork()  # (the test runs in a process with one thread)
+    forks = []
+    real_fork = os.fork
+
+    def counting_fork():
+        forks.append(1)
+        return real_fork()
+
+    monkeypatch.setattr(os, "fork", counting_fork)
+    forked = plan_grasps(pts, nrm, pool, hand, PlannerParams(threads=2))
+    assert len(forks) == 1
+    _same_grasps(one, forked)
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait)
+    other.start()
+    try:
+        assert not plan_mod._can_fork()
+        threaded = plan_grasps(pts, nrm, pool, hand, PlannerParams(threads=2))
+    finally:
+        stop.set()
+        other.join()
+    assert len(forks) == 1  # no fork with a second thread alive
+    _same_grasps(one, threaded)
+    # the copy dies, then it raises: the parent plans its chunk, then raises the same error
+    parent, real_chunks = os.getpid(), plan_mod._plan_chunks
+
+    def dying(*args, **kwargs):
+        if os.getpid() != parent:
+            os._exit(3)
+        return real_chunks(*args, **kwargs)
+
+    monkeypatch.setattr(plan_mod, "_plan_chunks", dying)
+    _same_grasps(one, plan_grasps(pts, nrm, pool, hand, PlannerParams(threads=2)))
+
+    def raising(*args, **kwargs):
+        if os.getpid() != parent:
+            raise ValueError("from the copy")
+        return real_chunks(*args, **kwargs)
+
+    monkeypatch.setattr(plan_mod, "_plan_chunks", raising)
+    with pytest.raises(ValueError, match="from the copy"):
+        plan_grasps(pts, nrm, pool, hand, PlannerParams(threads=2))
+
+
 def test_pipeline_grasps_stage_reuses_normals_and_pool(hand):
     """The pipeline's planning stage: normals once per cloud, the pool reused when only the
     planner's parameters change, everything reused when nothing changes."""
