@@ -23,3 +23,9 @@ def demo_objects() -> list[Path]:
     """All demo meshes in ``assets/objects/``, sorted by name."""
     exts = {".obj", ".stl", ".off", ".ply", ".glb"}
     return sorted(p for p in OBJECTS_DIR.iterdir() if p.suffix.lower() in exts)
+
+
+def demo_depth_images() -> list[Path]:
+    """The demo depth images in ``assets/objects/`` (a 16-bit PNG with its camera file
+    ``NAME.json`` beside it), sorted by name; not among :func:`demo_objects` (the meshes)."""
+    return sorted(p for p in OBJECTS_DIR.glob("*.png") if p.with_suffix(".json").is_file())

@@ -56,7 +56,7 @@ class CloudInfo(TypedDict, total=False):
     """``ply``, ``pcd``, ``xyz``, ``txt``, ``csv``, ``npy``, ``npz``, ``obj``, ``stl``, ``off``,
     ``glb``, ``gltf`` or ``array``."""
     kind: str
-    """``cloud`` or ``mesh``."""
+    """``cloud``, ``mesh`` or ``depth`` (a depth image)."""
     n_read: int
     """Rows read, or mesh vertices."""
     n_dropped_nonfinite: int
@@ -80,6 +80,10 @@ class CloudInfo(TypedDict, total=False):
     the scene), ``n_table``, ``n_visible`` and ``n_assumed`` (the object's points seen and
     added by the completion), ``viewpoint``, ``plane`` (the table: normal and height) and
     ``completion`` (``rotation``, ``mirror`` or None)."""
+    depth: dict[str, Any]
+    """Depth images: ``intrinsics`` (fx, fy, cx, cy in use), ``intrinsics_from`` (the camera
+    file, or ``--intrinsics``), ``camera_file`` (the JSON read, or None), ``depth_scale``
+    (metres per stored unit used) and ``pose`` (whether ``T_world_camera`` placed the points)."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -161,8 +161,10 @@ class SensorOptions:
     """How depth-camera input is read (``docs/input.md``, "Depth-camera input")."""
 
     intrinsics: IntrinsicsArg = None
-    """A depth image's intrinsics: an ``Intrinsics``, four numbers ``fx fy cx cy`` or a JSON
-    file; None = the sidecar ``NAME.json`` beside the image."""
+    """A depth image's intrinsics: four numbers ``fx fy cx cy`` or an ``Intrinsics`` (they
+    replace the sidecar's fx, fy, cx, cy and keep its other fields), the path of a JSON camera
+    file or a ``CameraFile`` (an upload's; either replaces the sidecar); None = the sidecar
+    ``NAME.json`` beside the image (``pregrasp_core.io.depth_image``)."""
     viewpoint: tuple[float, float, float] | None = None
     """The camera position (metres, after scaling); None = the PCD header's ``VIEWPOINT``, the
     camera of a depth image, or none."""
@@ -228,6 +230,13 @@ def _load(
     if is_depth_input(file, ext, opts.intrinsics):
         depth = read_depth_image(file, ext, opts.intrinsics)
         info = CloudInfo(format=fmt, kind="depth", n_read=depth.n_pixels, warnings=[])
+        info["depth"] = {
+            "intrinsics": depth.intrinsics.to_dict(),
+            "intrinsics_from": depth.intrinsics_source,
+            "camera_file": None if depth.camera is None else depth.camera.source,
+            "depth_scale": depth.depth_scale,
+            "pose": depth.camera is not None and depth.camera.pose is not None,
+        }
         s = 1.0 if scale is None else float(scale)  # a depth image is in metres by its format
         vp = depth.viewpoint * s if opts.viewpoint is None else np.asarray(opts.viewpoint)
         scene = finish_cloud(

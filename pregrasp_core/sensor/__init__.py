@@ -16,6 +16,7 @@ See ``docs/input.md`` ("Depth-camera input").
 
 from .completion import CompletedView, CompletionParams, complete_view
 from .depth import (
+    CameraFile,
     DepthCloud,
     Intrinsics,
     depth_to_points,
@@ -35,6 +36,7 @@ from .units import UnitGuess, detect_units
 from .view import SensorView, pcd_viewpoint, prepare_view
 
 __all__ = [
+    "CameraFile",
     "CompletedView",
     "CompletionParams",
     "DepthCloud",

@@ -15,14 +15,16 @@ Depth files:
 - ``.npy``: a 2-D float array of depth in **metres** (``numpy.load(..., allow_pickle=False)``);
   0 or NaN means no return.
 
-Intrinsics are four numbers ``fx fy cx cy`` (pixels) or a JSON file
+Intrinsics are four numbers ``fx fy cx cy`` (pixels) or a JSON camera file
 ``{"fx": .., "fy": .., "cx": .., "cy": ..}``, optionally with ``"width"`` and ``"height"``
-(checked against the image) and ``"T_world_camera"`` (a 4 x 4 pose, row-major nested lists, read
-by :func:`load_camera_pose`). The viewpoint of a depth cloud is the camera frame's origin.
+(checked against the image), ``"T_world_camera"`` (a 4 x 4 pose, row-major nested lists, read
+by :func:`load_camera_pose`) and ``"depth_scale"`` (metres per stored depth unit), read and
+checked by :class:`CameraFile`. The viewpoint of a depth cloud is the camera frame's origin.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass
@@ -41,8 +43,11 @@ MIN_RETURNS: int = 10
 INTRINSICS_KEYS: tuple[str, ...] = ("fx", "fy", "cx", "cy")
 """Keys an intrinsics JSON file must have."""
 
-OPTIONAL_KEYS: tuple[str, ...] = ("width", "height", "T_world_camera")
+OPTIONAL_KEYS: tuple[str, ...] = ("width", "height", "T_world_camera", "depth_scale")
 """Keys an intrinsics JSON file may have besides :data:`INTRINSICS_KEYS`."""
+
+MAX_CAMERA_FILE_BYTES: int = 1 << 20
+"""Largest intrinsics JSON file read (bytes): a camera file holds a few numbers."""
 
 DEPTH_EXTENSIONS: tuple[str, ...] = (".png", ".npy")
 """Depth-image formats :func:`load_depth_image` reads."""
@@ -90,8 +95,7 @@ class Intrinsics:
     @classmethod
     def from_json(cls, path: str | Path) -> Intrinsics:
         """From a JSON file ``{"fx": .., "fy": .., "cx": .., "cy": ..}`` (see the module)."""
-        doc = _read_json(path)
-        return cls(*(_number(doc[k], k, str(path)) for k in INTRINSICS_KEYS))
+        return CameraFile.read(path).intrinsics
 
     def matrix(self) -> np.ndarray:
         """(3, 3) float64 camera matrix ``K``."""
@@ -102,61 +106,161 @@ class Intrinsics:
         return {k: float(getattr(self, k)) for k in INTRINSICS_KEYS}
 
 
-def _read_json(path: str | Path) -> dict[str, object]:
-    """An intrinsics JSON file, checked: an object with the four keys and no unknown key."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(f"{p}: intrinsics file not found; check the path")
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise InputError(f'{p}: not a JSON file ({e}); write {{"fx":..,"fy":..,...}}') from None
-    if not isinstance(doc, dict):
-        raise InputError(f"{p}: the intrinsics must be a JSON object with keys fx, fy, cx, cy")
-    missing = [k for k in INTRINSICS_KEYS if k not in doc]
-    if missing:
-        raise InputError(f"{p}: the intrinsics lack {', '.join(missing)} (pixels)")
-    unknown = sorted(set(doc) - set(INTRINSICS_KEYS) - set(OPTIONAL_KEYS))
-    if unknown:
-        raise InputError(
-            f"{p}: unknown intrinsics keys {unknown}; allowed: "
-            f"{', '.join(INTRINSICS_KEYS + OPTIONAL_KEYS)}"
-        )
-    for k in INTRINSICS_KEYS:
-        _number(doc[k], k, str(p))
+def _no_duplicates(pairs: list[tuple[str, object]]) -> dict[str, object]:
+    doc: dict[str, object] = {}
+    for k, v in pairs:
+        if k in doc:
+            raise _DuplicateKey(k)
+        doc[k] = v
     return doc
+
+
+class _DuplicateKey(Exception):
+    """A JSON object names a key twice (``json`` would keep the last one silently)."""
+
+
+def _check_depth_scale(value: object, where: str) -> float:
+    s = _number(value, "depth_scale", where)
+    if s > 1.0:
+        raise InputError(
+            f"{where}: depth_scale is metres per stored depth unit, in (0, 1] (0.001 for a PNG "
+            f"in millimetres), got {value!r}: that is units per metre (as Open3D's depth_scale "
+            f"counts); write {1.0 / s:.6g}"
+        )
+    if not s > 0.0:
+        raise InputError(
+            f"{where}: depth_scale must be positive (metres per stored depth unit, 0.001 for "
+            f"millimetres), got {value!r}"
+        )
+    return s
+
+
+def _check_pose(value: object, where: str) -> tuple[tuple[float, ...], ...]:
+    try:
+        T = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: T_world_camera must be a 4 x 4 array of numbers") from None
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise InputError(f"{where}: T_world_camera must be a finite 4 x 4 array, got {T.shape}")
+    R = T[:3, :3]
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0.0:
+        raise InputError(f"{where}: T_world_camera's rotation is not a proper rotation")
+    if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0]):
+        raise InputError(f"{where}: T_world_camera's last row must be 0 0 0 1")
+    return tuple(tuple(float(v) for v in row) for row in T)
+
+
+@dataclass(frozen=True)
+class CameraFile:
+    """A depth image's camera file (the sidecar ``NAME.json``), every field checked.
+
+    ``{"fx": .., "fy": .., "cx": .., "cy": ..}`` (pixels), optionally ``"width"`` and
+    ``"height"`` (pixels, checked against the image), ``"T_world_camera"`` (4 x 4, row-major
+    nested lists: the camera's pose in the world frame the points are put in) and
+    ``"depth_scale"`` (metres per stored depth unit: 0.001 for a PNG in millimetres, the
+    default; 0.0001 for a RealSense at 0.1 mm; a float NPY is metres, 1). Any other key is
+    refused; a ``"viewpoint"`` key is refused with a pointer to ``T_world_camera`` (a depth
+    image's viewpoint is its camera).
+    """
+
+    intrinsics: Intrinsics
+    """fx, fy, cx, cy."""
+    size: tuple[int, int] | None = None
+    """``(height, width)`` when the file gives them."""
+    pose: tuple[tuple[float, ...], ...] | None = None
+    """``T_world_camera`` as four rows, or None (the points stay in the camera frame)."""
+    depth_scale: float | None = None
+    """Metres per stored depth unit; None = the format's (PNG: millimetres, NPY: metres)."""
+    source: str = "camera file"
+    """The file's path or name (quoted in messages)."""
+
+    @property
+    def T_world_camera(self) -> np.ndarray | None:
+        """(4, 4) float64 pose, or None."""
+        return None if self.pose is None else np.array(self.pose, dtype=np.float64)
+
+    def with_intrinsics(self, intrinsics: Intrinsics) -> CameraFile:
+        """This file with other fx, fy, cx, cy (``--intrinsics FX FY CX CY`` over a sidecar)."""
+        return dataclasses.replace(self, intrinsics=intrinsics)
+
+    @classmethod
+    def parse(cls, data: bytes, source: str) -> CameraFile:
+        """The camera file in ``data`` (the bytes of ``source``); ``InputError`` naming
+        ``source`` and the field at fault."""
+        if len(data) > MAX_CAMERA_FILE_BYTES:
+            raise InputError(
+                f"{source}: {len(data)} bytes, more than the {MAX_CAMERA_FILE_BYTES} bytes a "
+                "camera file may have (it holds a few numbers)"
+            )
+        try:
+            doc = json.loads(data.decode("utf-8"), object_pairs_hook=_no_duplicates)
+        except _DuplicateKey as e:
+            raise InputError(f"{source}: key {e.args[0]!r} given twice") from None
+        except (UnicodeDecodeError, ValueError, RecursionError) as e:
+            raise InputError(
+                f'{source}: not a JSON file ({e}); write {{"fx": .., "fy": .., "cx": .., "cy": ..}}'
+            ) from None
+        if not isinstance(doc, dict):
+            raise InputError(
+                f"{source}: the intrinsics must be a JSON object with keys fx, fy, cx, cy"
+            )
+        if "viewpoint" in doc:
+            raise InputError(
+                f"{source}: viewpoint: a depth image is seen from its camera; give the camera's "
+                "pose as T_world_camera (or pass --viewpoint X Y Z)"
+            )
+        unknown = sorted(set(doc) - set(INTRINSICS_KEYS) - set(OPTIONAL_KEYS))
+        if unknown:
+            raise InputError(
+                f"{source}: unknown intrinsics keys {unknown}; allowed: "
+                f"{', '.join(INTRINSICS_KEYS + OPTIONAL_KEYS)}"
+            )
+        missing = [k for k in INTRINSICS_KEYS if k not in doc]
+        if missing:
+            raise InputError(f"{source}: the intrinsics lack {', '.join(missing)} (pixels)")
+        vals = [_number(doc[k], k, source) for k in INTRINSICS_KEYS]
+        for k, v in zip(("fx", "fy"), vals[:2], strict=True):
+            if not v > 0.0:
+                raise InputError(
+                    f"{source}: fx and fy must be positive focal lengths in pixels, got {k}={v:g}"
+                )
+        size = None
+        if "width" in doc or "height" in doc:
+            if "width" not in doc or "height" not in doc:
+                raise InputError(f"{source}: give both width and height, or neither")
+            w, h = doc["width"], doc["height"]
+            ok = all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in (w, h))
+            if not ok:
+                raise InputError(
+                    f"{source}: width and height must be positive integers, got {w!r}, {h!r}"
+                )
+            size = (int(h), int(w))
+        pose = None if "T_world_camera" not in doc else _check_pose(doc["T_world_camera"], source)
+        scale = None if "depth_scale" not in doc else _check_depth_scale(doc["depth_scale"], source)
+        return cls(Intrinsics(*vals), size, pose, scale, source)
+
+    @classmethod
+    def read(cls, path: str | Path) -> CameraFile:
+        """The camera file at ``path`` (see :meth:`parse`)."""
+        p = Path(path)
+        if not p.is_file():
+            raise InputError(f"{p}: intrinsics file not found; check the path")
+        try:
+            with p.open("rb") as fh:
+                data = fh.read(MAX_CAMERA_FILE_BYTES + 1)
+        except OSError as e:
+            raise InputError(f"{p}: cannot read the intrinsics file ({e.strerror or e})") from None
+        return cls.parse(data, str(p))
 
 
 def image_size(path: str | Path) -> tuple[int, int] | None:
     """``(height, width)`` from an intrinsics JSON file, when it gives them."""
-    doc = _read_json(path)
-    if "width" not in doc and "height" not in doc:
-        return None
-    if "width" not in doc or "height" not in doc:
-        raise InputError(f"{path}: give both width and height, or neither")
-    w, h = doc["width"], doc["height"]
-    if not (isinstance(w, int) and isinstance(h, int)) or isinstance(w, bool) or w < 1 or h < 1:
-        raise InputError(f"{path}: width and height must be positive integers, got {w!r}, {h!r}")
-    return h, w
+    return CameraFile.read(path).size
 
 
 def load_camera_pose(path: str | Path) -> np.ndarray | None:
     """``T_world_camera`` (4, 4) float64 from an intrinsics JSON file, or None when absent."""
-    doc = _read_json(path)
-    if "T_world_camera" not in doc:
-        return None
-    try:
-        T = np.asarray(doc["T_world_camera"], dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{path}: T_world_camera must be a 4 x 4 array of numbers") from None
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise InputError(f"{path}: T_world_camera must be a finite 4 x 4 array, got {T.shape}")
-    R = T[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0.0:
-        raise InputError(f"{path}: T_world_camera's rotation is not a proper rotation")
-    if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0]):
-        raise InputError(f"{path}: T_world_camera's last row must be 0 0 0 1")
-    return T
+    return CameraFile.read(path).T_world_camera
 
 
 @dataclass(frozen=True, eq=False)
@@ -233,9 +337,10 @@ def depth_to_points(depth: np.ndarray, intrinsics: Intrinsics, source: str = "ar
     )
 
 
-def depth_from_png(data: bytes, source: str) -> np.ndarray:
-    """(H, W) float64 metres from the bytes of a 16-bit grayscale PNG in millimetres (0 = no
-    return -> NaN); ``InputError`` naming ``source`` for anything else."""
+def depth_from_png(data: bytes, source: str, unit: float | None = None) -> np.ndarray:
+    """(H, W) float64 metres from the bytes of a 16-bit grayscale PNG in millimetres, or in
+    ``unit`` metres per stored value (a camera file's ``depth_scale``); 0 = no return -> NaN.
+    ``InputError`` naming ``source`` for anything else."""
     import imageio.v3 as iio
 
     try:
@@ -252,13 +357,17 @@ def depth_from_png(data: bytes, source: str) -> np.ndarray:
             f"{source}: a depth PNG must be 16-bit (millimetres), got {img.dtype}; an 8-bit "
             "PNG is an image, not depth"
         )
-    depth = img.astype(np.float64) / 1000.0
+    if unit is None or unit == 0.001:
+        depth = img.astype(np.float64) / 1000.0
+    else:
+        depth = img.astype(np.float64) * float(unit)
     depth[img == 0] = np.nan
     return depth
 
 
-def read_depth_file(path: str | Path) -> np.ndarray:
-    """The depth image of ``path`` (H, W) float64 in metres, NaN where there is no return."""
+def read_depth_file(path: str | Path, unit: float | None = None) -> np.ndarray:
+    """The depth image of ``path`` (H, W) float64 in metres, NaN where there is no return;
+    ``unit``: metres per stored value (None: a PNG holds millimetres, an NPY metres)."""
     p = Path(path)
     ext = p.suffix.lower()
     if ext not in DEPTH_EXTENSIONS:
@@ -271,7 +380,7 @@ def read_depth_file(path: str | Path) -> np.ndarray:
     if p.stat().st_size == 0:
         raise InputError(f"{p}: the file is empty")
     if ext == ".png":
-        return depth_from_png(p.read_bytes(), str(p))
+        return depth_from_png(p.read_bytes(), str(p), unit)
     try:
         arr = np.load(p, allow_pickle=False)
     except ValueError as e:
@@ -287,28 +396,36 @@ def read_depth_file(path: str | Path) -> np.ndarray:
         )
     if arr.ndim != 2:
         raise InputError(f"{p}: a depth NPY must be 2-D (H, W), got shape {arr.shape}")
-    return arr.astype(np.float64)
+    depth = arr.astype(np.float64)
+    return depth if unit is None or unit == 1.0 else depth * float(unit)
 
 
-def load_depth_image(path: str | Path, intrinsics: Intrinsics | str | Path | object) -> DepthCloud:
+def load_depth_image(
+    path: str | Path, intrinsics: Intrinsics | CameraFile | str | Path | object
+) -> DepthCloud:
     """The cloud of a depth image in the camera frame (see the module for frame and formats).
 
-    ``intrinsics``: an :class:`Intrinsics`, four numbers ``(fx, fy, cx, cy)``, or the path of a
-    JSON file; a JSON file with ``width``/``height`` must match the image.
+    ``intrinsics``: an :class:`Intrinsics`, four numbers ``(fx, fy, cx, cy)``, a
+    :class:`CameraFile` or the path of one; a camera file's ``width``/``height`` must match the
+    image and its ``depth_scale`` gives the depth unit (its pose is not applied here).
     """
-    size = None
+    camera = None
     if isinstance(intrinsics, Intrinsics):
         K = intrinsics
+    elif isinstance(intrinsics, CameraFile):
+        camera = intrinsics
     elif isinstance(intrinsics, (str, Path)):
-        K = Intrinsics.from_json(intrinsics)
-        size = image_size(intrinsics)
+        camera = CameraFile.read(intrinsics)
     else:
         K = Intrinsics.from_values(intrinsics)
-    depth = read_depth_file(path)
-    if size is not None and depth.shape != size:
+    if camera is not None:
+        K = camera.intrinsics
+    depth = read_depth_file(path, None if camera is None else camera.depth_scale)
+    if camera is not None and camera.size is not None and depth.shape != camera.size:
+        size = camera.size
         raise InputError(
             f"{path}: the image is {depth.shape[1]} x {depth.shape[0]} pixels but the "
-            f"intrinsics file {intrinsics} says {size[1]} x {size[0]}"
+            f"intrinsics file {camera.source} says {size[1]} x {size[0]}"
         )
     return depth_to_points(depth, K, source=str(path))
 

@@ -10,6 +10,7 @@ outside the loader; the committed demo ``assets/objects/mug_depth.png`` was rend
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -176,3 +177,150 @@ def test_bad_intrinsics_name_the_flag_or_file(tmp_path: Path) -> None:
     wrong.write_text('{"fx": 420, "fy": 420, "cx": 239.5, "cy": 179.5, "width": 64, "height": 48}')
     with pytest.raises(InputError, match=r"wrong\.json says 64 x 48"):
         load_point_cloud(png, sensor=SensorOptions(intrinsics=wrong))
+
+
+# ---------------------------------------------------------------------- the camera file (sidecar)
+def _demo_copy(tmp_path: Path, name: str, doc: object | None = None, text: str | None = None):
+    """The demo PNG copied as ``name``.png with a sidecar ``name``.json: the demo's own (``doc``
+    None), the JSON of ``doc``, or the raw ``text``."""
+    png = tmp_path / f"{name}.png"
+    shutil.copy(DEMO, png)
+    side = png.with_suffix(".json")
+    if text is not None:
+        side.write_text(text)
+    elif doc is not None:
+        side.write_text(json.dumps(doc))
+    else:
+        shutil.copy(DEMO.with_suffix(".json"), side)
+    return png, side
+
+
+def _raw(path: Path, **kw) -> np.ndarray:
+    """Every point of the depth image (no table removal, no subsampling)."""
+    return np.asarray(
+        load_point_cloud(path, n_points=None, sensor=SensorOptions(scene=False, **kw)).points
+    )
+
+
+DEMO_DOC = json.loads(DEMO.with_suffix(".json").read_text())
+
+
+def test_sidecar_is_read_beside_the_image_and_recorded(tmp_path: Path) -> None:
+    png, side = _demo_copy(tmp_path, "frame")
+    cloud = load_point_cloud(png, n_points=None, sensor=SensorOptions(scene=False))
+    dep = cloud.info["depth"]
+    assert dep["camera_file"] == str(side) and dep["intrinsics_from"] == str(side)
+    assert dep["pose"] and dep["depth_scale"] == 0.001
+    assert dep["intrinsics"] == {k: DEMO_DOC[k] for k in ("fx", "fy", "cx", "cy")}
+    # the pixels back-projected by hand with the sidecar's numbers and pose (the reference)
+    import imageio.v3 as iio
+
+    img = iio.imread(DEMO)
+    rows, cols = np.nonzero(img)
+    z = img[rows, cols] / 1000.0
+    cam = np.stack([(cols - DEMO_DOC["cx"]) * z / DEMO_DOC["fx"],
+                    (rows - DEMO_DOC["cy"]) * z / DEMO_DOC["fy"], z], axis=1)  # fmt: skip
+    T = np.asarray(DEMO_DOC["T_world_camera"])
+    np.testing.assert_allclose(cloud.points, cam @ T[:3, :3].T + T[:3, 3], atol=1e-12)
+    np.testing.assert_allclose(cloud.viewpoint, T[:3, 3])
+
+
+def test_intrinsics_numbers_override_the_sidecar_and_keep_its_pose(tmp_path: Path) -> None:
+    png, _ = _demo_copy(tmp_path, "frame")
+    base = _raw(png)
+    same = (DEMO_DOC["fx"], DEMO_DOC["fy"], DEMO_DOC["cx"], DEMO_DOC["cy"])
+    np.testing.assert_array_equal(_raw(png, intrinsics=same), base)
+    # twice the focal lengths: in the camera frame x and y halve, z stays (the pose kept)
+    double = (2 * same[0], 2 * same[1], same[2], same[3])
+    cloud = load_point_cloud(
+        png, n_points=None, sensor=SensorOptions(scene=False, intrinsics=double)
+    )
+    assert cloud.info["depth"]["intrinsics_from"] == "--intrinsics (with the rest of frame.json)"
+    T = np.asarray(DEMO_DOC["T_world_camera"])
+    to_cam = lambda p: (p - T[:3, 3]) @ T[:3, :3]  # noqa: E731
+    np.testing.assert_allclose(
+        to_cam(np.asarray(cloud.points)), to_cam(base) * [0.5, 0.5, 1], atol=1e-12
+    )
+    # a JSON file given replaces the sidecar: here one without a pose (camera frame)
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({k: DEMO_DOC[k] for k in ("fx", "fy", "cx", "cy")}))
+    np.testing.assert_allclose(_raw(png, intrinsics=other), to_cam(base), atol=1e-12)
+
+
+def test_depth_scale_of_the_sidecar(tmp_path: Path) -> None:
+    """A PNG in 0.1 mm units with ``depth_scale`` 0.0001 gives the demo's cloud."""
+    import imageio.v3 as iio
+
+    img = iio.imread(DEMO)
+    assert img.max() < 6553  # fits in 16 bits at 0.1 mm
+    png = tmp_path / "fine.png"
+    iio.imwrite(png, (img * 10).astype(np.uint16))
+    png.with_suffix(".json").write_text(json.dumps({**DEMO_DOC, "depth_scale": 0.0001}))
+    np.testing.assert_allclose(_raw(png), _raw(DEMO), atol=1e-12)
+    cloud = load_point_cloud(png, n_points=None, sensor=SensorOptions(scene=False))
+    assert cloud.info["depth"]["depth_scale"] == 0.0001
+
+
+def test_an_uploaded_camera_file_gives_the_cloud_of_the_file_on_disk() -> None:
+    from pregrasp_core.io import load_point_cloud_bytes
+    from pregrasp_core.sensor import CameraFile
+
+    side = DEMO.with_suffix(".json")
+    cam = CameraFile.parse(side.read_bytes(), "mug_depth.json")
+    up = load_point_cloud_bytes(DEMO.read_bytes(), "mug_depth.png", n_points=4000,
+                                sensor=SensorOptions(intrinsics=cam))  # fmt: skip
+    disk = load_point_cloud(DEMO, n_points=4000)
+    np.testing.assert_array_equal(up.points, disk.points)
+    np.testing.assert_array_equal(up.assumed, disk.assumed)
+    assert up.info["scene"] == disk.info["scene"]
+    with pytest.raises(InputError, match=r"mug_depth\.png: a depth image needs .*intrinsics"):
+        load_point_cloud_bytes(DEMO.read_bytes(), "mug_depth.png")  # nothing beside an upload
+
+
+K_KEYS = ("fx", "fy", "cx", "cy")
+GOOD = {k: DEMO_DOC[k] for k in (*K_KEYS, "width", "height")}
+
+
+@pytest.mark.parametrize(
+    ("doc", "text", "match"),
+    [
+        ({**GOOD, "fx": "420"}, None, "fx must be a number, got '420'"),
+        ({**GOOD, "fy": 0}, None, "fx and fy must be positive focal lengths in pixels, got fy=0"),
+        (None, '{"fx": 420, "fy": 420, "cx": 239.5, "cy": NaN}', "cy must be finite"),
+        ({k: GOOD[k] for k in K_KEYS[:3]}, None, "the intrinsics lack cy"),
+        ({**GOOD, "fz": 1}, None, r"unknown intrinsics keys \['fz'\]"),
+        ({**GOOD, "viewpoint": [0, 0, 1]}, None, "viewpoint: .*pose as T_world_camera"),
+        ({**GOOD, "width": 480.5}, None, "width and height must be positive integers"),
+        ({**{k: GOOD[k] for k in K_KEYS}, "width": 480}, None, "give both width and height"),
+        ({**GOOD, "width": 640, "height": 480}, None, "frame.json says 640 x 480"),
+        ({**GOOD, "T_world_camera": np.eye(3).tolist()}, None, "T_world_camera must be a finite 4"),
+        ({**GOOD, "T_world_camera": (2 * np.eye(4)).tolist()}, None, "not a proper rotation"),
+        ({**GOOD, "T_world_camera": "up"}, None, "T_world_camera must be a 4 x 4 array of numbers"),
+        ({**GOOD, "depth_scale": 1000}, None, "depth_scale is metres per .*write 0.001"),
+        ({**GOOD, "depth_scale": -0.001}, None, "depth_scale must be positive"),
+        ({**GOOD, "depth_scale": True}, None, "depth_scale must be a number"),
+        (None, '{"fx": 420, "fx": 421, "fy": 1, "cx": 2, "cy": 3}', "key 'fx' given twice"),
+        (None, "[" * 100_000, "not a JSON file"),
+        (None, '{"fx": 420,', "not a JSON file"),
+        ([420, 420, 239.5, 179.5], None, "must be a JSON object with keys fx, fy, cx, cy"),
+    ],
+)  # fmt: skip
+def test_a_bad_sidecar_is_one_error_naming_the_file_and_the_field(
+    tmp_path: Path, doc: object, text: str | None, match: str
+) -> None:
+    png, side = _demo_copy(tmp_path, "frame", doc, text)
+    with pytest.raises(InputError) as err:
+        load_point_cloud(png)
+    msg = str(err.value)
+    assert "\n" not in msg and re.search(match, msg), msg
+    assert str(side) in msg  # the sidecar named (the size mismatch names the image too)
+
+
+def test_a_sidecar_that_is_not_utf8_or_too_large(tmp_path: Path) -> None:
+    png, side = _demo_copy(tmp_path, "frame")
+    side.write_bytes(b'{"fx": 420\xff}')
+    with pytest.raises(InputError, match=r"frame\.json: not a JSON file"):
+        load_point_cloud(png)
+    side.write_bytes(b" " * (2 << 20))
+    with pytest.raises(InputError, match=r"frame\.json: .* bytes, more than"):
+        load_point_cloud(png)
