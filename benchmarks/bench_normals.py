@@ -1,15 +1,19 @@
 """Normals with orientation of a cloud without normals: this code against the code before
-issue 15 (commit fe74cdf, loaded from git into the same process), side by side.
+issue 15 (commit fe74cdf) and before its threaded kernels (commit 55c2563), loaded from git into
+the same process, side by side.
 
     .venv/bin/python benchmarks/bench_normals.py [--repeats 7]
 
 The default object (the mug with a handle) sampled to 5,000 / 10,000 / 20,000 points and its
-normals dropped (what a PLY with xyz only gives). Rows: the old default (visibility with 64
-views), the old Hoppe propagation (issue 15's "about 1 s"), and the new default; each timed
-interleaved (old, propagation, new, old, ...), median of ``--repeats`` calls, CPU time of this
-process (``time.process_time``, not inflated by other jobs) and wall time. Then the new code's
-stages at 20,000 points, the share of normals that agree with the mesh's, and the kernels' first
-call (compilation, in a fresh process with an empty numba cache, and loading from the cache).
+normals dropped (what a PLY with xyz only gives). Columns: the default before issue 15
+(visibility with 64 views), the Hoppe propagation of then (issue 15's "about 1 s"), the default
+of 55c2563 (compiled kernels, one thread), and this code on 1 thread and on the usable CPUs;
+each timed interleaved (one call of each in turn), median of ``--repeats`` calls, CPU time of
+this process (``time.process_time``: all its threads, not inflated by waiting for other jobs)
+and wall time. Then this code's stages at 20,000 points (1 thread and the usable CPUs), the
+share of normals that agree with the mesh's, whether this code's normals equal 55c2563's to the
+bit, and the kernels' first call (compilation, in a fresh process with an empty numba cache,
+and loading from the cache). The load average is printed before and after.
 """
 
 from __future__ import annotations
@@ -32,26 +36,49 @@ import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # this checkout's pregrasp_core, not an installed one
-OLD_COMMIT = "fe74cdf"
+OLD_COMMIT = "fe74cdf"  # before issue 15
+PREV_COMMIT = "55c2563"  # before the threaded kernels (issue 15, session 6)
 
 
-def old_normals_module() -> types.ModuleType:
-    """pregrasp_core/normals.py as of ``OLD_COMMIT``, as a module of the current package (its
-    relative imports of errors, geometry and tolerances resolve to today's, unchanged since)."""
-    src = subprocess.run(
-        ["git", "-C", str(ROOT), "show", f"{OLD_COMMIT}:pregrasp_core/normals.py"],
+def _git_show(commit: str, path: str) -> str:
+    return subprocess.run(
+        ["git", "-C", str(ROOT), "show", f"{commit}:{path}"],
         check=True,
         capture_output=True,
         text=True,
     ).stdout
-    name = "pregrasp_core.normals_" + OLD_COMMIT
-    spec = importlib.util.spec_from_loader(name, loader=None)
-    assert spec is not None
+
+
+def _module_from_source(name: str, src: str) -> types.ModuleType:
+    """``src`` as the module ``pregrasp_core.<name>`` (its relative imports of errors, geometry
+    and tolerances resolve to today's, unchanged since), from a file in a folder of this
+    benchmark's (numba caches compiled kernels beside their file)."""
+    folder = Path(tempfile.gettempdir()) / "pregrasp_bench_normals"
+    folder.mkdir(exist_ok=True)
+    path = folder / f"{name}.py"
+    if not path.exists() or path.read_text() != src:
+        path.write_text(src)
+    full = "pregrasp_core." + name
+    spec = importlib.util.spec_from_file_location(full, path)
+    assert spec is not None and spec.loader is not None
     mod = importlib.util.module_from_spec(spec)
     mod.__package__ = "pregrasp_core"
-    sys.modules[name] = mod
-    exec(compile(src, f"{OLD_COMMIT}:pregrasp_core/normals.py", "exec"), mod.__dict__)
+    sys.modules[full] = mod
+    spec.loader.exec_module(mod)
     return mod
+
+
+def old_normals_module(commit: str = OLD_COMMIT) -> types.ModuleType:
+    """pregrasp_core/normals.py as of ``commit``, with its compiled kernels of then if it had
+    any (pregrasp_core/normal_kernels.py of that commit)."""
+    src = _git_show(commit, "pregrasp_core/normals.py")
+    if "from . import normal_kernels" in src:
+        kernels = f"normal_kernels_{commit}"
+        _module_from_source(kernels, _git_show(commit, "pregrasp_core/normal_kernels.py"))
+        src = src.replace(
+            "from . import normal_kernels", f"from . import {kernels} as normal_kernels"
+        )
+    return _module_from_source(f"normals_{commit}", src)
 
 
 def timed(fn, repeats: int) -> tuple[float, float]:
@@ -94,11 +121,19 @@ def main() -> None:
     from pregrasp_core.io import load_point_cloud
     from pregrasp_core.paths import DEFAULT_OBJECT
 
-    old = old_normals_module()
+    cpus = new.usable_cpus()
+    print(f"# load average before: {os.getloadavg()}, usable CPUs: {cpus}")
+    old = old_normals_module(OLD_COMMIT)
+    prev = old_normals_module(PREV_COMMIT)
+    prev.normal_kernels.warm_up()
     normal_kernels.warm_up()
     print(f"# {DEFAULT_OBJECT.name}, medians of {args.repeats}, CPU ms / wall ms")
-    print("| points | before: visibility (fe74cdf) | before: propagation | now | speed-up (CPU) |")
-    print("|---:|---:|---:|---:|---:|")
+    print(
+        f"| points | before issue 15 ({OLD_COMMIT}) | propagation ({OLD_COMMIT}) "
+        f"| before threads ({PREV_COMMIT}) | now, 1 thread | now, {cpus} threads "
+        f"| CPU {PREV_COMMIT} / now | wall {PREV_COMMIT} / now ({cpus} threads) |"
+    )
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
     clouds = {}
     for n in (5000, 10000, 20000):
         cloud = load_point_cloud(DEFAULT_OBJECT, n_points=n, seed=0)
@@ -107,6 +142,8 @@ def main() -> None:
         runs = {
             "old": lambda pts=pts: old.estimate_normals(pts, old.NormalParams()),
             "prop": lambda pts=pts: old.estimate_normals(pts, old.NormalParams(orient="propagate")),
+            "prev": lambda pts=pts: prev.estimate_normals(pts, prev.NormalParams()),
+            "new1": lambda pts=pts: new.estimate_normals(pts, new.NormalParams(), threads=1),
             "new": lambda pts=pts: new.estimate_normals(pts, new.NormalParams()),
         }
         res: dict[str, list[tuple[float, float]]] = {k: [] for k in runs}
@@ -114,8 +151,11 @@ def main() -> None:
             for k, fn in runs.items():
                 res[k].append(timed(fn, 1))
         med = {k: np.median(np.array(v), axis=0) * 1e3 for k, v in res.items()}
-        cells = [f"{med[k][0]:.0f} / {med[k][1]:.0f}" for k in ("old", "prop", "new")]
-        print(f"| {n:,} | " + " | ".join(cells) + f" | {med['old'][0] / med['new'][0]:.1f}x |")
+        cells = [f"{med[k][0]:.0f} / {med[k][1]:.0f}" for k in runs]
+        print(
+            f"| {n:,} | " + " | ".join(cells) + f" | {med['prev'][0] / med['new'][0]:.2f}x "
+            f"| {med['prev'][1] / med['new'][1]:.2f}x |"
+        )
 
     cloud = clouds[20000]
     pts = np.asarray(cloud.points)
@@ -124,30 +164,44 @@ def main() -> None:
     rough = var >= new.SCALE_FLAT
     spacing = float(np.median(d16[:, 4]))
     stages = {
-        "neighbours (grid, k = 16)": lambda: new.nearest_neighbours(pts, prm.k),
-        "neighbours and scale-selected PCA": lambda: new.scale_selected_normals(pts, prm.k),
-        "visibility votes (64 views)": lambda: new._visibility_votes(pts, nrm, spacing, 64),
-        "orientation (votes, crests, fill, propagation)": lambda: new._orient_visibility(
-            pts, nrm, n16, d16, 64, rough
+        "neighbours (grid, k = 16)": lambda t: new.nearest_neighbours(pts, prm.k, threads=t),
+        "neighbours and scale-selected PCA": lambda t: new.scale_selected_normals(pts, prm.k, t),
+        "visibility votes (64 views)": lambda t: new._visibility_votes(
+            pts, nrm, spacing, 64, threads=t
+        ),
+        "orientation (votes, crests, fill, propagation)": lambda t: new._orient_visibility(
+            pts, nrm, n16, d16, 64, rough, t
         ),
     }
-    print("\n| stage at 20,000 points | CPU ms | wall ms |\n|---|---:|---:|")
+    print(
+        f"\n| stage at 20,000 points | 1 thread: CPU / wall ms | {cpus} threads: CPU / wall ms |"
+        "\n|---|---:|---:|"
+    )
     for name, fn in stages.items():
-        c, w = timed(fn, args.repeats)
-        print(f"| {name} | {c * 1e3:.1f} | {w * 1e3:.1f} |")
+        one = timed(lambda fn=fn: fn(1), args.repeats)
+        many = timed(lambda fn=fn: fn(cpus), args.repeats)
+        print(
+            f"| {name} | {one[0] * 1e3:.1f} / {one[1] * 1e3:.1f} "
+            f"| {many[0] * 1e3:.1f} / {many[1] * 1e3:.1f} |"
+        )
 
     ref = np.asarray(cloud.normals)
-    for label, cn in (
-        ("before", old.estimate_normals(pts, old.NormalParams())),
-        ("now", new.estimate_normals(pts, new.NormalParams())),
-    ):
+    got = {
+        "before issue 15": old.estimate_normals(pts, old.NormalParams()),
+        f"before threads ({PREV_COMMIT})": prev.estimate_normals(pts, prev.NormalParams()),
+        "now": new.estimate_normals(pts, new.NormalParams()),
+    }
+    for label, cn in got.items():
         agree = float(np.mean(np.einsum("ij,ij->i", cn.normals, ref) > 0))
         print(f"agreement with the mesh normals, {label}: {100 * agree:.2f} %")
+    same = np.array_equal(got["now"].normals, got[f"before threads ({PREV_COMMIT})"].normals)
+    print(f"normals now equal to {PREV_COMMIT}'s to the bit: {same}")
     compile_s, load_s = first_call_seconds()
     print(
         f"first call of the kernels: {compile_s:.1f} s compiling (empty cache), "
         f"{load_s:.2f} s loading the cache (fresh process, numba import included)"
     )
+    print(f"# load average after: {os.getloadavg()}")
 
 
 if __name__ == "__main__":

@@ -12,7 +12,11 @@ point's nearest neighbours (the point itself included); ``curvature`` = l3 / (l1
   looks curved at k neighbours, its normal then lies across the truth, while a sheet thinner
   than the point spacing (both faces sampled) only looks flat at the largest scale. The
   neighbours come from an exact grid search and the 3x3 eigenproblems from a closed form,
-  compiled (:mod:`pregrasp_core.normal_kernels`, numba; the rows equal the k-d tree's).
+  compiled (:mod:`pregrasp_core.normal_kernels`, numba; the rows equal the k-d tree's), run on
+  the usable CPUs (``threads``; a thread pool over chunks of rows, numba's own threading is not
+  used): every row, and every fixed group of views of the visibility below, is computed on its
+  own and summed in a fixed order, so the normals are the same, to the bit, on any number of
+  threads.
 
 Orientation (PCA gives a line, not a direction), ``NormalParams.orient``:
 
@@ -59,7 +63,12 @@ Orientation (PCA gives a line, not a direction), ``NormalParams.orient``:
 from __future__ import annotations
 
 import logging
+import os
+import threading
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -111,6 +120,13 @@ GRID_MAX_RING: int = 4
 
 FILL_ROUNDS: int = 30
 """Filling undecided points: at most this many rounds of growth over the k-NN graph."""
+
+VISIBILITY_GROUPS: int = 4
+"""Visibility orientation: the views are summed in this many groups of consecutive views (one
+thread each; a fixed number, so that the sums do not depend on the threads)."""
+
+CHUNK_MIN_ROWS: int = 512
+"""Threads: work of fewer rows than this per thread runs on the calling thread."""
 
 SCALE_FLAT: float = 0.02
 """Scale selection of the PCA (clouds without normals): the smallest neighbourhood whose surface
@@ -165,6 +181,46 @@ class CloudNormals:
     """(N,) float64 surface variation l3 / (l1 + l2 + l3) of each neighbourhood, in [0, 1/3]."""
     orient: str
     """The orientation rule that was applied (one of ``ORIENT_MODES`` but ``'auto'``)."""
+
+
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+_POOLS_LOCK = threading.Lock()
+
+
+def usable_cpus() -> int:
+    """The CPUs this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not on Linux
+        return os.cpu_count() or 1
+
+
+def _pool(threads: int) -> ThreadPoolExecutor:
+    with _POOLS_LOCK:
+        if threads not in _POOLS:
+            _POOLS[threads] = ThreadPoolExecutor(threads, thread_name_prefix="normals")
+        return _POOLS[threads]
+
+
+def _run_rows(
+    fn: Callable[..., Any], n: int, threads: int, *args: Any, min_rows: int = CHUNK_MIN_ROWS
+) -> None:
+    """``fn(a0, a1, *args)`` over the rows [0, n) in contiguous chunks, on ``threads`` threads
+    (0: the usable CPUs; at least ``min_rows`` rows per thread). The kernels write each row on
+    its own, from the same inputs whatever the chunk: the result does not depend on the
+    threads."""
+    t = min(threads or usable_cpus(), max(1, n // min_rows))
+    if t <= 1:
+        fn(0, n, *args)
+        return
+    bounds = np.linspace(0, n, 2 * t + 1).astype(np.int64)  # 2 per thread: a slow thread lags less
+    futures = [
+        _pool(t).submit(fn, int(a), int(b), *args)
+        for a, b in zip(bounds[:-1], bounds[1:], strict=True)
+        if b > a
+    ]
+    for f in futures:
+        f.result()
 
 
 def _pca_normals(points: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -263,30 +319,44 @@ def _visibility_votes(
     spacing: float,
     n_views: int,
     second: np.ndarray | None = None,
+    threads: int = 0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Net (N,) and total (N,) votes of the sightings (see the module docstring), and the net
-    votes (N,) the same sightings give the directions ``second`` (N, 3) (default: normals)."""
-    from . import normal_kernels
+    votes (N,) the same sightings give the directions ``second`` (N, 3) (default: normals).
+    The views in ``VISIBILITY_GROUPS`` fixed groups of consecutive views, a thread per group,
+    each summing its own votes; the groups' sums are added in their order: the same sums for
+    any number of threads."""
+    from . import normal_kernels as nk
 
-    p = points - 0.5 * (points.min(axis=0) + points.max(axis=0))
+    p = np.ascontiguousarray(points - 0.5 * (points.min(axis=0) + points.max(axis=0)))
     radius = max(float(np.linalg.norm(p, axis=1).max()), GEOM_EPS)
     pix = max(VISIBILITY_PIXEL * spacing, radius * 1e-3)
     g = int(np.ceil(2.0 * radius / pix)) + 2  # pixels per side of every view's buffer
     d, u, w = _view_frames(n_views)
     nrm = np.ascontiguousarray(normals)
-    return normal_kernels.visibility_votes(
-        np.ascontiguousarray(p),
-        nrm,
-        nrm if second is None else np.ascontiguousarray(second),
-        d,
-        u,
-        w,
-        radius,
-        pix,
-        g,
-        VISIBILITY_DEPTH_TOL * spacing,
-        VISIBILITY_CURVATURE * spacing,
-    )
+    sec = nrm if second is None else np.ascontiguousarray(second)
+    tol, curv = VISIBILITY_DEPTH_TOL * spacing, VISIBILITY_CURVATURE * spacing
+    n_groups = min(VISIBILITY_GROUPS, n_views)
+    acc = np.zeros((n_groups, 3, len(p)))  # per group of views: net, total, net of `second`
+    bounds = np.linspace(0, n_views, n_groups + 1).astype(np.int64)
+    _run_rows(
+        lambda a0, a1: [
+            nk.visibility_votes(
+                p, nrm, sec, d, u, w, radius, pix, g, tol, curv,
+                int(bounds[s]), int(bounds[s + 1]), acc[s, 0], acc[s, 1], acc[s, 2],
+            )
+            for s in range(a0, a1)
+        ],
+        n_groups,
+        threads,
+        min_rows=1,
+    )  # fmt: skip
+    net, tot, net_m = acc[0, 0].copy(), acc[0, 1].copy(), acc[0, 2].copy()
+    for s in range(1, n_groups):  # the groups' sums in their order, whatever the threads
+        net += acc[s, 0]
+        tot += acc[s, 1]
+        net_m += acc[s, 2]
+    return net, tot, net_m
 
 
 def _orient_visibility(
@@ -296,10 +366,12 @@ def _orient_visibility(
     dist: np.ndarray,
     n_views: int,
     rough: np.ndarray | None = None,
+    threads: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Normals (N, 3) and their signs (N,) by visibility, filling and seeded propagation (see
     the module docstring); ``rough`` (N,) bool: the points flat at no scale, whose normal becomes
-    the direction from their neighbours' centroid when the viewers see them from that side."""
+    the direction from their neighbours' centroid when the viewers see them from that side;
+    ``threads`` those of the votes (0: the usable CPUs; the result does not depend on it)."""
     from . import normal_kernels
 
     spacing = max(float(np.median(dist[:, min(4, dist.shape[1] - 1)])), GEOM_EPS)
@@ -310,7 +382,7 @@ def _orient_visibility(
         away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), GEOM_EPS)
         crest = normals.copy()
         crest[rows] = away
-    net, total, net_crest = _visibility_votes(points, normals, spacing, n_views, crest)
+    net, total, net_crest = _visibility_votes(points, normals, spacing, n_views, crest, threads)
     decided = (np.abs(net) > VISIBILITY_AGREEMENT * total) & (total > VISIBILITY_MIN_VOTE)
     sign = np.where(decided, np.sign(net), 0.0)
     if crest is not None:
@@ -325,7 +397,7 @@ def _orient_visibility(
         sign[ridge] = 1.0
     if decided.all():
         return normals, sign
-    wts = normal_kernels.same_side_weights(points, normals, nbr, SAME_SIDE_SIGMA * spacing)
+    wts = normal_kernels.same_side_weights(points, normals, nbr, SAME_SIDE_SIGMA * spacing, decided)
     sign = normal_kernels.fill_signs(sign, decided, nbr, wts, FILL_ROUNDS)
     left = sign == 0.0
     if left.any():
@@ -343,77 +415,119 @@ def _orient_visibility(
     return normals, sign
 
 
+class _Grid:
+    """A uniform grid of cells over a cloud for exact k-nearest-neighbour queries: cubes about
+    the k-th neighbour's expected distance for the ``k`` it is built for (any k may be asked)."""
+
+    def __init__(self, points: np.ndarray, k: int) -> None:
+        from . import normal_kernels as nk
+
+        self.points = pts = np.ascontiguousarray(points, dtype=np.float64)
+        self.lo = lo = pts.min(axis=0)
+        extent = np.maximum(pts.max(axis=0) - lo, GEOM_EPS)
+        # surface area from the cells a coarse grid occupies -> spacing -> the k-th distance
+        h0 = float(np.linalg.norm(extent)) / 100.0
+        area = nk.occupied_cells(pts, lo, h0) * h0 * h0
+        h = max(float(np.sqrt(k * area / (np.pi * len(pts)))), GEOM_EPS)
+        h_min = float(np.cbrt(np.prod(extent) / GRID_MAX_CELLS))  # bounded memory
+        # far outliers inflate the estimate: halve the cells while one is crowded
+        for _ in range(4):
+            h = max(h, h_min)
+            dims, most = nk.grid_dims(pts, lo, h)
+            if most <= GRID_CROWDED * k or h <= h_min:
+                break
+            h *= 0.5
+        self.h, self.dims = h, dims
+        self.crowded = most > GRID_CROWDED * k  # a clump the grid cannot split: the k-d tree
+        if not self.crowded:
+            self.cell, self.order, self.start, self.ps = nk.grid_build(pts, h, lo, dims)
+
+    def query(
+        self, k: int, queries: np.ndarray | None = None, threads: int = 0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Exact (Q, k) distances and indices, as :func:`nearest_neighbours`."""
+        from . import normal_kernels as nk
+
+        pts = self.points
+        q = np.arange(len(pts)) if queries is None else np.asarray(queries, dtype=np.int64)
+        if self.crowded:
+            return _tree_rows(pts, q, k)
+        qorder = nk.query_order(self.cell, self.dims, q)
+        dist = np.empty((len(q), k))
+        idx = np.empty((len(q), k), dtype=np.int64)
+        unresolved = np.zeros(len(q), dtype=np.bool_)
+        _run_rows(
+            lambda a0, a1: nk.knn_rows(
+                pts, self.cell, self.order, self.start, self.ps, q, qorder, a0, a1, k,
+                self.h, self.lo, self.dims, GRID_MAX_RING, dist, idx, unresolved,
+            ),
+            len(q),
+            threads,
+        )  # fmt: skip
+        if unresolved.any():  # outliers: a few rows
+            rows = np.flatnonzero(unresolved)
+            dist[rows], idx[rows] = _tree_rows(pts, q[rows], k)
+        return dist, idx
+
+
 def nearest_neighbours(
-    points: np.ndarray, k: int, queries: np.ndarray | None = None
+    points: np.ndarray, k: int, queries: np.ndarray | None = None, threads: int = 0
 ) -> tuple[np.ndarray, np.ndarray]:
     """Exact (Q, k) distances and indices of the k nearest neighbours of the points ``queries``
-    (default: all; each row starts with the point itself, then by distance) on a grid of cells
-    about the k-th neighbour's expected distance; the rare rows the grid does not settle within
-    a few rings (outliers) are asked of a k-d tree."""
-    from . import normal_kernels
-
-    q = np.arange(len(points)) if queries is None else np.asarray(queries, dtype=np.int64)
-    lo = points.min(axis=0)
-    extent = np.maximum(points.max(axis=0) - lo, GEOM_EPS)
-    # surface area from the cells a coarse grid occupies -> spacing -> the k-th distance
-    h0 = float(np.linalg.norm(extent)) / 100.0
-    coarse = np.floor((points - lo) / h0).astype(np.int64)
-    n_occ = len(np.unique((coarse[:, 0] * 1_000_003 + coarse[:, 1]) * 1_000_003 + coarse[:, 2]))
-    area = n_occ * h0 * h0
-    h = max(float(np.sqrt(k * area / (np.pi * len(points)))), GEOM_EPS)
-    h_min = float(np.cbrt(np.prod(extent) / GRID_MAX_CELLS))  # bounded memory
-    for _ in range(4):  # far outliers inflate the estimate: halve the cells while one is crowded
-        h = max(h, h_min)
-        cell = np.floor((points - lo) / h).astype(np.int64)
-        dims = cell.max(axis=0) + 1
-        _, counts = np.unique((cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2],
-                              return_counts=True)  # fmt: skip
-        if counts.max() <= GRID_CROWDED * k or h <= h_min:
-            break
-        h *= 0.5
-    if counts.max() > GRID_CROWDED * k:  # a clump the grid cannot split: the k-d tree
-        return _tree_rows(points, q, k)
-    dist, idx, unresolved = normal_kernels.knn_grid(
-        np.ascontiguousarray(points), q, k, h, lo, dims, GRID_MAX_RING
-    )
-    if unresolved.any():  # outliers: a few rows
-        rows = np.flatnonzero(unresolved)
-        dist[rows], idx[rows] = _tree_rows(points, q[rows], k)
-    return dist, idx
+    (default: all; each row starts with the point itself, then by distance, equal distances by
+    index) on a grid of cells about the k-th neighbour's expected distance; the rare rows the
+    grid does not settle within a few rings (outliers) are asked of a k-d tree. ``threads``:
+    0 for the usable CPUs; the rows do not depend on it."""
+    return _Grid(points, k).query(k, queries, threads)
 
 
 def _tree_rows(points: np.ndarray, q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """(Q, k) distances and indices of the k nearest of ``points[q]`` by a k-d tree, each row
-    starting with the point itself (a duplicate of it could come first)."""
-    dist, idx = cKDTree(points).query(points[q], k=k)
-    for r in np.flatnonzero(idx[:, 0] != q):  # duplicates only
-        own = q[r]
-        other = idx[r] != own
-        dist[r] = np.r_[0.0, dist[r][other]][:k]
-        idx[r] = np.r_[own, idx[r][other]][:k]
+    """(Q, k) distances and indices of the k nearest of ``points[q]`` by a k-d tree, as the grid
+    gives them: the point itself first, then by distance computed as the grid computes it, equal
+    distances by index (all the points within the tree's k-th distance are sorted so)."""
+    tree = cKDTree(points)
+    kth, _ = tree.query(points[q], k=[k])
+    dist = np.empty((len(q), k))
+    idx = np.empty((len(q), k), dtype=np.int64)
+    for r, own in enumerate(q):
+        near = np.asarray(tree.query_ball_point(points[own], kth[r, 0] * (1.0 + 1e-9)), np.int64)
+        near = near[near != own]
+        dx, dy, dz = (points[near] - points[own]).T
+        d2 = dx * dx + dy * dy + dz * dz
+        best = np.lexsort((near, d2))[: k - 1]
+        idx[r] = np.r_[own, near[best]]
+        dist[r] = np.sqrt(np.r_[0.0, d2[best]])
     return dist, idx
 
 
 def scale_selected_normals(
-    points: np.ndarray, k: int
+    points: np.ndarray, k: int, threads: int = 0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Normals (N, 3), surface variation (N,) by scale selection (:func:`pca_scales_of`), and the
     (N, k) distances and indices of the k nearest neighbours. The largest scale's neighbours
-    are searched only for the points that are flat at none of the smaller ones."""
-    from . import normal_kernels
+    are searched (on the same grid) only for the points that are flat at none of the smaller
+    ones. ``threads``: 0 for the usable CPUs; the result does not depend on it."""
+    from . import normal_kernels as nk
 
-    scales = pca_scales_of(k, len(points))
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    scales = pca_scales_of(k, len(pts))
     small = tuple(s for s in scales if s <= k)
-    dist, nbr = nearest_neighbours(points, small[-1])
-    normals, variation = normal_kernels.pca_scales(
-        points, nbr, np.asarray(small, dtype=np.int64), SCALE_FLAT
+    grid = _Grid(pts, small[-1])
+    dist, nbr = grid.query(small[-1], threads=threads)
+    normals = np.empty((len(pts), 3))
+    variation = np.empty(len(pts))
+    sc = np.asarray(small, dtype=np.int64)
+    _run_rows(
+        lambda a0, a1: nk.pca_rows(pts, nbr, sc, SCALE_FLAT, a0, a1, normals, variation),
+        len(pts),
+        threads,
     )
     if scales[-1] > small[-1]:
         rough = np.flatnonzero(variation >= SCALE_FLAT)
         if len(rough):
-            _, nbr_big = nearest_neighbours(points, scales[-1], rough)
-            n_big, v_big = normal_kernels.pca_scales(
-                points, nbr_big, np.asarray(scales[-1:], dtype=np.int64), SCALE_FLAT
+            _, nbr_big = grid.query(scales[-1], rough, threads)
+            n_big, v_big = nk.pca_scales(
+                pts, nbr_big, np.asarray(scales[-1:], dtype=np.int64), SCALE_FLAT
             )
             normals[rough] = n_big
             variation[rough] = v_big
@@ -424,11 +538,15 @@ def estimate_normals(
     points: np.ndarray,
     params: NormalParams = NormalParams(),  # noqa: B008 (frozen, immutable)
     reference: np.ndarray | None = None,
+    *,
+    threads: int = 0,
 ) -> CloudNormals:
     """Unit outward normals of a cloud by local PCA (see the module docstring).
 
     points: (N, 3) metres, N > params.k; reference: (N, 3) optional normals that fix the sign
-    (e.g. ``PointCloud.normals``); ``orient='auto'`` uses them when given.
+    (e.g. ``PointCloud.normals``); ``orient='auto'`` uses them when given. threads: those of the
+    compiled kernels of a cloud without normals (0: the usable CPUs); the normals do not depend
+    on it, to the bit.
     """
     pts = as_points(points)
     ref = None if reference is None else as_points_like(reference, pts, "reference normals")
@@ -449,7 +567,7 @@ def estimate_normals(
         dist, nbr = cKDTree(pts).query(pts, k=params.k)  # (N, k), itself first
         normals, curvature = _pca_normals(pts, nbr)
     else:  # no normals to orient by: scale-selected PCA (thin rims), compiled kernels
-        normals, curvature, dist, nbr = scale_selected_normals(pts, params.k)
+        normals, curvature, dist, nbr = scale_selected_normals(pts, params.k, threads)
     if mode == "reference":
         assert ref is not None  # checked above
         signs = np.where(np.einsum("ij,ij->i", normals, ref) < 0.0, -1.0, 1.0)
@@ -458,7 +576,7 @@ def estimate_normals(
         signs = np.where(np.einsum("ij,ij->i", normals, to_cam) < 0.0, -1.0, 1.0)
     elif mode == "visibility":
         rough = curvature >= SCALE_FLAT
-        normals, signs = _orient_visibility(pts, normals, nbr, dist, params.n_views, rough)
+        normals, signs = _orient_visibility(pts, normals, nbr, dist, params.n_views, rough, threads)
     elif mode == "centroid":
         out = pts - pts.mean(axis=0)
         signs = np.where(np.einsum("ij,ij->i", normals, out) < 0.0, -1.0, 1.0)

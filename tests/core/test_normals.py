@@ -336,3 +336,52 @@ def test_compiled_pca_equals_numpy_eigh():
     normals, variation = normal_kernels.pca_scales(pts, nbr, np.array([16]), 0.0)
     assert np.allclose(np.abs(np.einsum("ij,ij->i", normals, evecs[:, :, 0])), 1.0, atol=1e-8)
     assert np.allclose(variation, evals[:, 0] / evals.sum(axis=1), atol=1e-10)
+
+
+def test_normals_do_not_depend_on_the_threads():
+    """A cloud without normals (the default object, sampled without them) gets the same normals,
+    to the bit, on 1, 2 and 3 threads (the kernels' rows and the visibility's groups of views
+    are summed in a fixed order), and the same neighbours as a k-d tree."""
+    from scipy.spatial import cKDTree
+
+    from pregrasp_core.normals import nearest_neighbours
+    from pregrasp_core.paths import DEFAULT_OBJECT
+
+    bare, true = _bare_demo_cloud(DEFAULT_OBJECT)
+    pts = np.asarray(bare.points)
+    runs = [estimate_normals(pts, NormalParams(), threads=t) for t in (1, 2, 3)]
+    for cn in runs[1:]:
+        assert np.array_equal(cn.normals, runs[0].normals)
+        assert np.array_equal(cn.curvature, runs[0].curvature)
+    assert np.mean(np.einsum("ij,ij->i", runs[0].normals, true) > 0) > 0.99
+    d1, i1 = nearest_neighbours(pts, 24, threads=1)
+    d2, i2 = nearest_neighbours(pts, 24, threads=2)
+    assert np.array_equal(d1, d2) and np.array_equal(i1, i2)
+    d_ref, i_ref = cKDTree(pts).query(pts, k=24)
+    assert np.allclose(d1, d_ref, atol=1e-15)
+    assert np.array_equal(i1[:, 0], np.arange(len(pts)))
+
+
+@pytest.mark.parametrize("shape", [(40, 40, 2), (12, 12, 4)])
+def test_grid_neighbours_break_ties_by_index(shape):
+    """Points on a lattice (many equal distances): each row is the point itself, then the
+    others by (distance, index), exactly as a sort of all distances gives it, for any number of
+    threads and rows asked in any order; on a thin sheet the grid settles every row, on the
+    block its cells (sized for a surface) are too small and the rows go to the k-d tree."""
+    from pregrasp_core.normals import nearest_neighbours
+
+    g = np.arange(max(shape), dtype=np.float64) * 2.0**-10  # exact differences: exact ties
+    axes = [g[:s] for s in shape]
+    pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    pts = np.r_[pts, pts[:5]]  # duplicates: the point itself still comes first
+    d2 = ((pts[:, None, :] - pts[None, :, :]) ** 2).sum(axis=2)
+    k = 20
+    for threads in (1, 2):
+        rows = np.random.default_rng(1).permutation(len(pts))
+        dist, idx = nearest_neighbours(pts, k, rows, threads=threads)
+        for r, i in enumerate(rows):
+            others = np.flatnonzero(np.arange(len(pts)) != i)
+            order = others[np.lexsort((others, d2[i, others]))][: k - 1]
+            assert idx[r, 0] == i
+            assert np.array_equal(idx[r, 1:], order)
+            assert np.allclose(dist[r], np.sqrt(np.r_[0.0, d2[i, order]]), atol=1e-15)
