@@ -125,7 +125,7 @@ def main() -> None:
     print(f"# load average before: {os.getloadavg()}, usable CPUs: {cpus}")
     old = old_normals_module(OLD_COMMIT)
     prev = old_normals_module(PREV_COMMIT)
-    prev.normal_kernels.warm_up()
+    sys.modules[f"pregrasp_core.normal_kernels_{PREV_COMMIT}"].warm_up()
     normal_kernels.warm_up()
     print(f"# {DEFAULT_OBJECT.name}, medians of {args.repeats}, CPU ms / wall ms")
     print(

@@ -64,7 +64,6 @@ from __future__ import annotations
 
 import logging
 import os
-import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -183,23 +182,12 @@ class CloudNormals:
     """The orientation rule that was applied (one of ``ORIENT_MODES`` but ``'auto'``)."""
 
 
-_POOLS: dict[int, ThreadPoolExecutor] = {}
-_POOLS_LOCK = threading.Lock()
-
-
 def usable_cpus() -> int:
     """The CPUs this process may run on."""
     try:
         return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):  # not on Linux
         return os.cpu_count() or 1
-
-
-def _pool(threads: int) -> ThreadPoolExecutor:
-    with _POOLS_LOCK:
-        if threads not in _POOLS:
-            _POOLS[threads] = ThreadPoolExecutor(threads, thread_name_prefix="normals")
-        return _POOLS[threads]
 
 
 def _run_rows(
@@ -214,13 +202,16 @@ def _run_rows(
         fn(0, n, *args)
         return
     bounds = np.linspace(0, n, 2 * t + 1).astype(np.int64)  # 2 per thread: a slow thread lags less
-    futures = [
-        _pool(t).submit(fn, int(a), int(b), *args)
-        for a, b in zip(bounds[:-1], bounds[1:], strict=True)
-        if b > a
-    ]
-    for f in futures:
-        f.result()
+    # a pool per call, its threads joined before returning: a process that forks (the planner's
+    # copies of itself) must run one thread only
+    with ThreadPoolExecutor(t, thread_name_prefix="normals") as ex:
+        futures = [
+            ex.submit(fn, int(a), int(b), *args)
+            for a, b in zip(bounds[:-1], bounds[1:], strict=True)
+            if b > a
+        ]
+        for f in futures:
+            f.result()
 
 
 def _pca_normals(points: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import threading
 
 import numpy as np
 import pytest
@@ -341,7 +342,8 @@ def test_compiled_pca_equals_numpy_eigh():
 def test_normals_do_not_depend_on_the_threads():
     """A cloud without normals (the default object, sampled without them) gets the same normals,
     to the bit, on 1, 2 and 3 threads (the kernels' rows and the visibility's groups of views
-    are summed in a fixed order), and the same neighbours as a k-d tree."""
+    are summed in a fixed order), and the same neighbours as a k-d tree; the threads are gone
+    when it returns."""
     from scipy.spatial import cKDTree
 
     from pregrasp_core.normals import nearest_neighbours
@@ -349,7 +351,9 @@ def test_normals_do_not_depend_on_the_threads():
 
     bare, true = _bare_demo_cloud(DEFAULT_OBJECT)
     pts = np.asarray(bare.points)
+    alive = threading.active_count()
     runs = [estimate_normals(pts, NormalParams(), threads=t) for t in (1, 2, 3)]
+    assert threading.active_count() == alive  # no thread left running (the planner forks)
     for cn in runs[1:]:
         assert np.array_equal(cn.normals, runs[0].normals)
         assert np.array_equal(cn.curvature, runs[0].curvature)
