@@ -24,7 +24,13 @@ from ..facemask import FaceMasks, SupportPlane
 from ..geometry import as_points
 from ..hand import grasp_type_name
 from ..shape import GRASP_TYPES, NodeShape, ShapeParams
-from .collision import CellCache, collision_batch_bytes, hand_hits_points, hand_min_height
+from .collision import (
+    CellCache,
+    collision_batch_bytes,
+    hand_cell_cache,
+    hand_hits_points,
+    hand_min_height,
+)
 from .params import MAX_POOL_SAMPLES, POOL_BYTES_PER_SAMPLE, SAMPLING_BOUNDS, SamplingParams
 from .pinch import PINCH_SURFACE, pinch_count_bound, pinch_samples
 from .pool import DROP_REASONS, PreGraspPool
@@ -299,7 +305,7 @@ def _clear_the_hand(
         dropped["support"] += int(np.count_nonzero(no_room))
         first = np.where(no_room, n_levels + 1, first).astype(np.int64)
     backoff = np.full(P, np.nan)
-    cells: CellCache = {}  # link cells per preshape, shared by the back-off levels
+    cells: CellCache = hand_cell_cache(hand)  # link cells per preshape, kept with the hand
     hopeless = np.zeros(P, dtype=bool)  # still colliding at the largest back-off
 
     def test(idx: np.ndarray, k: int) -> np.ndarray:

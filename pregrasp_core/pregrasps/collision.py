@@ -7,6 +7,7 @@ pool's filters; :func:`hand_corners` and :func:`link_cells` give the links' boxe
 
 from __future__ import annotations
 
+import weakref
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -48,6 +49,22 @@ def collision_batch_bytes() -> int:
 
 CellCache = dict[tuple[bytes, float], tuple[np.ndarray, np.ndarray]]
 """:func:`link_cells` per (preshape bytes, margin), shared by calls of :func:`hand_hits_points`."""
+
+_HAND_CELLS: weakref.WeakKeyDictionary[Hand, CellCache] = weakref.WeakKeyDictionary()
+
+HAND_CELLS_KEPT: int = 256
+"""Preshapes whose link cells :func:`hand_cell_cache` keeps per hand (then it starts again)."""
+
+
+def hand_cell_cache(hand: Hand) -> CellCache:
+    """The :data:`CellCache` of ``hand``, shared by every pool built for it (the cells are a
+    function of the hand, the preshape and the margin only: a new threshold or cloud in the
+    viewer reuses them)."""
+    cache = _HAND_CELLS.get(hand)
+    if cache is None or len(cache) > HAND_CELLS_KEPT:
+        cache = {}
+        _HAND_CELLS[hand] = cache
+    return cache
 
 
 def _by_preshape(q: np.ndarray) -> list[np.ndarray]:

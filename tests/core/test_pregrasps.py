@@ -280,6 +280,30 @@ def test_batched_hand_collision_matches_the_hand_model(hand):
             assert 20 < ours.sum() < G - 20
 
 
+def test_link_cells_kept_with_the_hand_equal_fresh_ones_and_serve_every_pool(hand):
+    """The pool's link cells are kept per hand (a new threshold reuses them): each entry
+    equals link_cells of its preshape and margin, and the hits found with the kept cells equal
+    those of an empty cache."""
+    rng = np.random.default_rng(2)
+    pts = rng.uniform(-0.1, 0.1, (1500, 3))
+    G = 60
+    T = np.tile(np.eye(4), (G, 1, 1))
+    T[:, :3, :3] = Rotation.random(G, random_state=3).as_matrix()
+    T[:, :3, 3] = rng.uniform(-0.25, 0.25, (G, 3))
+    kept = collision.hand_cell_cache(hand)
+    assert collision.hand_cell_cache(hand) is kept
+    for gt in TYPES:
+        q = np.tile(hand.preshape(gt), (G, 1))
+        fresh = hand_hits_points(hand, T, np.full(G, gt), q, pts, margin=0.002, cells={})
+        again = hand_hits_points(hand, T, np.full(G, gt), q, pts, margin=0.002, cells=kept)
+        assert np.array_equal(fresh, again)
+        Tc, half = kept[(q[0].tobytes(), 0.002)]
+        Tf, hf = collision.link_cells(hand, q[0], 0.002)
+        assert Tc.tobytes() == Tf.tobytes() and half.tobytes() == hf.tobytes()
+    box_on_table_pool(hand)  # a pool fills the hand's cache with its preshapes
+    assert len(collision.hand_cell_cache(hand)) >= 1
+
+
 def box_on_table_pool(hand, **kw):
     rng = np.random.default_rng(5)
     tree, pts = tree_from_parts([([-0.04, -0.03, 0.0], [0.04, 0.03, 0.05])], rng, 3000)
