@@ -40,7 +40,7 @@ from .scene_data import (
 )
 from .simulate_view import current_lift, lift_markdown, lift_outcomes, outcome_cell
 from .state import ALL, AppState, n_splits
-from .viser_hooks import push_value
+from .viser_hooks import add_slider_key_guard, push_value
 
 logger = logging.getLogger(__name__)
 
@@ -225,6 +225,7 @@ class Gui:
             self.export.on_click(lambda e: self._do(e, c.export_result, e.client))
             self.shot = gui.add_button("screenshot (PNG)")
             self.shot.on_click(lambda e: self._do(e, c.screenshot, e.client))
+        add_slider_key_guard(gui)  # arrow keys on the sliders do not also move the camera
 
         controller.subscribe(self.sync)
 

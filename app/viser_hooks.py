@@ -13,7 +13,9 @@ viser has no public hook for any of this, so each function below wraps one inter
 - :func:`install_update_guard` sits in front of viser's GUI update handler: a client may only
   set a control's ``value``, and a value viser cannot even cast ends in a notice to that client
   instead of a traceback in the server log;
-- :func:`push_value` sends a control's value to every browser, the sender included.
+- :func:`push_value` sends a control's value to every browser, the sender included;
+- :func:`add_slider_key_guard` adds the one piece of page script the app ships: arrow keys on a
+  focused slider step the slider and no longer also move the camera.
 
 Each function raises :class:`ViserHookError` when viser's internals are not what it expects (a
 viser upgrade), so the app refuses to start rather than run unprotected;
@@ -458,13 +460,40 @@ def push_value(handle: Any, value: Any) -> None:
     )
 
 
+SLIDER_KEY_GUARD_JS = (
+    "if(!window.__pregraspSliderKeys){window.__pregraspSliderKeys=1;"
+    "document.body.addEventListener('keydown',function(e){var t=e.target;"
+    "if(t&&t.getAttribute&&t.getAttribute('role')==='slider'&&e.code&&"
+    "e.code.indexOf('Arrow')===0){e.stopPropagation();}});}"
+)
+"""Stops arrow-key events whose target is a slider handle at ``document.body``, after the slider
+(React listens on its root element, inside the body) has stepped and before viser's camera
+controls (they listen on ``document`` and skip only ``input``, ``textarea`` and ``select``
+targets, and a Mantine slider handle is a ``div`` with ``role="slider"``). Installed once per
+page (the flag), whatever the number of times the element is drawn."""
+
+
+def add_slider_key_guard(gui: Any) -> Any:
+    """Add, as a hidden HTML element of the panel, :data:`SLIDER_KEY_GUARD_JS`: viser 1.1.1 has
+    no API for page script, and its HTML element is set as ``innerHTML``, where an ``<img>``
+    whose source fails to load runs its ``onerror`` handler. The script is a constant of this
+    module; no user text ever reaches it (``docs/security.md``)."""
+    if '"' in SLIDER_KEY_GUARD_JS:
+        raise ViserHookError("the slider key guard must not hold a double quote")
+    return gui.add_html(
+        f'<img src="data:," alt="" style="display:none" onerror="{SLIDER_KEY_GUARD_JS}">'
+    )
+
+
 __all__ = [
     "LOOPBACK_NAMES",
+    "SLIDER_KEY_GUARD_JS",
     "MAX_UPLOADS_IN_FLIGHT",
     "MAX_UPLOAD_NAME_CHARS",
     "UPLOAD_IDLE_S",
     "UploadGuard",
     "ViserHookError",
+    "add_slider_key_guard",
     "allowed_host_names",
     "host_name",
     "install_origin_check",
