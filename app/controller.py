@@ -25,7 +25,8 @@ from pregrasp_core import io as pio
 from pregrasp_core import pipeline as ppl
 from pregrasp_core.errors import InputError, PregraspError
 from pregrasp_core.limits import MAX_SCALE, MIN_SCALE, check_real
-from pregrasp_core.paths import demo_objects
+from pregrasp_core.paths import demo_depth_images, demo_objects
+from pregrasp_core.sensor import CameraFile, Intrinsics
 
 from .result_file import ResultFile, looks_like_result, read_result_file
 from .scene import SceneRenderer
@@ -238,14 +239,18 @@ class Controller:
         depth-camera options ``sensor``, a ``pregrasp_core.io.SensorOptions``) and run the
         pipeline up to the pool."""
         p = Path(path)
-        demo = p.resolve() in {d.resolve() for d in demo_objects()}
+        demos = [*demo_objects(), *demo_depth_images()]
+        demo = p.resolve() in {d.resolve() for d in demos}
         name = p.stem if demo else p.name
         return self._load(ObjectSource(name=name, path=str(p), scale=scale, sensor=sensor))
 
     def load_demo(self, name: str) -> AppState:
         """Load the demo object ``name`` (file stem or file name in ``assets/objects/``).
 
-        Choosing the object already shown (e.g. an uploaded file listed in the chooser) keeps it.
+        A demo depth image (``mug_depth``: the PNG with its camera file beside it) is read as
+        ``pregrasp view`` reads it (the table found and removed, the mug kept, its back
+        completed) and planned, as ``pregrasp view`` plans on start. Choosing the object
+        already shown (e.g. an uploaded file listed in the chooser) keeps it.
         """
         src = self._state.source
         if src is not None and name == src.name:
@@ -253,11 +258,25 @@ class Controller:
         for p in demo_objects():
             if name in (p.stem, p.name):
                 return self._load(ObjectSource(name=p.stem, path=str(p)))
-        names = ", ".join(p.stem for p in demo_objects())
+        for p in demo_depth_images():
+            if name in (p.stem, p.name):
+                source = ObjectSource(name=p.stem, path=str(p))
+                state = self._load(source)
+                if state.source is not source or state.result is None:
+                    return state  # superseded by a newer request
+                return self.plan()
+        names = ", ".join(p.stem for p in [*demo_objects(), *demo_depth_images()])
         raise InputError(f"no demo object named {name!r}; choose one of: {names}")
 
     def load_upload(self, filename: str, data: bytes) -> AppState:
-        """Load an uploaded file (size-limited; parsed by ``pregrasp_core.io`` only)."""
+        """Load an uploaded file (size-limited; parsed by ``pregrasp_core.io`` only).
+
+        A JSON file is a result file, or a depth camera's file (fx, fy, cx, cy, ...: see
+        :meth:`set_camera_file`). A depth image (a PNG; an NPY 2-D float array that is not a
+        cloud's N x 3 or N x 6 while a camera is given) is read with the camera given in the
+        panel; without one it waits for it (:meth:`set_intrinsics`, :meth:`set_camera_file`)
+        and a notice says what to enter.
+        """
         if len(data) > self.max_upload_bytes:
             raise InputError(
                 f"upload {filename!r} is {len(data) / 2**20:.1f} MiB; the limit is "
@@ -267,8 +286,85 @@ class Controller:
         if not data:
             raise InputError(f"upload {filename!r} is empty: choose a point cloud or mesh file")
         if Path(filename).suffix.lower() == ".json" or looks_like_result(bytes(data[:64])):
+            if is_camera_file(bytes(data)):
+                return self.set_camera_file(bytes(data), filename)
             return self.load_result(bytes(data), filename)
-        return self._load(ObjectSource(name=filename, data=bytes(data)))
+        source = ObjectSource(name=filename, data=bytes(data))
+        camera = self._state.camera
+        if is_depth_upload(filename, bytes(data), camera):
+            if camera is None:
+                return self._wait_for_camera(source)
+            return self._load(
+                dataclasses.replace(source, sensor=pio.SensorOptions(intrinsics=camera))
+            )
+        return self._load(source)
+
+    # ------------------------------------------------------------------ depth cameras
+    def _wait_for_camera(self, source: ObjectSource) -> AppState:
+        """Keep the uploaded depth image ``source`` until its intrinsics are given."""
+        msg = (
+            f"{source.name} is a depth image and needs its camera's intrinsics: type fx fy cx "
+            "cy (pixels) in 'intrinsics (fx fy cx cy)' and press 'use intrinsics', or upload "
+            f"its camera file ({Path(source.name).stem}.json: fx, fy, cx, cy; optionally width, "
+            "height, T_world_camera, depth_scale). The object shown stays until then"
+        )
+        with self._lock:
+            state = self._commit(
+                dataclasses.replace(self._state, waiting=source, message=msg, error=""),
+                render=False,
+            )
+        self.notify(None, "Intrinsics needed", msg, color="yellow")
+        return state
+
+    def set_intrinsics(self, value: Any) -> AppState:
+        """The intrinsics typed in the panel (``"fx fy cx cy"``, pixels; empty forgets them):
+        they read the depth image waiting for them, else the depth image shown again (as
+        ``--intrinsics FX FY CX CY``: its camera file's pose, size and depth unit kept), and
+        are kept for the next depth image uploaded."""
+        K = parse_intrinsics(value)
+        with self._lock:
+            s = self._state
+            if K is None:
+                msg = "intrinsics forgotten: a depth image uploaded next waits for its own"
+                state = dataclasses.replace(s, camera=None, message=msg, error="")
+                return self._commit(state, render=False)
+            camera = s.camera.with_intrinsics(K) if isinstance(s.camera, CameraFile) else K
+            self._commit(dataclasses.replace(s, camera=camera), render=False)
+        return self._use_camera(camera, K)
+
+    def set_camera_file(self, data: bytes, name: str) -> AppState:
+        """An uploaded camera file (the sidecar JSON of a depth image: fx, fy, cx, cy, optionally
+        width, height, T_world_camera, depth_scale; checked by ``CameraFile.parse``, an error
+        names the file and the field): it reads the depth image waiting for it, else the depth
+        image shown again (as ``--intrinsics FILE.json``), and is kept for the next upload."""
+        camera = CameraFile.parse(bytes(data), name)
+        with self._lock:
+            self._commit(dataclasses.replace(self._state, camera=camera), render=False)
+        return self._use_camera(camera, None)
+
+    def _use_camera(self, camera: Any, typed: Intrinsics | None) -> AppState:
+        s = self._state
+        if s.waiting is not None:
+            return self._load(
+                dataclasses.replace(s.waiting, sensor=pio.SensorOptions(intrinsics=camera))
+            )
+        info = getattr(s.cloud, "info", None) or {}
+        if s.source is not None and s.loaded is None and info.get("kind") == "depth":
+            base = s.source.sensor if s.source.sensor is not None else pio.SensorOptions()
+            if typed is None:
+                intr: Any = camera
+            elif isinstance(base.intrinsics, CameraFile):
+                intr = base.intrinsics.with_intrinsics(typed)
+            else:
+                intr = typed  # a file on disk: the loader keeps its sidecar's other fields
+            return self._load(
+                dataclasses.replace(s.source, sensor=dataclasses.replace(base, intrinsics=intr))
+            )
+        msg = f"intrinsics {intrinsics_text(camera)} kept: the next depth image uploaded uses them"
+        with self._lock:
+            return self._commit(
+                dataclasses.replace(self._state, message=msg, error=""), render=False
+            )
 
     # ------------------------------------------------------------------ result files
     def _read_result(self, data: bytes, name: str) -> ResultFile:
@@ -550,6 +646,10 @@ class Controller:
             f"({dt * 1000:.0f} ms)"
         )
         warn = list(getattr(cloud, "info", {}).get("warnings", []) or [])
+        depth = (getattr(cloud, "info", {}) or {}).get("depth")
+        if depth is not None:
+            where = str(depth["intrinsics_from"]).replace("--intrinsics", "the given fx fy cx cy")
+            msg += f"; depth image, intrinsics {intrinsics_text(depth['intrinsics'])} from {where}"
         with self._lock:
             s = self._state
             state = dataclasses.replace(
@@ -562,6 +662,7 @@ class Controller:
                 planned=False,
                 loaded=None,
                 compare=None,
+                waiting=None,
                 view=s.view.for_new_object(),
                 busy="",
                 progress=0.0,
@@ -903,6 +1004,83 @@ class Controller:
         return result
 
 
+CAMERA_FILE_KEYS = frozenset(
+    ("fx", "fy", "cx", "cy", "width", "height", "T_world_camera", "depth_scale")
+)
+"""Keys that make an uploaded JSON object a depth camera's file rather than a result file."""
+
+MAX_INTRINSICS_CHARS = 200
+"""Longest text accepted in the intrinsics field."""
+
+
+def is_camera_file(data: bytes) -> bool:
+    """Whether the uploaded JSON ``data`` is a depth camera's file: an object with a camera key
+    (fx, fy, cx, cy, width, height, T_world_camera, depth_scale) and no ``schema`` (a result
+    file's); its fields are checked when it is read (``CameraFile.parse``)."""
+    import json
+
+    if len(data) > 1 << 20:
+        return False
+    try:
+        doc = json.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError):
+        return False
+    return isinstance(doc, dict) and "schema" not in doc and bool(CAMERA_FILE_KEYS & set(doc))
+
+
+def is_depth_upload(filename: str, data: bytes, camera: Any) -> bool:
+    """Whether an upload is a depth image: a PNG always; an NPY when a camera is given and its
+    header declares a 2-D float array that is not a cloud's (N x 3 or N x 6 columns)."""
+    ext = Path(filename).suffix.lower()
+    if ext in pio.DEPTH_IMAGE_EXTENSIONS:
+        return True
+    if ext != ".npy" or camera is None:
+        return False
+    import io
+
+    fh = io.BytesIO(data)
+    try:
+        version = np.lib.format.read_magic(fh)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+        else:
+            shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+    except Exception:  # noqa: BLE001 - not a readable NPY: the loader says why
+        return False
+    return len(shape) == 2 and shape[1] not in (3, 6) and np.dtype(dtype).kind == "f"
+
+
+def parse_intrinsics(value: Any) -> Intrinsics | None:
+    """``"fx fy cx cy"`` (pixels; spaces or commas) as ``Intrinsics``; None for an empty text;
+    ``ValueError`` naming the value at fault otherwise."""
+    text = str(value).strip()
+    if len(text) > MAX_INTRINSICS_CHARS:
+        raise ValueError(f"intrinsics: at most {MAX_INTRINSICS_CHARS} characters")
+    if not text:
+        return None
+    parts = text.replace(",", " ").split()
+    if len(parts) != 4:
+        raise ValueError(
+            f"intrinsics: give four numbers fx fy cx cy (pixels), got {len(parts)}: {text!r}"
+        )
+    vals = []
+    for name, part in zip(("fx", "fy", "cx", "cy"), parts, strict=True):
+        try:
+            v = float(part)
+        except ValueError:
+            raise ValueError(f"intrinsics: {name} must be a number, got {part!r}") from None
+        vals.append(v)
+    return Intrinsics(*vals)  # finite, fx and fy positive (InputError naming them)
+
+
+def intrinsics_text(camera: Any) -> str:
+    """``fx 420 fy 420 cx 239.5 cy 179.5`` of an ``Intrinsics``, a ``CameraFile`` or a dict."""
+    if isinstance(camera, CameraFile):
+        camera = camera.intrinsics
+    d = camera.to_dict() if isinstance(camera, Intrinsics) else dict(camera)
+    return " ".join(f"{k} {float(d[k]):.10g}" for k in ("fx", "fy", "cx", "cy"))
+
+
 def _best_rank(loaded: ResultFile) -> int | None:
     """Rank (0 = first of the ranking) of the file's ``best`` grasp, else of its first ranked
     grasp, or ``None`` when it has none."""
@@ -924,5 +1102,9 @@ __all__ = [
     "SPEED_RANGE",
     "Superseded",
     "coerce_param",
+    "intrinsics_text",
+    "is_camera_file",
+    "is_depth_upload",
     "loaded_result_notice",
+    "parse_intrinsics",
 ]

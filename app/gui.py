@@ -15,17 +15,18 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from pregrasp_core.limits import MAX_SCALE, MIN_SCALE
-from pregrasp_core.paths import demo_objects
+from pregrasp_core.paths import demo_depth_images, demo_objects
 from pregrasp_core.planner.rank import score_text
 from pregrasp_core.shape import GRASP_TYPES
 
 from .compare_layer import compare_markdown
-from .controller import N_POINTS_RANGE, SEED_RANGE, SPEED_RANGE, Controller
+from .controller import N_POINTS_RANGE, SEED_RANGE, SPEED_RANGE, Controller, intrinsics_text
 from .safe_text import md_text
 from .scene import SceneRenderer
 from .scene_data import (
@@ -122,6 +123,30 @@ def _blocked_by(masks: Any, node: int) -> list[str]:
     return out
 
 
+def demo_choices() -> list[Any]:
+    """The demo chooser's files: the meshes, then the depth images (``mug_depth``)."""
+    return [*demo_objects(), *demo_depth_images()]
+
+
+def camera_markdown(s: AppState) -> str:
+    """The Object panel's line on depth cameras: the intrinsics of the depth image shown, the
+    image waiting for its intrinsics, or the camera kept for the next upload."""
+    if s.waiting is not None:
+        return f"**{md_text(s.waiting.name)} waits for its intrinsics** (type them above)"
+    depth = (getattr(s.cloud, "info", None) or {}).get("depth") if s.loaded is None else None
+    if depth is not None:
+        where = str(depth["intrinsics_from"]).replace("--intrinsics", "the given fx fy cx cy")
+        pose = "camera pose applied" if depth["pose"] else "camera frame"
+        unit = float(depth["depth_scale"]) * 1000.0
+        return md_text(
+            f"depth image: {intrinsics_text(depth['intrinsics'])} from {Path(where).name}; "
+            f"{pose}; depth unit {unit:g} mm"
+        )
+    if s.camera is not None:
+        return md_text(f"intrinsics for the next depth upload: {intrinsics_text(s.camera)}")
+    return ""
+
+
 class Gui:
     """Builds the panels on ``server.gui`` and keeps them in line with the controller's state."""
 
@@ -139,11 +164,27 @@ class Gui:
         gui.configure_theme(control_width="large", dark_mode=False, show_logo=False)
 
         with gui.add_folder("Object"):
-            names = [p.stem for p in demo_objects()]
+            names = [p.stem for p in demo_choices()]
             self.demo = gui.add_dropdown("demo object", names or ["(none)"])
             self.demo.on_update(lambda e: self._do(e, c.load_demo, e.target.value))
-            self.upload = gui.add_upload_button("upload cloud / mesh / result (JSON)", icon=None)
+            self.upload = gui.add_upload_button(
+                "upload cloud / mesh / depth PNG / JSON",
+                icon=None,
+                hint="a point cloud, a mesh, a depth image (16-bit PNG in millimetres), its "
+                "camera file (NAME.json: fx, fy, cx, cy, ...) or a pregrasp/1 result file",
+            )
             self.upload.on_upload(lambda e: self._do(e, self._upload, e.target))
+            self.intrinsics = gui.add_text(
+                "intrinsics (fx fy cx cy)",
+                "",
+                hint="a depth image's pinhole intrinsics in pixels, e.g. 525 525 319.5 239.5; "
+                "press 'use intrinsics' (the shown depth image is read again with them)",
+            )
+            self.use_intrinsics = gui.add_button("use intrinsics")
+            self.use_intrinsics.on_click(
+                lambda e: self._do(e, c.set_intrinsics, self.intrinsics.value)
+            )
+            self.camera_info = gui.add_markdown("")
             self.compare = gui.add_upload_button("compare with result (JSON)", icon=None)
             self.compare.on_upload(lambda e: self._do(e, self._compare, e.target))
             self.stop_compare = gui.add_button("stop comparing", visible=False)
@@ -472,8 +513,9 @@ class Gui:
         self._set("plan.label", self.plan, "label", "planning..." if busy else "plan grasps")
         text = f"**{md_text(s.error)}**" if s.error else md_text(s.message)
         self._set("status", self.status, "content", text)
+        self._set("camera_info", self.camera_info, "content", camera_markdown(s))
         if s.source is not None:
-            opts = tuple(p.stem for p in demo_objects())
+            opts = tuple(p.stem for p in demo_choices())
             if s.source.name not in opts:
                 opts = (*opts, s.source.name)
             self._set("demo.options", self.demo, "options", opts)

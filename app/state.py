@@ -110,6 +110,13 @@ class AppState:
     """Progress of ``busy`` in [0, 1]."""
     message: str = ""
     """The last status line (what was loaded or computed, and how long it took)."""
+    camera: Any = None
+    """The camera given in the Object panel for depth images (an
+    ``pregrasp_core.sensor.Intrinsics`` typed there, or the ``CameraFile`` of an uploaded JSON):
+    used by the next depth image uploaded, or ``None``."""
+    waiting: ObjectSource | None = None
+    """An uploaded depth image waiting for its intrinsics (the shown object stays meanwhile),
+    or ``None``."""
     lift: Any = None
     """``app.simulate_view.LiftView``: the lift tests run on the current grasps (outcomes and
     the last recorded lift), or ``None``; stale (ignored) once the grasps change."""

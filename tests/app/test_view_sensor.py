@@ -22,6 +22,7 @@ from viser._scene_handles import SceneClickEvent
 
 from app.cli import build_parser, main
 from app.commands import plan
+from app.controller import is_camera_file
 from app.gui import LEGEND, grasp_table
 from app.scene import ASSUMED_CONTACT_RGB, CONTACT_RGB, NAMES
 from app.scene_data import (
@@ -331,3 +332,146 @@ def load_point_cloud_array(pts: np.ndarray) -> PointCloud:
     buf = _io.BytesIO()
     np.save(buf, pts)
     return load_point_cloud_bytes(buf.getvalue(), "cloud.npy", n_points=None)
+
+
+# ---------------------------------------------------------------------- the demo chooser
+def _true_mug() -> cKDTree:
+    """The true surface of the demo's object (``mug_handle.obj`` stands in the demo's world frame
+    as ``scripts/make_views.py --demo`` rendered it): 300,000 samples, about 0.4 mm apart, so a
+    distance to them is at most about 0.3 mm more than to the surface."""
+    import trimesh
+
+    mesh = trimesh.load(OBJECTS_DIR / "mug_handle.obj", force="mesh")
+    samples, _ = trimesh.sample.sample_surface(mesh, 300_000, seed=0)
+    return cKDTree(samples)
+
+
+def _shown(markdown) -> str:
+    """A markdown widget's text without its escapes."""
+    return str(markdown.content).replace("\\", "")
+
+
+def _press(button) -> None:
+    """What a browser's click on ``button`` runs."""
+    for cb in button._impl.update_cb:
+        cb(GuiEvent(client=None, client_id=None, target=button))
+
+
+def test_the_depth_demo_in_the_chooser_loads_the_mug_and_plans(app) -> None:
+    c, gui = app.controller, app.gui
+    assert "mug_depth" in gui.demo.options and c.state.source.name == "mug_handle"
+    gui.demo.value = "mug_depth"
+    s = c.state
+    assert s.error == "" and s.source.name == "mug_depth" and gui.demo.value == "mug_depth"
+    assert s.planned and s.view.selected_grasp == 0 and len(ranked_grasps(s.result)) > 0
+    dep = s.cloud.info["depth"]
+    assert dep["camera_file"] == str(DEMO.with_suffix(".json")) and dep["pose"]
+    shown = "fx 420 fy 420 cx 239.5 cy 179.5 from mug_depth.json; camera pose"
+    assert shown in _shown(gui.camera_info)
+    # the object kept is the mug: its seen points lie on the true mesh ...
+    truth = _true_mug()
+    cloud = s.cloud
+    d, _ = truth.query(cloud.points[~cloud.assumed], distance_upper_bound=0.01)
+    assert np.mean(d < 0.003) >= 0.99
+    # ... and the segmentation's object holds the depth image's mug points (those within 2 mm
+    # of the true mesh, above the table's band), nearly nothing else
+    seg = cloud.sensor.segmentation
+    d_scene, _ = truth.query(seg.points, distance_upper_bound=0.01)  # inf beyond 1 cm
+    on_mug = (d_scene < 0.002) & (seg.points[:, 2] > 0.005)
+    assert on_mug.sum() > 3000 and np.mean(seg.object_mask[on_mug]) >= 0.99
+    assert np.mean(d_scene[seg.object_mask] < 0.003) >= 0.99
+    # the same object as `pregrasp view assets/objects/mug_depth.png` (the loader on the file)
+    ref = load_point_cloud(DEMO, n_points=s.n_points)
+    np.testing.assert_array_equal(cloud.points, ref.points)
+
+
+# ---------------------------------------------------------------------- depth image uploads
+def _cli_cloud(path: Path, *flags: str) -> PointCloud:
+    """The cloud `pregrasp plan PATH FLAGS` plans on (its own parser builds the loader's
+    options), at the app tests' point count."""
+    from tests.app.conftest import APP_POINTS
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    inp = plan.plan_run(sub.choices["plan"].parse_args([str(path), *flags])).input
+    return load_point_cloud(path, n_points=APP_POINTS, seed=inp.seed, sensor=inp.sensor())
+
+
+def test_an_uploaded_png_waits_for_its_intrinsics_then_matches_the_cli(app, tmp_path) -> None:
+    c, gui = app.controller, app.gui
+    s0 = c.state
+    c.load_upload("frame.png", DEMO.read_bytes())
+    s = c.state
+    assert s.result is s0.result and s.waiting is not None  # the mug stays meanwhile
+    assert "needs its camera's intrinsics" in s.message and "'use intrinsics'" in s.message
+    assert "frame.json" in s.message and "frame.png waits" in _shown(gui.camera_info)
+    gui.intrinsics.value = "420 420 239.5"  # three numbers: refused, nothing changes
+    _press(gui.use_intrinsics)
+    assert "give four numbers fx fy cx cy" in c.state.error and c.state.waiting is not None
+    gui.intrinsics.value = "420, 420, 239.5, 179.5"
+    _press(gui.use_intrinsics)
+    s = c.state
+    assert s.error == "" and s.waiting is None and s.source.name == "frame.png"
+    assert s.cloud.info["depth"]["intrinsics_from"] == "--intrinsics"
+    alone = tmp_path / "frame.png"  # the same image on disk, no sidecar beside it
+    alone.write_bytes(DEMO.read_bytes())
+    ref = _cli_cloud(alone, "--intrinsics", "420", "420", "239.5", "179.5")
+    np.testing.assert_array_equal(s.cloud.points, ref.points)
+    np.testing.assert_array_equal(s.cloud.assumed, ref.assumed)
+    # its camera file uploaded next: read again with the pose, as the CLI reads the sidecar
+    c.load_upload("frame.json", DEMO.with_suffix(".json").read_bytes())
+    s = c.state
+    assert s.error == "" and s.cloud.info["depth"]["pose"]
+    (tmp_path / "frame.json").write_bytes(DEMO.with_suffix(".json").read_bytes())
+    np.testing.assert_array_equal(s.cloud.points, _cli_cloud(alone).points)
+    # the numbers typed over an uploaded camera file keep its pose (as --intrinsics over a
+    # sidecar does)
+    gui.intrinsics.value = "430 430 239.5 179.5"
+    _press(gui.use_intrinsics)
+    flags = ("--intrinsics", "430", "430", "239.5", "179.5")
+    np.testing.assert_array_equal(c.state.cloud.points, _cli_cloud(alone, *flags).points)
+
+
+def test_a_camera_file_uploaded_first_is_used_by_the_next_depth_upload(app) -> None:
+    c = app.controller
+    c.load_upload("cam.json", DEMO.with_suffix(".json").read_bytes())
+    s = c.state
+    assert s.source.name == "mug_handle" and s.camera is not None  # nothing to read yet
+    assert "kept: the next depth image uploaded uses them" in s.message
+    assert "next depth upload: fx 420" in _shown(app.gui.camera_info)
+    c.load_upload("frame.png", DEMO.read_bytes())
+    s = c.state
+    assert (
+        s.error == "" and s.waiting is None and s.cloud.info["depth"]["camera_file"] == "cam.json"
+    )
+    np.testing.assert_array_equal(s.cloud.points, load_point_cloud(DEMO, n_points=3000).points)
+    # an NPY point cloud uploaded meanwhile is still a cloud (N x 3), not a depth map
+    import io as _io
+
+    buf = _io.BytesIO()
+    np.save(buf, np.asarray(load_point_cloud(OBJECTS_DIR / "bottle.obj", n_points=2000).points))
+    c.load_upload("bottle.npy", buf.getvalue())
+    assert c.state.error == "" and c.state.cloud.info["kind"] == "cloud"
+    # an empty field forgets the camera: the next depth image waits for its own
+    app.gui.intrinsics.value = ""
+    _press(app.gui.use_intrinsics)
+    assert c.state.camera is None and "forgotten" in c.state.message
+    c.load_upload("again.png", DEMO.read_bytes())
+    assert c.state.waiting is not None and c.state.source.name == "bottle.npy"
+    # a result file is still a result file, a camera file a camera file
+    assert not is_camera_file(b'{"schema": "pregrasp/1", "fx": 1}')
+    assert is_camera_file(b'{"fy": 1}') and not is_camera_file(b"[1, 2]")
+
+
+def test_a_bad_uploaded_camera_file_names_the_file_and_the_field(app) -> None:
+    c = app.controller
+    c.load_upload("frame.png", DEMO.read_bytes())
+    s0 = c.state
+    bad = b'{"fx": 420, "fy": 420, "cx": 239.5, "cy": 179.5, "depth_scale": 1000}'
+    c.act(None, c.load_upload, "frame.json", bad)
+    s = c.state
+    assert s.error.startswith("frame.json: depth_scale is metres per stored depth unit")
+    assert s.result is s0.result and s.waiting is not None  # the image still waits
+    c.act(None, c.load_upload, "frame.json", b'{"fx": 420, "fy": -1, "cx": 0, "cy": 0}')
+    assert (
+        "frame.json: fx and fy must be positive focal lengths in pixels, got fy=-1" in c.state.error
+    )
