@@ -397,6 +397,7 @@ def visibility_votes(
     g: int,
     tol: float,
     curv_radius: float,
+    rank: np.ndarray,
     v0: int,
     v1: int,
     net: np.ndarray,
@@ -410,7 +411,8 @@ def visibility_votes(
     seen unless it lies more than ``tol + l^2 / (2 curv_radius)`` behind the tangent plane of
     its pixel's front point (``l`` the image distance between the two, the allowance for a
     convex surface curving away); a sighting votes ``sign(n . d) |n . d|``. ``p`` centred on
-    the cloud."""
+    the cloud. Of equally deep points the one of lowest ``rank`` (N,) is a pixel's front point
+    (the caller's order of the points: the votes do not depend on the order of ``p``)."""
     n_pts = p.shape[0]
     front = np.empty(g * g)
     front_id = np.empty(g * g, np.int64)
@@ -435,7 +437,7 @@ def visibility_votes(
             depth[i] = d
             lx[i] = x
             ly[i] = y
-            if d > front[c]:
+            if d > front[c] or (d == front[c] and rank[i] < rank[front_id[c]]):
                 front[c] = d
                 front_id[c] = i
         for i in range(n_pts):
@@ -532,6 +534,8 @@ def warm_up() -> None:
     d = np.array([[0.0, 0.0, 1.0]])
     u, w = np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]])
     net, tot, net_m = np.zeros(64), np.zeros(64), np.zeros(64)
-    visibility_votes(p, normals, normals, d, u, w, 4.0, 1.0, 8, 0.1, 1.0, 0, 1, net, tot, net_m)
+    visibility_votes(
+        p, normals, normals, d, u, w, 4.0, 1.0, 8, 0.1, 1.0, np.arange(64), 0, 1, net, tot, net_m
+    )
     wts = same_side_weights(p, normals, idx, 0.1, np.zeros(64, np.bool_))
     fill_signs(np.zeros(64), np.zeros(64, np.bool_), idx, wts, 2)

@@ -311,14 +311,23 @@ def _visibility_votes(
     n_views: int,
     second: np.ndarray | None = None,
     threads: int = 0,
+    order: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Net (N,) and total (N,) votes of the sightings (see the module docstring), and the net
     votes (N,) the same sightings give the directions ``second`` (N, 3) (default: normals).
     The views in ``VISIBILITY_GROUPS`` fixed groups of consecutive views, a thread per group,
     each summing its own votes; the groups' sums are added in their order: the same sums for
-    any number of threads."""
+    any number of threads. ``order`` (N,): a permutation of the points that keeps neighbours
+    together (the grid's cell order), in which the kernel reads them (fewer cache misses); the
+    votes do not depend on it (equally deep points are ranked by their index)."""
     from . import normal_kernels as nk
 
+    if order is None:
+        order = np.arange(len(points))
+    rank = np.ascontiguousarray(order)
+    normals = normals[order]
+    second = None if second is None else second[order]
+    points = points[order]
     p = np.ascontiguousarray(points - 0.5 * (points.min(axis=0) + points.max(axis=0)))
     radius = max(float(np.linalg.norm(p, axis=1).max()), GEOM_EPS)
     pix = max(VISIBILITY_PIXEL * spacing, radius * 1e-3)
@@ -333,7 +342,7 @@ def _visibility_votes(
     _run_rows(
         lambda a0, a1: [
             nk.visibility_votes(
-                p, nrm, sec, d, u, w, radius, pix, g, tol, curv,
+                p, nrm, sec, d, u, w, radius, pix, g, tol, curv, rank,
                 int(bounds[s]), int(bounds[s + 1]), acc[s, 0], acc[s, 1], acc[s, 2],
             )
             for s in range(a0, a1)
@@ -347,7 +356,9 @@ def _visibility_votes(
         net += acc[s, 0]
         tot += acc[s, 1]
         net_m += acc[s, 2]
-    return net, tot, net_m
+    out = np.empty((3, len(points)))
+    out[:, order] = (net, tot, net_m)  # back to the caller's order
+    return out[0], out[1], out[2]
 
 
 def _orient_visibility(
@@ -358,11 +369,13 @@ def _orient_visibility(
     n_views: int,
     rough: np.ndarray | None = None,
     threads: int = 0,
+    order: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Normals (N, 3) and their signs (N,) by visibility, filling and seeded propagation (see
     the module docstring); ``rough`` (N,) bool: the points flat at no scale, whose normal becomes
     the direction from their neighbours' centroid when the viewers see them from that side;
-    ``threads`` those of the votes (0: the usable CPUs; the result does not depend on it)."""
+    ``threads`` those of the votes (0: the usable CPUs; the result does not depend on it),
+    ``order`` the order the votes read the points in (see :func:`_visibility_votes`)."""
     from . import normal_kernels
 
     spacing = max(float(np.median(dist[:, min(4, dist.shape[1] - 1)])), GEOM_EPS)
@@ -373,7 +386,9 @@ def _orient_visibility(
         away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), GEOM_EPS)
         crest = normals.copy()
         crest[rows] = away
-    net, total, net_crest = _visibility_votes(points, normals, spacing, n_views, crest, threads)
+    net, total, net_crest = _visibility_votes(
+        points, normals, spacing, n_views, crest, threads, order
+    )
     decided = (np.abs(net) > VISIBILITY_AGREEMENT * total) & (total > VISIBILITY_MIN_VOTE)
     sign = np.where(decided, np.sign(net), 0.0)
     if crest is not None:
@@ -495,9 +510,19 @@ def scale_selected_normals(
     points: np.ndarray, k: int, threads: int = 0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Normals (N, 3), surface variation (N,) by scale selection (:func:`pca_scales_of`), and the
+    (N, k) distances and indices of the k nearest neighbours (see :func:`_scale_selected`)."""
+    return _scale_selected(points, k, threads)[:4]
+
+
+def _scale_selected(
+    points: np.ndarray, k: int, threads: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """Normals (N, 3), surface variation (N,) by scale selection (:func:`pca_scales_of`), and the
     (N, k) distances and indices of the k nearest neighbours. The largest scale's neighbours
     are searched (on the same grid) only for the points that are flat at none of the smaller
-    ones. ``threads``: 0 for the usable CPUs; the result does not depend on it."""
+    ones. ``threads``: 0 for the usable CPUs; the result does not depend on it. Last, the
+    point ids in the grid's cell order (neighbours together), or None when the grid was not
+    used."""
     from . import normal_kernels as nk
 
     pts = np.ascontiguousarray(points, dtype=np.float64)
@@ -522,7 +547,8 @@ def scale_selected_normals(
             )
             normals[rough] = n_big
             variation[rough] = v_big
-    return normals, variation, dist[:, :k], nbr[:, :k]
+    order = None if grid.crowded else grid.order
+    return normals, variation, dist[:, :k], nbr[:, :k], order
 
 
 def estimate_normals(
@@ -558,7 +584,7 @@ def estimate_normals(
         dist, nbr = cKDTree(pts).query(pts, k=params.k)  # (N, k), itself first
         normals, curvature = _pca_normals(pts, nbr)
     else:  # no normals to orient by: scale-selected PCA (thin rims), compiled kernels
-        normals, curvature, dist, nbr = scale_selected_normals(pts, params.k, threads)
+        normals, curvature, dist, nbr, order = _scale_selected(pts, params.k, threads)
     if mode == "reference":
         assert ref is not None  # checked above
         signs = np.where(np.einsum("ij,ij->i", normals, ref) < 0.0, -1.0, 1.0)
@@ -567,7 +593,9 @@ def estimate_normals(
         signs = np.where(np.einsum("ij,ij->i", normals, to_cam) < 0.0, -1.0, 1.0)
     elif mode == "visibility":
         rough = curvature >= SCALE_FLAT
-        normals, signs = _orient_visibility(pts, normals, nbr, dist, params.n_views, rough, threads)
+        normals, signs = _orient_visibility(
+            pts, normals, nbr, dist, params.n_views, rough, threads, order
+        )
     elif mode == "centroid":
         out = pts - pts.mean(axis=0)
         signs = np.where(np.einsum("ij,ij->i", normals, out) < 0.0, -1.0, 1.0)
