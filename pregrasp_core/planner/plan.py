@@ -187,13 +187,16 @@ def _plan_forked(
 ) -> None:
     """:func:`_plan_chunks` of every chunk on ``n_proc`` processes: this one and ``n_proc - 1``
     forked copies of it (all of the context inherited, nothing rebuilt), chunk ``c`` planned by
-    process ``c % n_proc``; each copy sends back its grasps (pickled, which keeps every float's
-    bits) and its phase clocks, and ``grasps`` gets every chunk in pool order. The chunks are
+    process ``c % n_proc`` (this one: the last of them); each copy sends back its grasps
+    (pickled, which keeps every float's bits) and its phase clocks, and ``grasps`` gets every
+    chunk in pool order. The chunks are
     those of one process, and every pre-grasp is planned independently, so the grasps are
     those of a single process, bit for bit. A copy that dies without an answer has its chunks
     planned here; an exception in a copy is raised here."""
     starts = list(range(0, P, _CHUNK))
-    mine = [starts[w::n_proc] for w in range(n_proc)]
+    # this process takes the last share (never more chunks than a copy's): the exact settling
+    # and the ranking come after it
+    mine = [starts[w::n_proc] for w in range(n_proc)][::-1]
     children: list[tuple[int, int, list[int]]] = []  # (pid, read end, chunks)
     for w in range(1, n_proc):  # fork the copies before this process starts working
         r, wfd = os.pipe()
