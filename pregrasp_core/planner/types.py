@@ -63,10 +63,11 @@ class PlannerParams:
     their normals for the approach, the closing and the checks; contacts keep the assumed point
     itself): the copies lie 1-3 mm inside the true surface (``planner/assumed.py``)."""
     threads: int = 0
-    """Threads for the per-pre-grasp phases (approach and slicing, verification, quality: numpy,
-    and qhull release Python's global lock for most of their work); 0 = one per
-    CPU this process may use (at most 64), 1 = none. Only the speed depends on it, never a
-    result."""
+    """Parallel workers of the planner; 0 = one per CPU this process may use (at most 64), 1 =
+    none. From a process running one thread, the chunks of pre-grasps are planned in forked
+    copies of the process (``plan._plan_forked``); with other threads alive (the viewer), threads
+    run the per-pre-grasp phases (approach and slicing, verification, quality). Only the speed
+    depends on it, never a result."""
 
     def __post_init__(self) -> None:
         if int(self.threads) != self.threads or self.threads < 0:
