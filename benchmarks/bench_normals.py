@@ -160,17 +160,17 @@ def main() -> None:
     cloud = clouds[20000]
     pts = np.asarray(cloud.points)
     prm = new.NormalParams()
-    nrm, var, d16, n16 = new.scale_selected_normals(pts, prm.k)
+    nrm, var, d16, n16, order = new._scale_selected(pts, prm.k)
     rough = var >= new.SCALE_FLAT
     spacing = float(np.median(d16[:, 4]))
     stages = {
         "neighbours (grid, k = 16)": lambda t: new.nearest_neighbours(pts, prm.k, threads=t),
         "neighbours and scale-selected PCA": lambda t: new.scale_selected_normals(pts, prm.k, t),
         "visibility votes (64 views)": lambda t: new._visibility_votes(
-            pts, nrm, spacing, 64, threads=t
+            pts, nrm, spacing, 64, threads=t, order=order
         ),
         "orientation (votes, crests, fill, propagation)": lambda t: new._orient_visibility(
-            pts, nrm, n16, d16, 64, rough, t
+            pts, nrm, n16, d16, 64, rough, t, order
         ),
     }
     print(
