@@ -697,6 +697,7 @@ LEGEND = (
     ("orange ghosts", "spherical pre-grasps"),
     ("purple ghosts", "three-finger-tip pre-grasps"),
     ("teal ghosts", "two-finger-tip pre-grasps"),
+    ("ghost outline", "palm box (inner face towards the object) and finger chains, thumb apart"),
     ("ghost shade", "brighter or darker by the box face the pre-grasp was sampled from"),
     ("yellow dots", "contacts of the chosen grasp"),
     ("yellow cones", "their friction cones, as scored (half-angle atan mu)"),

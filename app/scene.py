@@ -3,8 +3,8 @@
 It owns every scene handle, each under a fixed name (see :data:`NAMES`), and updates them inside
 ``server.atomic()`` so a browser never sees half an update. It redraws only what changed between
 the state it drew last and the new one (compared by identity: the state's parts are immutable),
-batches similar objects (all face quads of one kind in one batched mesh, all ghosts of one
-preshape in one batched mesh, box edges and friction cones as line segments) and sends the point
+batches similar objects (all face quads of one kind in one batched mesh; box edges, friction
+cones and the ghosts of one grasp type as line segments) and sends the point
 cloud with ``precision="float32"``. It never computes anything the core computes.
 """
 
@@ -19,6 +19,7 @@ import numpy as np
 import viser
 
 from .scene_data import (
+    GHOST_THICKNESS,
     animation_pose,
     assumed_contacts,
     attr_or_none,
@@ -31,7 +32,9 @@ from .scene_data import (
     friction_coefficient,
     friction_cone_segments,
     ghost_colors,
+    ghost_segments,
     ghost_selection,
+    hand_ghost_segments,
     node_color,
     node_colors,
     pool_types,
@@ -79,10 +82,6 @@ ASSUMED_CONTACT_RGB = (255, 90, 0)
 (orange): the grasp rests there on guessed geometry."""
 SCENE_POINTS = 30000
 """Most points of a depth-camera scene (table, other objects) drawn behind the object."""
-DETAILED_GHOSTS = 8
-"""Up to this many ghosts use the hand's visual mesh; beyond, its collision boxes (light)."""
-GHOST_OPACITY = 0.25
-"""Opacity of the pre-grasp hand ghosts."""
 BOX_OPACITY = 0.12
 """Opacity of unselected boxes (the selected one is drawn at 0.35)."""
 
@@ -110,11 +109,14 @@ class SceneRenderer:
         self._last: AppState | None = None
         self._boxes: dict[int, Any] = {}  # node id -> BoxHandle
         self._handles: dict[str, Any] = {}  # fixed name -> handle
-        self._ghost_meshes: dict[tuple, Any] = {}  # (preshape q, detailed) -> hand mesh
+        self._ghost_outlines: dict[tuple, np.ndarray] = {}  # preshape q -> hand-frame segments
         self._urdf: Any = None
         self._lift_key: tuple | None = None  # (playback, frame) drawn last; None: no lift
         self.n_ghosts_shown = 0
-        """Number of ghost instances currently in the scene."""
+        """Number of ghosts currently in the scene."""
+        self.ghost_indices = np.zeros(0, dtype=np.int64)
+        """Pool indices of the ghosts drawn, in drawing order: ghost k of the handles of
+        :meth:`ghost_handles` (concatenated) is pre-grasp ``ghost_indices[k]``."""
         self.n_contacts_shown = 0
         """Number of contact points currently in the scene."""
         self.n_assumed_contacts_shown = 0
@@ -147,7 +149,7 @@ class SceneRenderer:
         return self._handles.get(key)
 
     def ghost_handles(self) -> list[Any]:
-        """The batched-mesh handles of the ghosts now in the scene (one per preshape)."""
+        """The line-segment handles of the ghosts now in the scene (one per grasp type)."""
         return [h for k, h in sorted(self._handles.items()) if k.startswith("ghost:")]
 
     def render(self, state: AppState) -> None:
@@ -370,9 +372,13 @@ class SceneRenderer:
             self._remove("subfaces")
 
     def _draw_ghosts(self, state: AppState) -> None:
+        """The filtered pool (at most ``max_ghosts``, an even subsample) as line outlines: each
+        ghost's palm box and finger chains at its preshape, posed at its ``T_world_hand``, in
+        its grasp type's colour shaded by its face; one line-segments node per grasp type."""
         for key in [k for k in self._handles if k.startswith("ghost:")]:
             self._remove(key)
         self.n_ghosts_shown = 0
+        self.ghost_indices = np.zeros(0, dtype=np.int64)
         pool = attr_or_none(state.result, "pool")
         if pool is None or not state.view.show_ghosts or self.hand is None or len(pool) == 0:
             return
@@ -380,41 +386,42 @@ class SceneRenderer:
         idx = np.flatnonzero(keep)
         if len(idx) > self.max_ghosts:  # even subsample: keeps the browser smooth
             idx = idx[np.linspace(0, len(idx) - 1, self.max_ghosts).astype(np.int64)]
-        types = pool_types(pool)
-        T = np.asarray(pool.T_world_hand, dtype=np.float64)
-        # one batched mesh per distinct preshape (a grasp type has one; robust to more)
+        if len(idx) == 0:
+            return
+        types = pool_types(pool)[idx]
+        T = np.asarray(pool.T_world_hand, dtype=np.float64)[idx]
         q = np.round(np.asarray(pool.q, dtype=np.float64)[idx], 9)  # (K, J)
-        shapes, group = np.unique(q, axis=0, return_inverse=True)
+        shapes, group = np.unique(q, axis=0, return_inverse=True)  # a preshape per grasp type
         group = group.reshape(-1)
-        for g in range(len(shapes)):  # loop over preshapes (a handful)
-            sel = idx[group == g]
-            gt = str(types[sel[0]])
-            key = f"{gt}_{g}"
-            mesh = self._ghost_mesh(shapes[g], detailed=len(idx) <= DETAILED_GHOSTS)
-            self._handles[f"ghost:{key}"] = self.server.scene.add_batched_meshes_simple(
-                f"{NAMES['ghosts']}/{key}",
-                vertices=mesh.vertices,
-                faces=mesh.faces,
-                batched_wxyzs=wxyz_from_matrices(T[sel, :3, :3]),
-                batched_positions=T[sel, :3, 3],
-                batched_colors=ghost_colors(gt, np.asarray(pool.face)[sel]),
-                opacity=GHOST_OPACITY,
-                cast_shadow=False,
-                receive_shadow=False,
-                lod="off",  # simplified levels are built asynchronously in the browser
+        local = np.stack([self._ghost_outline(shapes[g]) for g in group])  # (K, S, 2, 3)
+        colors = np.empty((len(idx), 3), dtype=np.uint8)
+        faces = np.asarray(pool.face)[idx]
+        for gt in np.unique(types):  # loop over grasp types (at most four)
+            colors[types == gt] = ghost_colors(str(gt), faces[types == gt])
+        drawn = []
+        for gt in np.unique(types):
+            sel = np.flatnonzero(types == gt)
+            S = local.shape[1]
+            pts = np.concatenate([ghost_segments(local[k], T[k][None]) for k in sel])
+            self._handles[f"ghost:{gt}"] = self.server.scene.add_line_segments(
+                f"{NAMES['ghosts']}/{gt}",
+                points=pts.astype(np.float32),
+                colors=np.repeat(np.repeat(colors[sel], S, axis=0)[:, None], 2, axis=1),
+                thickness=GHOST_THICKNESS,
+                thickness_units="screen",
             )
-            self.n_ghosts_shown += len(sel)
+            drawn.append(idx[sel])
+        self.ghost_indices = np.concatenate(drawn)
+        self.n_ghosts_shown = len(self.ghost_indices)
 
-    def _ghost_mesh(self, q: np.ndarray, detailed: bool) -> Any:
-        """The hand at preshape ``q`` (hand frame): the visual mesh when few ghosts are drawn,
-        the link boxes (12 triangles per link) for large pools, so thousands stay smooth."""
-        key = (tuple(np.asarray(q, dtype=np.float64).tolist()), detailed)
-        mesh = self._ghost_meshes.get(key)
-        if mesh is None:
-            q = np.asarray(q, dtype=np.float64)
-            mesh = self.hand.hand_mesh(q) if detailed else self.hand.collision_mesh(q)
-            self._ghost_meshes[key] = mesh
-        return mesh
+    def _ghost_outline(self, q: np.ndarray) -> np.ndarray:
+        """The ghost's hand-frame segments at preshape ``q`` (cached per preshape)."""
+        key = tuple(np.asarray(q, dtype=np.float64).tolist())
+        seg = self._ghost_outlines.get(key)
+        if seg is None:
+            seg = hand_ghost_segments(self.hand, np.asarray(q, dtype=np.float64))
+            self._ghost_outlines[key] = seg
+        return seg
 
     def _draw_grasp(self, state: AppState) -> None:
         for key in ("contacts", "cones"):

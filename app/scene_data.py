@@ -114,6 +114,40 @@ FACE_SHADE = np.array([1.0, 0.55, 0.85, 0.4, 0.7, 0.25])
 """Brightness factor of the ghosts sampled from face 0..5 (+x, -x, +y, -y, +z, -z)."""
 
 
+GHOST_THICKNESS = 2.5
+"""Line width (screen pixels) of the ghosts' outlines."""
+
+
+def _box_corner_pairs() -> np.ndarray:
+    """(12, 2) corner pairs of a box's edges (bit k of a corner's index = the sign of axis k)."""
+    return np.array([(a, a | (1 << ax)) for ax in range(3) for a in range(8) if not a & (1 << ax)])
+
+
+def hand_ghost_segments(hand: Any, q: np.ndarray) -> np.ndarray:
+    """(12 + L - 1, 2, 3) segments of one ghost in the hand frame at joints ``q`` (J,): the 12
+    edges of the palm's collision box (its inner face at z = 0, the approach along +z), then,
+    for each finger link in link order, the axis of its collision box along its longest side
+    (base to tip): the finger chains, thumb on -y and the two spreading fingers on +y."""
+    Tb = np.asarray(hand.box_poses(np.asarray(q, dtype=np.float64)), dtype=np.float64)
+    half = np.asarray(hand.link_box_half, dtype=np.float64)  # (L, 3)
+    bits = (np.arange(8)[:, None] >> np.arange(3)[None, :]) & 1  # (8, 3)
+    corners = Tb[0, :3, :3] @ ((2 * bits - 1) * half[0]).T + Tb[0, :3, 3:4]  # (3, 8)
+    palm = corners.T[_box_corner_pairs()]  # (12, 2, 3)
+    ax = np.argmax(half[1:], axis=1)  # (L - 1,) the long axis of each finger link's box
+    along = Tb[1:, :3, :3][np.arange(len(ax)), :, ax] * half[1:][np.arange(len(ax)), ax][:, None]
+    mid = Tb[1:, :3, 3]
+    fingers = np.stack([mid - along, mid + along], axis=1)  # (L - 1, 2, 3)
+    return np.concatenate([palm, fingers])
+
+
+def ghost_segments(local: np.ndarray, T_world_hand: np.ndarray) -> np.ndarray:
+    """(K S, 2, 3) world segments of K ghosts: the hand-frame segments ``local`` (S, 2, 3)
+    moved by each pose of ``T_world_hand`` (K, 4, 4); ghost k is rows ``k S .. (k + 1) S``."""
+    T = np.asarray(T_world_hand, dtype=np.float64).reshape(-1, 4, 4)
+    p = np.einsum("kij,sej->ksei", T[:, :3, :3], np.asarray(local, dtype=np.float64))
+    return (p + T[:, None, None, :3, 3]).reshape(-1, 2, 3)
+
+
 def ghost_colors(grasp_type: str, faces: np.ndarray) -> np.ndarray:
     """(K, 3) uint8 ghost colours: the grasp type's hue, shaded by the face of origin, so that
     neighbouring hands from different faces stay apart in a dense pool."""

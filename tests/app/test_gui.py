@@ -143,6 +143,34 @@ def test_face_masks_drawn_free_and_blocked(app):
     assert app.server.scene.get_handle_by_name(NAMES["faces_free"]) is None
 
 
+def _assert_ghosts_at_pool_poses(app, pool, passing: np.ndarray) -> None:
+    """Each drawn ghost is a distinct pre-grasp passing the filters, outlined where the pool
+    puts it: its first 12 segments are the edges of the hand's palm box moved by the
+    pre-grasp's ``T_world_hand`` (position and orientation), and its finger chains end at the
+    fingertips of the hand's kinematics at the pre-grasp's joints (finger directions)."""
+    hand = app.scene.hand
+    idx = np.asarray(app.scene.ghost_indices)
+    assert len(idx) == app.scene.n_ghosts_shown == len(set(idx.tolist()))
+    assert passing[idx].all()
+    pts = np.concatenate([h.points for h in app.scene.ghost_handles()]).astype(np.float64)
+    S = 12 + len(hand.link_names) - 1
+    assert pts.shape == (len(idx) * S, 2, 3)
+    palm = hand.palm_box.corners()  # (8, 3) hand frame
+    T_all = np.asarray(pool.T_world_hand)
+    for k, i in enumerate(idx.tolist()):
+        seg = pts[k * S : (k + 1) * S]
+        T = T_all[i]
+        want = palm @ T[:3, :3].T + T[:3, 3]
+        got = np.unique(np.round(seg[:12].reshape(-1, 3), 6), axis=0)
+        np.testing.assert_allclose(got, np.unique(np.round(want, 6), axis=0), atol=2e-6)
+        tips = [T[:3, :3] @ p + T[:3, 3] for p in hand.fingertips(np.asarray(pool.q)[i]).values()]
+        ends = seg[12:, 1]  # the chains' far ends (3 links per finger, in link order)
+        for tip in tips:
+            assert np.min(np.linalg.norm(ends - tip, axis=1)) < 1e-5
+    colors = np.concatenate([h.colors for h in app.scene.ghost_handles()])
+    assert len(colors) == len(pts)
+
+
 def test_ghost_filters(app):
     s = app.controller.state
     pool = s.result.pool
@@ -151,18 +179,14 @@ def test_ghost_filters(app):
     assert app.scene.max_ghosts == 24  # few when shown: light enough for software WebGL
     app.gui.show_ghosts.value = True
     assert app.scene.n_ghosts_shown == min(len(pool), app.scene.max_ghosts)
-    if len(pool) <= app.scene.max_ghosts:  # every pre-grasp drawn where the pool puts it
-        got = np.concatenate([h.batched_positions for h in app.scene.ghost_handles()])
-        want = np.asarray(pool.T_world_hand)[:, :3, 3]
-        np.testing.assert_allclose(
-            np.sort(got, axis=0), np.sort(want, axis=0).astype(np.float32), atol=1e-6
-        )
+    _assert_ghosts_at_pool_poses(app, pool, ghost_selection(pool, ALL, None))
     types = sorted(set(np.asarray(pool.grasp_type).tolist()))
     gt = types[0]
     app.gui.ghost_type.value = gt
     want = int(ghost_selection(pool, gt, None).sum())
     assert want == int((np.asarray(pool.grasp_type) == gt).sum())
     assert app.scene.n_ghosts_shown == min(want, app.scene.max_ghosts)
+    _assert_ghosts_at_pool_poses(app, pool, np.asarray(pool.grasp_type) == gt)
     node = int(np.asarray(pool.node)[0])
     app.gui.ghost_type.value = ALL
     app.gui.ghost_node.value = f"node {node}"
