@@ -257,9 +257,9 @@ THERMOS_CREASE = pytest.mark.xfail(
     reason="known defect, issue 11 open: 123 outer-surface points of the thermos get the wrong "
     "sign, 52 of them in its shoulder crease (z 0.236-0.2445 m, where the chamfered body meets "
     "the ring under the lid), where the PCA line is 70-80 degrees off the true normal and the "
-    "visibility votes decide its sign wrongly; whether the planner keeps grasps touching them turns on the last bit of the "
-    "floating-point results (a cloud moved by 1 ulp passes or fails), so it fails on some CPUs "
-    "(5 contacts on an AMD EPYC with AVX2) and passes on others",
+    "visibility votes decide its sign wrongly; whether the planner keeps grasps touching them "
+    "turns on the last bit of the floating-point results (a cloud moved by 1 ulp passes or "
+    "fails), so it fails on some CPUs (5 contacts on an AMD EPYC with AVX2) and passes on others",
 )
 """The one known failure of the contact-normal test (docs/limits.md, "Normals in creases")."""
 
