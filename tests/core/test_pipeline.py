@@ -165,7 +165,7 @@ def test_the_default_object_gets_a_pool_identical_for_the_same_seed(hand):
 
 
 ISSUE_16_RUN = """
-import json, resource, sys, time
+import json, sys, time
 from pregrasp_core.decomposition import DecompositionParams
 from pregrasp_core.errors import PregraspError
 from pregrasp_core.io import load_point_cloud
@@ -182,7 +182,10 @@ except PregraspError as exc:
     outcome = {"error": type(exc).__name__, "message": str(exc)}
 outcome["seconds"] = time.perf_counter() - t0
 outcome["cpu_seconds"] = time.process_time() - c0
-outcome["max_rss"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # Linux: KiB
+# this process's own peak (VmHWM, KiB; ru_maxrss would report the parent's size at fork, which a
+# long pytest run makes large: Linux keeps it across exec)
+hwm = [ln for ln in open("/proc/self/status") if ln.startswith("VmHWM:")][0]
+outcome["max_rss"] = int(hwm.split()[1]) * 1024
 print(json.dumps(outcome))
 """
 
