@@ -27,8 +27,10 @@ from pregrasp_core.paths import OBJECTS_DIR
 DEMO = ("can_soda.obj", "fruit_lemon.obj", "ramekin.obj")
 """Three small demo objects (one part each, quick to plan)."""
 FAST = ["--points", "3000"]
-RUN_LIMIT_S = 50.0
-"""A batch run in these tests must end within this (it takes ~10-20 s on the 2-core VM)."""
+RUN_LIMIT_S = 300.0
+"""A batch run in these tests must end within this: a hang guard, not a speed check (a run takes
+~10-20 s on the 2-core VM; the first one of a fresh clone also compiles the numba loops into
+their cache, which took 50-90 s on that VM under load)."""
 
 
 def _run(argv: list[str], limit: float = RUN_LIMIT_S) -> int:

@@ -494,11 +494,34 @@ def _same_grasps(a, b):
         assert [f.q.tobytes() for f in x.fingers] == [f.q.tobytes() for f in y.fingers]
 
 
-def test_forked_processes_threads_and_one_thread_give_the_same_grasps(hand, monkeypatch):
+def test_forked_processes_threads_and_one_thread_give_the_same_grasps():
     """From a process running one thread, threads > 1 plans the chunks in forked copies of the
     process; with another thread alive it uses a thread pool: both give the grasps of one
     thread bit for bit. A copy that dies has its chunks planned by the parent; an exception
-    in a copy is raised in the parent."""
+    in a copy is raised in the parent. Run in a fresh interpreter: in a long pytest run other
+    tests' threads (servers, clusters) may still be alive, and then the planner never forks."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = (
+        "import sys; sys.path.insert(0, 'tests/core'); import pytest, test_planner as t; "
+        "mp = pytest.MonkeyPatch(); t.check_fork_paths(t.load_hand(), mp); mp.undo(); "
+        "print('fork paths ok')"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=Path(__file__).resolve().parents[2],
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert proc.stdout.strip().splitlines()[-1] == "fork paths ok"
+
+
+def check_fork_paths(hand, monkeypatch) -> None:
+    """The checks of the test above, in a process running one thread."""
     import os
     import threading
 
