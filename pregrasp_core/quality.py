@@ -36,7 +36,11 @@ about 1e-11, scores to about 1e-10), which always succeeds on full-rank sets.
 
 from __future__ import annotations
 
+import functools
 import logging
+import math
+import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -166,14 +170,95 @@ def tangent_frames(normals: np.ndarray, tangents: np.ndarray | None = None) -> n
     return np.stack([a, b, n], axis=2)
 
 
+@functools.lru_cache(maxsize=16)
+def _cone_coefficients(mu: float, n_edges: int) -> np.ndarray:
+    """(m, 3) read-only: ``(mu cos t_k, mu sin t_k, 1)``, ``t_k = 2 pi k / m`` (the same values
+    every call: computed once per ``(mu, m)``)."""
+    t = 2.0 * np.pi * np.arange(n_edges) / n_edges
+    coef = np.stack([mu * np.cos(t), mu * np.sin(t), np.ones_like(t)], axis=1)
+    coef.flags.writeable = False
+    return coef
+
+
 def friction_cone_edges(
     normals: np.ndarray, mu: float, n_edges: int, tangents: np.ndarray | None = None
 ) -> np.ndarray:
     """Edge forces ``(K, m, 3)``: ``n + mu (cos t_k a + sin t_k b)`` (normal component 1)."""
     frames = tangent_frames(normals, tangents)  # (K, 3, 3) columns a, b, n
-    t = 2.0 * np.pi * np.arange(n_edges) / n_edges
-    coef = np.stack([mu * np.cos(t), mu * np.sin(t), np.ones_like(t)], axis=1)  # (m, 3)
-    return np.einsum("kij,mj->kmi", frames, coef)
+    return np.einsum("kij,mj->kmi", frames, _cone_coefficients(float(mu), int(n_edges)))
+
+
+def _frames_loop(n: np.ndarray, t: np.ndarray, has_t: bool) -> np.ndarray:
+    """:func:`tangent_frames` of unit-able normals ``n`` (K, 3) and tangents ``t`` (K, 3, read
+    only when ``has_t``) as one loop: every value by the same floating-point operations in the
+    same order as the numpy code (a row's 3-term sums left to right, as numpy reduces them), so
+    equal to the bit (``tests/core/test_quality.py``). Compiled by numba (:func:`_kernels`)."""
+    k = n.shape[0]
+    out = np.empty((k, 3, 3))
+    for i in range(k):
+        m0, m1, m2 = n[i, 0], n[i, 1], n[i, 2]
+        nn = math.sqrt((m0 * m0 + m1 * m1) + m2 * m2)
+        n0, n1, n2 = m0 / nn, m1 / nn, m2 / nn
+        if abs(n0) > 0.9:
+            r0, r1, r2 = 0.0, 1.0, 0.0
+        else:
+            r0, r1, r2 = 1.0, 0.0, 0.0
+        if has_t:
+            t0, t1, t2 = t[i, 0], t[i, 1], t[i, 2]
+            dot = (t0 * n0 + t1 * n1) + t2 * n2
+            p0, p1, p2 = t0 - dot * n0, t1 - dot * n1, t2 - dot * n2
+            nt = math.sqrt((t0 * t0 + t1 * t1) + t2 * t2)
+            if not nt >= 1e-300:  # np.maximum(nt, 1e-300); NaN stays NaN
+                nt = nt if nt != nt else 1e-300
+            if math.sqrt((p0 * p0 + p1 * p1) + p2 * p2) > 1e-6 * nt:
+                r0, r1, r2 = t0, t1, t2
+        dot = (r0 * n0 + r1 * n1) + r2 * n2
+        a0, a1, a2 = r0 - dot * n0, r1 - dot * n1, r2 - dot * n2
+        na = math.sqrt((a0 * a0 + a1 * a1) + a2 * a2)
+        a0, a1, a2 = a0 / na, a1 / na, a2 / na
+        out[i, 0, 0], out[i, 1, 0], out[i, 2, 0] = a0, a1, a2
+        out[i, 0, 1] = n1 * a2 - n2 * a1
+        out[i, 1, 1] = n2 * a0 - n0 * a2
+        out[i, 2, 1] = n0 * a1 - n1 * a0
+        out[i, 0, 2], out[i, 1, 2], out[i, 2, 2] = n0, n1, n2
+    return out
+
+
+def _wrenches_loop(f: np.ndarray, r: np.ndarray, rho: float) -> np.ndarray:
+    """``[f ; r x f / rho]`` as (K * m, 6) for edges ``f`` (K, m, 3) and levers ``r`` (K, 3):
+    the operations of :func:`cross3`, then the division, element by element (equal to the
+    bit). Compiled by numba (:func:`_kernels`)."""
+    k, m = f.shape[0], f.shape[1]
+    w = np.empty((k * m, 6))
+    for i in range(k):
+        a0, a1, a2 = r[i, 0], r[i, 1], r[i, 2]
+        for e in range(m):
+            b0, b1, b2 = f[i, e, 0], f[i, e, 1], f[i, e, 2]
+            row = i * m + e
+            w[row, 0], w[row, 1], w[row, 2] = b0, b1, b2
+            w[row, 3] = (a1 * b2 - a2 * b1) / rho
+            w[row, 4] = (a2 * b0 - a0 * b2) / rho
+            w[row, 5] = (a0 * b1 - a1 * b0) / rho
+    return w
+
+
+_KERNEL_LOCK = threading.Lock()
+_KERNELS: tuple[Callable[..., np.ndarray], Callable[..., np.ndarray]] | None = None
+
+
+def _kernels() -> tuple[Callable[..., np.ndarray], Callable[..., np.ndarray]]:
+    """``(frames, wrenches)``: :func:`_frames_loop` and :func:`_wrenches_loop` compiled by numba
+    (``cache=True``; the first call imports numba and compiles or loads them, never the import
+    of this module)."""
+    global _KERNELS
+    if _KERNELS is None:
+        with _KERNEL_LOCK:
+            if _KERNELS is None:
+                import numba
+
+                jit = numba.njit(cache=True, nogil=True)
+                _KERNELS = (jit(_frames_loop), jit(_wrenches_loop))
+    return _KERNELS
 
 
 def contact_wrenches(
@@ -196,9 +281,19 @@ def contact_wrenches(
     n = _as_vectors(normals, "normals")
     if p.shape != n.shape:
         raise ValueError(f"points and normals must have the same shape, got {p.shape}, {n.shape}")
-    f = friction_cone_edges(n, params.mu, params.n_edges, tangents)  # (K, m, 3)
     if not torques:
-        return f.reshape(-1, 3)
+        return friction_cone_edges(n, params.mu, params.n_edges, tangents).reshape(-1, 3)
+    # the compiled loops: friction_cone_edges and the torques below, equal to the bit
+    frames_loop, wrenches_loop = _kernels()
+    if tangents is None:
+        frames = frames_loop(np.ascontiguousarray(n), np.zeros((0, 3)), False)
+    else:
+        t = _as_vectors(tangents, "tangents")
+        if t.shape != n.shape:
+            raise ValueError(f"tangents must have shape {n.shape}, got {t.shape}")
+        frames = frames_loop(np.ascontiguousarray(n), np.ascontiguousarray(t), True)
+    coef = _cone_coefficients(float(params.mu), int(params.n_edges))
+    f = np.einsum("kij,mj->kmi", frames, coef)  # (K, m, 3)
     if center is None:
         c = p.mean(axis=0)
     else:
@@ -212,8 +307,7 @@ def contact_wrenches(
     if rho is None:
         rho = float(np.max(np.linalg.norm(r, axis=1))) if len(p) else 0.0
     rho = max(rho, GEOM_EPS)
-    tau = cross3(r[:, None, :], f) / rho  # (K, m, 3)
-    return np.concatenate([f, tau], axis=2).reshape(-1, 6)
+    return wrenches_loop(f, np.ascontiguousarray(r), float(rho))  # [f ; r x f / rho]
 
 
 def _exact_hull(w: np.ndarray) -> ConvexHull | None:

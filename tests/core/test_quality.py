@@ -19,6 +19,7 @@ from pregrasp_core import quality
 from pregrasp_core.quality import (
     QualityParams,
     contact_wrenches,
+    cross3,
     friction_cone_edges,
     grasp_quality,
     hull_quality,
@@ -375,3 +376,41 @@ def test_object_centred_epsilon_is_rigid_motion_invariant_and_sees_the_centre_of
         grasp_quality(pts, nrm, prm, center=np.array([0.0, np.nan, 0.0]))
     with pytest.raises(ValueError, match="torque_origin must be one of"):
         QualityParams(torque_origin="palm")
+
+
+def _numpy_contact_wrenches(p, n, mu, m, tangents, c, rho):
+    """The numpy construction of the edge wrenches that the compiled loops replaced (issue 15,
+    session 7): ``tangent_frames``, the cone's einsum, ``cross3`` and the division."""
+    frames = tangent_frames(n, tangents)
+    t = 2.0 * np.pi * np.arange(m) / m
+    coef = np.stack([mu * np.cos(t), mu * np.sin(t), np.ones_like(t)], axis=1)
+    f = np.einsum("kij,mj->kmi", frames, coef)
+    tau = cross3((p - c)[:, None, :], f) / max(rho, 1e-9)
+    return np.concatenate([f, tau], axis=2).reshape(-1, 6)
+
+
+def test_compiled_wrenches_equal_the_numpy_construction_to_the_bit():
+    """contact_wrenches (compiled frames and torques) gives the bytes of the numpy code it
+    replaced, on random contact sets with the corner cases of the tangent rule (normals near
+    e_x, tangents parallel to the normal, zero and tiny tangents, unnormalised normals)."""
+    rng = np.random.default_rng(7)
+    for trial in range(300):  # loop over random contact sets
+        k = int(rng.integers(1, 8))
+        p = rng.normal(size=(k, 3)) * 10.0 ** rng.uniform(-3, 1)
+        n = rng.normal(size=(k, 3)) * 10.0 ** rng.uniform(-2, 2, size=(k, 1))
+        t = rng.normal(size=(k, 3))
+        if trial % 5 == 0:
+            n[0] = [1.0, 1e-3, -2e-3]  # |n . e_x| > 0.9: the e_y fallback
+        if trial % 7 == 0:
+            t[0] = 3.0 * n[0]  # parallel to the normal: the world rule
+        if trial % 11 == 0:
+            t[-1] = 0.0 if trial % 2 else 1e-310
+        c = rng.normal(size=3) * 0.1
+        rho = float(rng.uniform(0.01, 1.0))
+        mu = float(rng.choice([0.0, 0.3, 0.5, 1.2]))
+        m = int(rng.integers(3, 11))
+        params = QualityParams(mu=mu, n_edges=m)
+        for tng in (t, None):
+            got = contact_wrenches(p, n, params, tangents=tng, center=c, radius=rho)
+            want = _numpy_contact_wrenches(p, n, mu, m, tng, c, rho)
+            assert got.shape == want.shape and got.tobytes() == want.tobytes()
