@@ -9,10 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .model import Finger
-
-BATCH_PAIRS: int = 2_000_000
-"""Batched closing: most (point, sample) pairs evaluated at once (memory: a few arrays of this
-many entries)."""
+from .sweep_kernel import hits_kernel
 
 
 @dataclass(frozen=True)
@@ -150,28 +147,18 @@ def any_hit_ragged(
 ) -> np.ndarray:
     """(R, C) bool: some point (``pts``, with their rows ``rows``) or the palm touches a link
     at the configurations of ``cfg``; row ``i`` uses only its first ``n_row[i]``
-    configurations (the others are False): each point is paired with its row's samples only."""
+    configurations (the others are False): each point is paired with its row's samples only.
+    The (point, sample) tests of :func:`pair_hits` as one compiled loop
+    (:func:`~pregrasp_core.hand.sweep_kernel.ragged_hits_loop`, the same arithmetic)."""
     R, C = cfg.d1x.shape
     out = cfg.palm_mid | cfg.palm_dis
     out &= np.arange(C)[None, :] < n_row[:, None]
-    flat = Configs(*(getattr(cfg, k).reshape(-1, 1) for k in Configs.__dataclass_fields__))
-    reps = n_row[rows]  # (Np,) samples per point
-    ends = np.cumsum(reps)
-    step = BATCH_PAIRS
-    b0 = 0
-    while b0 < len(pts):  # chunks of points (memory)
-        b1 = int(np.searchsorted(ends, ends[b0 - 1] + step if b0 else step, side="right"))
-        b1 = max(b1, b0 + 1)
-        p, rw, rp = pts[b0:b1], rows[b0:b1], reps[b0:b1]
-        T = int(rp.sum())
-        pair_pt = np.repeat(p, rp)  # (T,)
-        j = np.arange(T) - np.repeat(np.cumsum(rp) - rp, rp)  # sample of each pair
-        cfg_i = np.repeat(rw, rp) * C + j  # (T,) configuration of each pair
-        mid, dis = pair_hits(B, flat, cfg_i, pair_pt, links)
-        mid |= dis
-        np.put(out, cfg_i[mid[:, 0]], True)  # flat indices into the (R, C) result
-        b0 = b1
-    return out
+    c = np.ascontiguousarray
+    return hits_kernel()(
+        c(cfg.d1x), c(cfg.d1y), c(cfg.d2x), c(cfg.d2y), c(cfg.cs), c(cfg.cr), out, B.x, B.y,
+        B.seg, B.h, B.Lm, B.Ld, float(B.margin), pts.astype(np.int64), rows.astype(np.int64),
+        n_row.astype(np.int64), bool(links[0]), bool(links[1]),
+    )  # fmt: skip
 
 
 def points_of(B: SliceBatch, sl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -40,8 +40,8 @@ def close_fingers(
     together, every point with its own slice's path. The coarse sweep goes through the steps
     in order and tests a point only at the steps where it may touch (conservative
     advancement from its distance to the links), so most (step, point) pairs are never
-    evaluated; see ``docs/hand.md``. Memory: O(points) per step of the sweep and at most
-    ``BATCH_PAIRS`` (point, sample) pairs per refinement chunk. The hit tests write each
+    evaluated; see ``docs/hand.md``. Memory: O(points) per step of the sweep and per
+    refinement level (the refinement's tests are one compiled loop). The hit tests write each
     2-term dot product out where ``close_finger`` uses a matrix product (equal up to the
     last bit, which can only matter for a point within ~1e-18 m of a link's boundary)."""
     if n_steps < 1:

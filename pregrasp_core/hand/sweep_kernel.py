@@ -138,3 +138,75 @@ def coarse_sweep_loop(
                 link[p] = head[nk]
                 head[nk] = p
     return best, free
+
+
+_HITS: list[Callable[..., np.ndarray]] = []
+
+
+def hits_kernel() -> Callable[..., np.ndarray]:
+    """The compiled :func:`ragged_hits_loop` (numba imported on the first call)."""
+    if not _HITS:
+        with _LOCK:
+            if not _HITS:
+                import numba
+
+                _HITS.append(numba.njit(cache=True, nogil=True)(ragged_hits_loop))
+    return _HITS[0]
+
+
+def ragged_hits_loop(
+    d1x: np.ndarray,
+    d1y: np.ndarray,
+    d2x: np.ndarray,
+    d2y: np.ndarray,
+    cs: np.ndarray,
+    cr: np.ndarray,
+    out: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    seg: np.ndarray,
+    h: np.ndarray,
+    Lm: np.ndarray,
+    Ld: np.ndarray,
+    margin: float,
+    pts: np.ndarray,
+    rows: np.ndarray,
+    n_row: np.ndarray,
+    mid_on: bool,
+    dis_on: bool,
+) -> np.ndarray:
+    """The loop form of :func:`~pregrasp_core.hand.batch_hits.any_hit_ragged`: ``out`` (R, C)
+    bool, holding the palm's hits of the samples in use, gets True where point ``pts[i]``
+    (coordinates ``px``, ``py``, slice ``seg``) touches a link at one of the first
+    ``n_row[rows[i]]`` configurations (``d1x`` ... ``cr`` (R, C), as ``Configs``) of its row.
+    Each test is :func:`~pregrasp_core.hand.batch_hits.pair_hits`' arithmetic, value by value
+    (2-term dot products written out, the same bounds), so the result is the same. A sample
+    already touched is not tested again (the result is an "any")."""
+    m = margin
+    for i in range(pts.shape[0]):
+        p = pts[i]
+        row = rows[i]
+        x, y = px[p], py[p]
+        s_ = seg[p]
+        hm = h[s_] + m
+        top_m = Lm[s_] + m
+        top_d = Ld[s_] + m
+        for j in range(n_row[row]):
+            if out[row, j]:
+                continue
+            if mid_on:
+                dx, dy = d1x[row, j], d1y[row, j]
+                s = dx * x + dy * y
+                r = -dy * x + dx * y
+                if s >= -m and s <= top_m and abs(r) <= hm:
+                    out[row, j] = True
+                    continue
+            if dis_on:
+                dx, dy = d2x[row, j], d2y[row, j]
+                s = dx * x + dy * y
+                s -= cs[row, j]
+                r = -dy * x + dx * y
+                r -= cr[row, j]
+                if s >= -m and s <= top_d and abs(r) <= hm:
+                    out[row, j] = True
+    return out

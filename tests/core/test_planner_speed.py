@@ -309,3 +309,80 @@ def ctx_kernels():
     from pregrasp_core.planner.kernels import kernels
 
     return kernels()
+
+
+def _numpy_any_hit_ragged(B, cfg, pts, rows, n_row, links):
+    """The numpy form of ``batch_hits.any_hit_ragged`` that the compiled loop replaced (issue
+    15, session 7): every (point, sample) pair expanded and tested with ``pair_hits``."""
+    from pregrasp_core.hand.batch_hits import Configs, pair_hits
+
+    R, C = cfg.d1x.shape
+    out = cfg.palm_mid | cfg.palm_dis
+    out &= np.arange(C)[None, :] < n_row[:, None]
+    flat = Configs(*(getattr(cfg, k).reshape(-1, 1) for k in Configs.__dataclass_fields__))
+    rp = n_row[rows]
+    pair_pt = np.repeat(pts, rp)
+    j = np.arange(int(rp.sum())) - np.repeat(np.cumsum(rp) - rp, rp)
+    cfg_i = np.repeat(rows, rp) * C + j
+    mid, dis = pair_hits(B, flat, cfg_i, pair_pt, links)
+    mid |= dis
+    np.put(out, cfg_i[mid[:, 0]], True)
+    return out
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_compiled_ragged_hits_equal_the_numpy_pairs(hand, seed):
+    """``any_hit_ragged`` (one compiled loop) gives the numpy pairs' answer on random slices,
+    configurations near the points, ragged sample counts, each link alone and both, palm on and
+    off, margins 0 and 1 mm, points placed on the links' boundaries."""
+    from pregrasp_core.hand.batch_hits import Configs, SliceBatch, any_hit_ragged
+
+    rng = np.random.default_rng(300 + seed)
+    S = 12
+    fingers = tuple(hand.fingers[int(k)] for k in rng.integers(0, 3, S))
+    geom = np.array(
+        [(f.knuckle_length, f.middle_length, f.distal_length, 0.5 * f.thickness) for f in fingers]
+    )
+    sizes = rng.integers(0, 300 if seed % 2 else 4, S)  # even seeds: boundary points only
+    P = rng.uniform(-0.03, 0.12, size=(int(sizes.sum()), 2))
+    seg = np.repeat(np.arange(S), sizes)
+    Q = rng.uniform(-0.5, 1.6, size=(S, 9, 2))
+    # put some points exactly on a link's side at one of the configurations
+    for k in rng.choice(len(P), size=min(40, len(P)), replace=False):
+        s, c = seg[k], int(rng.integers(9))
+        a = Q[s, c, 0]
+        P[k] = rng.uniform(0, geom[s, 1]) * np.array([np.cos(a), np.sin(a)]) + geom[s, 3] * (
+            np.array([-np.sin(a), np.cos(a)])
+        )
+    # at q = (0, 0) the middle link's tests read the coordinates themselves (cos 0 = 1, sin 0
+    # = 0): points exactly on its bounds, so that a changed comparison would show
+    Q[:, 0] = 0.0
+    n_hits = 0
+    for margin in (0.0, 0.001):
+        for k in rng.choice(len(P), size=min(60, len(P)) if seed % 2 else len(P), replace=False):
+            s = seg[k]
+            along = rng.choice([-margin, geom[s, 1] + margin, rng.uniform(0.0, geom[s, 1])])
+            side = rng.choice([-1.0, 1.0]) * (geom[s, 3] + margin)
+            P[k] = (along, side) if rng.random() < 0.5 else (side, along)
+        for palm in (True, False):
+            B = SliceBatch(
+                fingers=fingers, Lk=geom[:, 0], Lm=geom[:, 1], Ld=geom[:, 2], h=geom[:, 3],
+                upper=np.array([f.upper for f in fingers]), P=P,
+                x=np.ascontiguousarray(P[:, 0]), y=np.ascontiguousarray(P[:, 1]), seg=seg,
+                start=np.concatenate([[0], np.cumsum(sizes)]), source=np.arange(len(P)),
+                margin=margin, palm=palm,
+            )  # fmt: skip
+            rows_sl = np.sort(rng.choice(S, size=8, replace=False))
+            row_of = np.full(S, -1)
+            row_of[rows_sl] = np.arange(8)
+            pts = np.flatnonzero(row_of[seg] >= 0)
+            pts = pts[rng.random(len(pts)) < 0.8]
+            rows = row_of[seg[pts]]
+            n_row = rng.integers(1, 10, 8)
+            for links in ((True, True), (True, False), (False, True)):
+                cfg = Configs.of(B, rows_sl, Q[rows_sl], links)
+                got = any_hit_ragged(B, cfg, pts, rows, n_row, links)
+                want = _numpy_any_hit_ragged(B, cfg, pts, rows, n_row, links)
+                np.testing.assert_array_equal(got, want)
+                n_hits += int(want.sum())
+    assert n_hits > 0
