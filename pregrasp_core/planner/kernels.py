@@ -34,6 +34,7 @@ def kernels() -> SimpleNamespace:
                     slices=jit(slice_points),
                     approach=jit(approach_sweep),
                     link_distances=jit(link_distances),
+                    link_contacts=jit(link_contacts),
                 )
     return _KERNELS
 
@@ -362,3 +363,50 @@ def link_distances(
             dist[g:n] = dist[g:n][o]
         first[il + 1] = n
     return ids[:n], dist[:n], first
+
+
+def link_contacts(
+    ids: np.ndarray,
+    d: np.ndarray,
+    first: np.ndarray,
+    xyz: np.ndarray,
+    centres: np.ndarray,
+    contact_distance: float,
+    tie: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per link (the output of :func:`link_distances`: link l's points ``ids[first[l]:first[l +
+    1]]``, distances ``d``): ``(least (L,), pick (L,))``, the least distance (inf without
+    points) and the position in ``ids`` of the link's contact point, -1 for none (the loop
+    form of ``verify._contacts``' choice): a link whose least distance is at most
+    ``contact_distance`` touches; of its points within ``tie`` of that distance, the one
+    nearest to its box centre (``centres`` (L, 3), world; squared distance summed x, y, z in
+    that order, as numpy sums a row), then the lowest cloud index. ``centres`` empty: only the
+    least distances. xyz (3, N): the cloud by coordinate."""
+    L = first.shape[0] - 1
+    least = np.full(L, np.inf)
+    pick = np.full(L, -1, dtype=np.int64)
+    for j in range(L):
+        a, b = first[j], first[j + 1]
+        if b == a:
+            continue
+        m = d[a]
+        for k in range(a + 1, b):
+            if d[k] < m:
+                m = d[k]
+        least[j] = m
+        if centres.shape[0] == 0 or not m <= contact_distance:
+            continue
+        thr = m + tie
+        best, best_off, best_id = -1, np.inf, 0
+        for k in range(a, b):
+            if not d[k] <= thr:
+                continue
+            i = ids[k]
+            e0 = xyz[0, i] - centres[j, 0]
+            e1 = xyz[1, i] - centres[j, 1]
+            e2 = xyz[2, i] - centres[j, 2]
+            off = (e0 * e0 + e1 * e1) + e2 * e2
+            if best < 0 or off < best_off or (off == best_off and i < best_id):
+                best, best_off, best_id = k, off, i
+        pick[j] = best
+    return least, pick

@@ -51,13 +51,13 @@ def finish(
     q_checked = q.copy()
     # depth of the nearby cloud points in every link
     reach = max(prm.contact_distance, prm.penetration_tol)
-    ids, dists = _link_distances(ctx, view, q, reach)
-    bad = {
-        ctx.link_names[j] for j, d in enumerate(dists) if len(d) and d.min() < -prm.penetration_tol
-    }
+    near = _link_distances_flat(ctx, view, q, reach)
+    least = _least(near)  # (L,) per link, inf without points
+    bad = {ctx.link_names[j] for j in np.flatnonzero(least < -prm.penetration_tol).tolist()}
     if bad:
         q = _open_penetrating(ctx, view, q, closings, bad, pre.spread, corrected)
-        ids, dists = _link_distances(ctx, view, q, reach)
+        near = _link_distances_flat(ctx, view, q, reach)
+        least = _least(near)
     fingers = tuple(
         FingerTrace(
             f.name,
@@ -75,7 +75,7 @@ def finish(
     def rejected(reason: str, detail: str) -> Grasp:
         return Grasp.from_rejection(i, gt, T, q, reason, detail, s, stop, fingers)
 
-    depth = np.array([-d.min() if len(d) else -np.inf for d in dists])
+    depth = -least
     if depth.max() > prm.penetration_tol:
         j = int(np.argmax(depth))
         detail = f"{ctx.link_names[j]} holds a point {depth[j] * 1e3:.1f} mm deep"
@@ -86,7 +86,7 @@ def finish(
     below = support_collision(ctx, T, q)
     if below is not None:
         return rejected("support_collision", f"{below} below the support plane")
-    contacts = _contacts(ctx, T, q, ids, dists)
+    contacts = _contacts(ctx, T, q, near)
     if not contacts:
         return rejected("no_contact", "")
     # 5. quality: by the caller
@@ -134,31 +134,26 @@ def _open_penetrating(
 
 
 def _contacts(
-    ctx: Context, T: np.ndarray, q: np.ndarray, ids: list[np.ndarray], dists: list[np.ndarray]
+    ctx: Context, T: np.ndarray, q: np.ndarray, near: tuple[np.ndarray, np.ndarray, np.ndarray]
 ) -> tuple[Contact, ...]:
-    """4. The contacts of the hand at pose ``T`` and joints ``q`` (``ids``, ``dists``: per link,
-    the nearby cloud points and their distances, from :func:`_link_distances`): one per link,
+    """4. The contacts of the hand at pose ``T`` and joints ``q`` (``near``: per link, the
+    nearby cloud points and their distances, from :func:`_link_distances_flat`): one per link,
     the nearest cloud point within ``contact_distance``. Points as near as it (within
     :data:`CONTACT_TIE`: a face of the object parallel to the link's face) form a patch; the
     contact is its point nearest the link box's centre (then the lowest cloud index), so the
-    choice never depends on rounding or on the candidates' order."""
+    choice never depends on rounding or on the candidates' order (the choice is the compiled
+    loop ``kernels.link_contacts``)."""
     prm = ctx.params
-    centres = (T @ ctx.boxes(q)[0])[:, :3, 3]  # (L, 3) link box centres, world
-    links, local, dist = [], [], []
-    for j, (sel, d) in enumerate(zip(ids, dists, strict=True)):  # loop over the ~10 links
-        if len(d) and d.min() <= prm.contact_distance:
-            tie = np.flatnonzero(d <= d.min() + CONTACT_TIE)
-            if len(tie) > 1:
-                off = np.sum((ctx.points[sel[tie]] - centres[j]) ** 2, axis=1)
-                k = int(tie[np.lexsort((sel[tie], off))[0]])
-            else:
-                k = int(tie[0])
-            links.append(j)
-            local.append(sel[k])
-            dist.append(float(d[k]))
-    if not links:
+    ids, d, first = near
+    centres = np.ascontiguousarray((T @ ctx.boxes(q)[0])[:, :3, 3])  # (L, 3) box centres, world
+    _, pick = kernels().link_contacts(
+        ids, d, first, ctx.xyz, centres, float(prm.contact_distance), CONTACT_TIE
+    )
+    links = np.flatnonzero(pick >= 0)
+    if len(links) == 0:
         return ()
-    pid = np.asarray(local, dtype=np.int64)
+    pid = ids[pick[links]]
+    dist = d[pick[links]].tolist()
     Tb = ctx.boxes(q)[0]
     tangents = Tb[links, :3, 1] @ T[:3, :3].T  # link box y axes in the world
     normals_in = -ctx.normals[pid]
@@ -167,8 +162,16 @@ def _contacts(
             ctx.surface[p].copy(), normals_in[k].copy(), ctx.link_names[j], int(p), dist[k],
             tangents[k].copy(), bool(ctx.assumed[p]),
         )
-        for k, (j, p) in enumerate(zip(links, pid, strict=True))
+        for k, (j, p) in enumerate(zip(links.tolist(), pid.tolist(), strict=True))
     )  # fmt: skip
+
+
+def _least(near: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """(L,) the least signed distance per link of :func:`_link_distances_flat`'s ``near``
+    (inf for a link without points)."""
+    ids, d, first = near
+    empty = np.zeros((3, 0))  # no contacts asked for: only the least distances
+    return kernels().link_contacts(ids, d, first, empty, np.zeros((0, 3)), 0.0, 0.0)[0]
 
 
 def open_self_collisions(
@@ -231,6 +234,19 @@ def _link_distances(
     ``reach`` of its box and their exact signed distances to it (< 0 inside), in ascending
     cloud order (``view``: the cloud in the hand's frame). Candidates: the points in the AABB
     of a box grown by ``reach`` (found through the cells); all pairs' distances at once."""
+    ids, d, first = _link_distances_flat(ctx, view, q, reach)
+    cut = first.tolist()
+    return (
+        [ids[a:b] for a, b in itertools.pairwise(cut)],
+        [d[a:b] for a, b in itertools.pairwise(cut)],
+    )
+
+
+def _link_distances_flat(
+    ctx: Context, view: View, q: np.ndarray, reach: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_link_distances` as ``(ids (K,), d (K,), first (L + 1,))``: link l's points
+    ``ids[first[l]:first[l + 1]]`` (``kernels.link_distances``)."""
     Tb, lo, hi = ctx.boxes(q)  # hand frame
     blo, bhi = lo - reach, hi + reach  # (L, 3)
     cells = ctx.cells
@@ -239,11 +255,7 @@ def _link_distances(
         float(sum(view.dz)), view.T0, view.r, view.z_lo, view.z_hi,
         np.array(view.dz, dtype=np.float64), blo, bhi, Tb, ctx.half, reach,
     )  # fmt: skip
-    cut = first.tolist()
-    return (
-        [ids[a:b] for a, b in itertools.pairwise(cut)],
-        [d[a:b] for a, b in itertools.pairwise(cut)],
-    )
+    return ids, d, first
 
 
 def support_collision(ctx: Context, T: np.ndarray, q: np.ndarray) -> str | None:

@@ -262,11 +262,11 @@ def test_kernels_equal_the_numpy_searches_on_every_pregrasp(mug_plan):
     from pregrasp_core.geometry import to_frame
     from pregrasp_core.planner.approach import prepare
     from pregrasp_core.planner.slicing import finger_slices
-    from pregrasp_core.planner.verify import _link_distances
+    from pregrasp_core.planner.verify import CONTACT_TIE, _link_distances, _link_distances_flat
 
     ctx, pool = mug_plan
     rng = np.random.default_rng(0)
-    n_points = n_links = 0
+    n_points = n_links = n_ties = 0
     for i in range(len(pool)):  # loop over the pre-grasps
         T0, q0 = pool.T_world_hand[i], pool.q[i]
         c0 = to_frame(ctx.cells.centre, T0)
@@ -302,7 +302,39 @@ def test_kernels_equal_the_numpy_searches_on_every_pregrasp(mug_plan):
                     np.testing.assert_array_equal(a, b)
                     np.testing.assert_array_equal(x, y)
                     n_links += len(a)
+                # each link's least distance and contact point (the compiled choice)
+                least_r, picks_r, ties = _ref_contact_choice(ctx, T, qq, ids_r, d_r)
+                ids, d, first = _link_distances_flat(ctx, view, qq, 0.003)
+                centres = np.ascontiguousarray((T @ ctx.boxes(qq)[0])[:, :3, 3])
+                least, pick = ctx_kernels().link_contacts(
+                    ids, d, first, ctx.xyz, centres, ctx.params.contact_distance, CONTACT_TIE
+                )
+                np.testing.assert_array_equal(least, least_r)
+                assert [(j, int(ids[k])) for j, k in enumerate(pick) if k >= 0] == picks_r
+                n_ties += ties
     assert n_points > 10000 and n_links > 1000  # the comparisons saw real data
+    assert n_ties > 0  # and contact patches (ties within CONTACT_TIE)
+
+
+def _ref_contact_choice(ctx, T, q, ids, dists):
+    """verify._contacts' choice and the least distances before issue 15, session 7 (numpy per
+    link): ``(least (L,), [(link, cloud index)], patches with more than one point)``."""
+    from pregrasp_core.planner.verify import CONTACT_TIE
+
+    centres = (T @ ctx.boxes(q)[0])[:, :3, 3]
+    least = np.array([d.min() if len(d) else np.inf for d in dists])
+    picks, ties = [], 0
+    for j, (sel, d) in enumerate(zip(ids, dists, strict=True)):
+        if len(d) and d.min() <= ctx.params.contact_distance:
+            tie = np.flatnonzero(d <= d.min() + CONTACT_TIE)
+            if len(tie) > 1:
+                off = np.sum((ctx.points[sel[tie]] - centres[j]) ** 2, axis=1)
+                k = int(tie[np.lexsort((sel[tie], off))[0]])
+                ties += 1
+            else:
+                k = int(tie[0])
+            picks.append((j, int(sel[k])))
+    return least, picks, ties
 
 
 def ctx_kernels():
