@@ -10,10 +10,13 @@ that cloud as it is, moved by +1 and by -1 unit in the last place (``np.nextafte
 ``--motions`` random rigid motions (a turn about the vertical, which keeps the object standing
 on the table, and a translation; mesh and true normals moved with it). Per cloud: the kept
 grasps, their contacts, the contacts whose normal does not point into the true mesh (rank,
-link, point), as ``tests/core/test_normals.py`` checks them, the points of the outer surface
-whose normal disagrees with the true mesh's, and the wall seconds. A fix of the normals in
-creases (``docs/limits.md``, "Normals in creases") must give no wrong contact on every one of
-these clouds: one cloud alone passes or fails on the last bit of the floating-point results.
+link, point; marked * where the point's normal is the crest rule's, see ``docs/design.md``,
+normals), as ``tests/core/test_normals.py`` checks them, the points of the outer surface whose
+normal disagrees with the true mesh's, the contacts at crest-rule points and the kept grasps
+they belong to (what a planner that took no contact there would lose), and the wall seconds.
+A fix of the normals in creases (``docs/limits.md``, "Normals in creases") must give no wrong
+contact on every one of these clouds: one cloud alone passes or fails on the last bit of the
+floating-point results.
 
 Besides the demo objects, three shapes with creases made here (trimesh booleans, manifold3d):
 ``odd_l``, two boxes unioned into an L (a 90-degree concave crease along a line); ``odd_steps``,
@@ -87,7 +90,7 @@ def main() -> None:
     from test_normals import _exterior, _hand, _inside
 
     from pregrasp_core.io import PointCloud, load_point_cloud
-    from pregrasp_core.normals import estimate_normals
+    from pregrasp_core.normals import SCALE_FLAT, estimate_normals, nearest_neighbours
     from pregrasp_core.paths import OBJECTS_DIR
     from pregrasp_core.pipeline import run_pipeline
 
@@ -116,14 +119,23 @@ def main() -> None:
             clouds[f"rigid motion {m + 1}"] = (pts0 @ R.T + t, true0 @ R.T, mesh)
         print(
             f"\n| {name}, {args.points:,} points | kept grasps | contacts "
-            "| wrong contacts (rank, link, point) | wrong outer points | s |"
-            "\n|---|---:|---:|---|---:|---:|"
+            "| wrong contacts (rank, link, point; *: crest rule) | wrong outer points "
+            "| contacts at crest-rule points (their grasps) | s |"
+            "\n|---|---:|---:|---|---:|---:|---:|"
         )
         for label, (pts, true, mesh) in clouds.items():
             w0 = time.perf_counter()
             ext_all = _exterior(mesh, pts, true)
             cn = estimate_normals(pts)
             bad_pts = int(np.sum((np.einsum("ij,ij->i", cn.normals, true) <= 0.0) & ext_all))
+            # the points whose normal is the crest rule's: flat at no scale, the normal the
+            # direction away from the 16 neighbours' centroid (docs/design.md, normals)
+            _, nb16 = nearest_neighbours(pts, 16)
+            away = pts - pts[nb16].mean(axis=1)
+            away /= np.linalg.norm(away, axis=1, keepdims=True)
+            crest = (cn.curvature >= SCALE_FLAT) & (
+                np.abs(np.einsum("ij,ij->i", cn.normals, away)) > 1.0 - 1e-9
+            )
             cloud = PointCloud(points=pts, normals=None, source=bare.source)
             res = run_pipeline(cloud, hand=_hand(), until="grasps")
             assert res.grasps is not None
@@ -136,14 +148,16 @@ def main() -> None:
             if not ext.all():
                 into[~ext] = _inside(mesh, pts[pid[~ext]] + 5e-4 * n_in[~ext])
             wrong = [
-                f"{r} {c.link} {c.point_index}"
+                f"{r} {c.link} {c.point_index}{'*' if crest[c.point_index] else ''}"
                 for (r, c), ok in zip(contacts, into, strict=True)
                 if not ok
             ]
+            at_crest = crest[pid]
+            n_grasps = len({r for (r, _), c in zip(contacts, at_crest, strict=True) if c})
             print(
                 f"| {label} | {len(kept)} | {len(contacts)} | {len(wrong)}"
                 f"{': ' + ', '.join(wrong) if wrong else ''} | {bad_pts} "
-                f"| {time.perf_counter() - w0:.0f} |",
+                f"| {int(at_crest.sum())} ({n_grasps}) | {time.perf_counter() - w0:.0f} |",
                 flush=True,
             )
     print(f"\n# load average after: {os.getloadavg()}")
