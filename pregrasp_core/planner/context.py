@@ -20,6 +20,10 @@ if TYPE_CHECKING:
 
 _V = TypeVar("_V")
 
+PlaneArrays = tuple[tuple["Finger", ...], list["FlexionPlane"], np.ndarray, tuple[np.ndarray, ...]]
+"""The fingers of a grasp type, their flexion planes at a spread, their reaches and the slice
+kernel's per-plane arguments (``slicing._plane_arrays``)."""
+
 CELL_SIZE: float = 0.01
 """Side (metres) of the cubic cells that group the cloud for the planner's candidate searches
 (see :class:`Cells`). Only the speed depends on it, never a result."""
@@ -107,6 +111,8 @@ class Context:
         self.link_index = {n: i for i, n in enumerate(self.link_names)}
         self.clock = dict.fromkeys(("approach_slicing", "closing", "verification", "quality"), 0.0)
         self._planes: dict[tuple[str, float], FlexionPlane] = {}
+        # per (grasp type, spread): the slice kernel's plane arguments (slicing._plane_arrays)
+        self.slice_planes: dict[tuple[str, float], PlaneArrays] = {}
         self._boxes: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._pairs: dict[bytes, list[tuple[str, str]]] = {}
         self._lock = threading.Lock()

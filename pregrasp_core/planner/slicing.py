@@ -14,7 +14,7 @@ from .kernels import kernels
 
 if TYPE_CHECKING:
     from ..hand import Finger, FingerClosing, FlexionPlane
-    from .context import Context, View
+    from .context import Context, PlaneArrays, View
 
 
 @dataclass
@@ -57,25 +57,14 @@ def finger_slices(
     cloud in that hand frame)."""
     prm = ctx.params
     out = []
-    fingers = ctx.hand.fingers_for(gt)
-    planes = [ctx.plane(f, spread) for f in fingers]
-    nrm = np.array([pl.normal for pl in planes]).T  # (3, F)
-    shift = np.array([pl.origin @ pl.normal for pl in planes])  # (F,)
-    half_w = np.array([0.5 * f.width for f in fingers])
-    # the moving links never get farther than Lm + hypot(Ld, h) from the first joint
-    reach = [f.middle_length + np.hypot(f.distal_length, 0.5 * f.thickness) for f in fingers]
-    r_all = np.array(reach) + prm.closing_margin  # (F,)
-    # candidates: the cells whose balls meet a finger's band (within half a finger width of
-    # its plane, and within its reach in the plane: in 3D within hypot(reach, half width) of
-    # its first joint)
-    origins = np.array([pl.origin for pl in planes])  # (F, 3)
+    fingers, planes, r_all, per_plane = _plane_arrays(ctx, gt, spread)
+    origins, ball2, nrm, shift, band, T_planes, half_width, reach2 = per_plane
     cells = ctx.cells
     uv, first, n_slice = kernels().slices(
         ctx.xyz, cells.order, cells.start, cells.count, view.centres, cells.radius,
-        float(sum(view.dz)), origins, np.hypot(r_all, half_w) + 1e-9, view.T0, view.r,
-        view.z_lo, view.z_hi, np.array(view.dz, dtype=np.float64), nrm, shift, half_w + 1e-9,
-        np.array([pl.T_hand_plane for pl in planes]), np.array([0.5 * f.width for f in fingers]),
-        np.array([(r + 1e-9) ** 2 for r in r_all]), prm.slice_resolution,
+        float(sum(view.dz)), origins, ball2, view.T0, view.r, view.z_lo, view.z_hi,
+        np.array(view.dz, dtype=np.float64), nrm, shift, band, T_planes, half_width, reach2,
+        prm.slice_resolution,
     )  # fmt: skip
     for j, (f, plane) in enumerate(zip(fingers, planes, strict=True)):  # <= 3 fingers
         p_slice = uv[first[j] : first[j + 1]]
@@ -91,6 +80,38 @@ def finger_slices(
             )
         )
     return out
+
+
+def _plane_arrays(ctx: Context, gt: str, spread: float) -> PlaneArrays:
+    """``(fingers, planes, r_all, arrays)`` of grasp type ``gt`` at ``spread``: the fingers and
+    their flexion planes, each finger's reach + margin (F,), and the slice kernel's per-plane
+    arguments (origins, 3D reach balls, plane normals (3, F), offsets, band half widths, plane
+    frames, half widths, squared 2D reach). A pure function of the hand, the parameters and
+    the plane key (cached in ``ctx``, computed as before on first use)."""
+    key = (gt, round(float(spread), 12))
+    hit = ctx.slice_planes.get(key)
+    if hit is not None:
+        return hit
+    prm = ctx.params
+    fingers = tuple(ctx.hand.fingers_for(gt))
+    planes = [ctx.plane(f, spread) for f in fingers]
+    nrm = np.array([pl.normal for pl in planes]).T  # (3, F)
+    shift = np.array([pl.origin @ pl.normal for pl in planes])  # (F,)
+    half_w = np.array([0.5 * f.width for f in fingers])
+    # the moving links never get farther than Lm + hypot(Ld, h) from the first joint
+    reach = [f.middle_length + np.hypot(f.distal_length, 0.5 * f.thickness) for f in fingers]
+    r_all = np.array(reach) + prm.closing_margin  # (F,)
+    # candidates: the cells whose balls meet a finger's band (within half a finger width of
+    # its plane, and within its reach in the plane: in 3D within hypot(reach, half width) of
+    # its first joint)
+    origins = np.array([pl.origin for pl in planes])  # (F, 3)
+    arrays = (
+        origins, np.hypot(r_all, half_w) + 1e-9, nrm, shift, half_w + 1e-9,
+        np.array([pl.T_hand_plane for pl in planes]), np.array([0.5 * f.width for f in fingers]),
+        np.array([(r + 1e-9) ** 2 for r in r_all]),
+    )  # fmt: skip
+    hit = (fingers, planes, r_all, arrays)  # (never written to: the threads share them)
+    return ctx.slice_planes.setdefault(key, hit)
 
 
 def _support_line_2d(
