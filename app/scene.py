@@ -126,6 +126,7 @@ class SceneRenderer:
         self.n_faces_shown = (0, 0)
         """(free, blocked) face quads currently in the scene."""
         server.scene.set_up_direction("+z")
+        configure_lighting(server)
 
     # ------------------------------------------------------------------ public API
     @property
@@ -513,6 +514,39 @@ class SceneRenderer:
         frame.position = T[:3, 3]
         frame.visible = True
         urdf.update_cfg(np.asarray(q, dtype=np.float64))
+
+
+HEMISPHERE_LIGHT = ((255, 255, 255), (90, 90, 100), 2.5)
+"""Sky colour, ground colour and intensity of the hemisphere light that stands in for viser's
+default environment map (with :data:`AMBIENT_LIGHT`, the fill of the faces the directional
+lights miss)."""
+AMBIENT_LIGHT = 0.6
+"""Intensity of a white ambient light (so no face is black)."""
+
+
+def configure_lighting(server: viser.ViserServer) -> None:
+    """Lights that are cheap to draw in software WebGL: viser's two directional lights without
+    shadows, and a hemisphere and an ambient light instead of the image-based environment map.
+
+    In headless Chromium (SwiftShader) viser's defaults cost most of every frame: the shadow
+    maps (three cascades, re-rendered each frame, and a filtered shadow lookup per fragment)
+    and the environment map's per-fragment lighting of every mesh. Measured on the first
+    screen of the browser tests (one session, adaptive pixel ratio): 300 ms a frame with both,
+    160 ms without shadows, 80 ms without either, 13 ms with no layer drawn (docs/benchmarks.md,
+    "Viewer: frame cost of the first screen"). No layer
+    carries information in its shadow; the boxes, faces and hand keep their colours and
+    shading by the directional lights."""
+    server.scene.configure_default_lights(enabled=True, cast_shadow=False)
+    server.scene.configure_environment_map(None)
+    sky, ground, intensity = HEMISPHERE_LIGHT
+    server.scene.add_light_hemisphere(  # three.js' sky is +y: turned to the world's +z
+        "/lights/fill",
+        sky_color=sky,
+        ground_color=ground,
+        intensity=intensity,
+        wxyz=(np.sqrt(0.5), np.sqrt(0.5), 0.0, 0.0),
+    )
+    server.scene.add_light_ambient("/lights/ambient", intensity=AMBIENT_LIGHT)
 
 
 FRAME_FILL = 0.85
