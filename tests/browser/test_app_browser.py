@@ -130,11 +130,14 @@ def _check_shown(page, what: str, t0: float, t_screen: float, watch: _Watch) -> 
     assert server < ACTION_S, f"{what}: the server took {server:.2f} s to draw the change"
 
 
-def _canvas_changed(page, before: np.ndarray, timeout: float = 90.0) -> float:
-    """Seconds until the canvas differs from ``before`` (more than 0.2 % of its pixels)."""
+def _canvas_changed(page, before: np.ndarray, clip: dict, timeout: float = 90.0) -> float:
+    """Seconds until the canvas on screen differs from ``before`` (more than 0.2 % of its
+    pixels). Each poll is a screenshot of the page as displayed, clipped to the canvas found
+    before the action (``clip``); it waits for no frame of its own (a screenshot takes the
+    newest composited frame), so that the polling does not hold up the page it watches."""
     t0 = time.perf_counter()
     while True:
-        now = _canvas_png(page, frames=1)
+        now = _canvas_png(page, frames=0, clip=clip)
         if now.shape != before.shape or (np.abs(now - before).max(axis=2) > 12).mean() > 0.002:
             return time.perf_counter() - t0
         assert time.perf_counter() - t0 < timeout, "the canvas never changed"
@@ -147,17 +150,25 @@ OBJECT_LAYERS = ("cloud", "box_edges", "faces_free", "faces_blocked", "subfaces"
 """Scene layers of the object itself (with the boxes), hidden to see the background."""
 
 
-def _canvas_png(page, frames: int = 3) -> np.ndarray:
+def _canvas_clip(page) -> dict:
+    """The page rectangle of the scene's canvas (the widest canvas on the page)."""
+    canvas = max(
+        page.locator("canvas").all(), key=lambda c: (c.bounding_box() or {}).get("width", 0)
+    )
+    box = canvas.bounding_box()
+    return {k: box[k] for k in ("x", "y", "width", "height")}
+
+
+def _canvas_png(page, frames: int = 3, clip: dict | None = None) -> np.ndarray:
+    """The canvas as displayed (RGB), after ``frames`` pairs of animation frames."""
     import imageio.v3 as iio
 
     for _ in range(frames):  # frames drawn after the last change
         page.evaluate(
             "() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))"
         )
-    canvas = max(
-        page.locator("canvas").all(), key=lambda c: (c.bounding_box() or {}).get("width", 0)
-    )
-    return np.asarray(iio.imread(canvas.screenshot(), extension=".png"))[..., :3].astype(np.int16)
+    png = page.screenshot(clip=clip if clip is not None else _canvas_clip(page))
+    return np.asarray(iio.imread(png, extension=".png"))[..., :3].astype(np.int16)
 
 
 def _set_visible(app, handles, visible: bool) -> None:
@@ -259,21 +270,22 @@ def test_face_masks_and_ghosts_show_and_hide(page, live_app, shots_dir):
     says."""
     masks = page.get_by_label("face masks", exact=True)
     assert masks.is_checked() and live_app.scene.n_faces_shown != (0, 0)
-    before = _canvas_png(page)
+    clip = _canvas_clip(page)
+    before = _canvas_png(page, clip=clip)
     watch = _Watch(lambda: live_app.scene.n_faces_shown == (0, 0))
     t0 = time.perf_counter()
     masks.uncheck()
-    _canvas_changed(page, before)
+    _canvas_changed(page, before, clip)
     _check_shown(page, "face masks hidden", t0, time.perf_counter(), watch)
     assert live_app.scene.n_faces_shown == (0, 0) and not masks.is_checked()
     ghosts = page.get_by_label("hand ghosts", exact=True)
-    before = _canvas_png(page)
+    before = _canvas_png(page, clip=clip)
     watch = _Watch(lambda: live_app.scene.n_ghosts_shown > 0)
     t0 = time.perf_counter()
     ghosts.check()
     drawn = re.compile(r"pool: \d+ pre-grasps, \d+ pass the filters, [1-9]\d* ghosts drawn")
     page.get_by_text(drawn).wait_for(timeout=LOAD_TIMEOUT_MS)
-    _canvas_changed(page, before)
+    _canvas_changed(page, before, clip)
     _check_shown(page, "ghosts shown", t0, time.perf_counter(), watch)
     n = live_app.scene.n_ghosts_shown
     assert 0 < n <= live_app.scene.max_ghosts
@@ -332,7 +344,8 @@ def test_plan_shows_ranked_table_and_pick_a_grasp(page, live_app, shots_dir):
     page.get_by_label("grasp", exact=True).click()
     option = page.get_by_role("option", name=re.compile(r"^#2 "))
     option.wait_for()
-    before = _canvas_png(page)
+    clip = _canvas_clip(page)
+    before = _canvas_png(page, clip=clip)
     app = live_app
 
     def posed() -> bool:
@@ -346,7 +359,7 @@ def test_plan_shows_ranked_table_and_pick_a_grasp(page, live_app, shots_dir):
         "() => [...document.querySelectorAll('input')].some(i => i.value.startsWith('#2 '))",
         timeout=LOAD_TIMEOUT_MS,
     )
-    _canvas_changed(page, before)  # the hand moves
+    _canvas_changed(page, before, clip)  # the hand moves
     _check_shown(page, "grasp choice", t0, time.perf_counter(), watch)
     # the server saw the choice and posed the URDF hand at that grasp
     for _ in range(100):
