@@ -14,12 +14,13 @@ purpose, e.g. at the start of a server, so that the first decomposition does not
 
 from __future__ import annotations
 
-import threading
 import time
 from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
+
+from .jit import Lazy, njit
 
 
 def _fma(a, b, c):  # pragma: no cover - replaced by the llvm.fma intrinsic in kernels()
@@ -415,24 +416,14 @@ class Kernels(NamedTuple):
     cut_scan: Callable[[np.ndarray, np.ndarray, int, int, int], tuple[int, float]]
 
 
-_LOCK = threading.Lock()
-_KERNELS: Kernels | None = None
-
-
 def kernels() -> Kernels:
     """The compiled kernels; the first call imports numba and compiles them (or loads them from
     numba's cache), once per process even when several threads ask at the same time."""
-    global _KERNELS
-    if _KERNELS is None:
-        with _LOCK:
-            if _KERNELS is None:
-                _KERNELS = _build()
-    return _KERNELS
+    return _KERNELS.get()
 
 
 def _build() -> Kernels:
     """Import numba and wrap the kernels (compiled lazily, on their first call)."""
-    import numba
     from numba.core.extending import intrinsic
 
     @intrinsic
@@ -448,18 +439,18 @@ def _build() -> Kernels:
 
     globals()["_fma"] = fma  # the compiled kernels resolve _fma here
 
-    def jit(fn: Callable[..., object], fastmath: bool | set[str] = False) -> Callable[..., object]:
-        return numba.njit(fn, cache=True, nogil=True, fastmath=fastmath)
-
     return Kernels(
-        pattern_search=jit(_pattern_search, fastmath=set(MINMAX_FLAGS)),
-        outside=jit(_outside, fastmath=set(MINMAX_FLAGS)),  # type: ignore[arg-type]
-        sweep=jit(_sweep, fastmath=set(MINMAX_FLAGS)),  # type: ignore[arg-type]
-        frames=jit(_frames),  # type: ignore[arg-type]
-        near_faces=jit(_near_faces),  # type: ignore[arg-type]
-        kernel_mask=jit(_kernel_mask),  # type: ignore[arg-type]
-        cut_scan=jit(_cut_scan),  # type: ignore[arg-type]
+        pattern_search=njit(_pattern_search, fastmath=set(MINMAX_FLAGS)),
+        outside=njit(_outside, fastmath=set(MINMAX_FLAGS)),
+        sweep=njit(_sweep, fastmath=set(MINMAX_FLAGS)),
+        frames=njit(_frames),
+        near_faces=njit(_near_faces),
+        kernel_mask=njit(_kernel_mask),
+        cut_scan=njit(_cut_scan),
     )
+
+
+_KERNELS = Lazy(_build)
 
 
 def warm_up() -> float:

@@ -39,13 +39,13 @@ from __future__ import annotations
 import functools
 import logging
 import math
-import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+from .jit import Lazy, njit
 from .limits import MAX_EXACT_TOP, check_int
 from .tolerances import GEOM_EPS, HULL_CHECK_TOL, QUALITY_EPS, QUALITY_RANK_TOL
 
@@ -242,23 +242,14 @@ def _wrenches_loop(f: np.ndarray, r: np.ndarray, rho: float) -> np.ndarray:
     return w
 
 
-_KERNEL_LOCK = threading.Lock()
-_KERNELS: tuple[Callable[..., np.ndarray], Callable[..., np.ndarray]] | None = None
-
-
 def _kernels() -> tuple[Callable[..., np.ndarray], Callable[..., np.ndarray]]:
     """``(frames, wrenches)``: :func:`_frames_loop` and :func:`_wrenches_loop` compiled by numba
     (``cache=True``; the first call imports numba and compiles or loads them, never the import
     of this module)."""
-    global _KERNELS
-    if _KERNELS is None:
-        with _KERNEL_LOCK:
-            if _KERNELS is None:
-                import numba
+    return _KERNELS.get()
 
-                jit = numba.njit(cache=True, nogil=True)
-                _KERNELS = (jit(_frames_loop), jit(_wrenches_loop))
-    return _KERNELS
+
+_KERNELS = Lazy(lambda: (njit(_frames_loop), njit(_wrenches_loop)))
 
 
 def contact_wrenches(

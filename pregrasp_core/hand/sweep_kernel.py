@@ -8,24 +8,18 @@ Python's global lock."""
 from __future__ import annotations
 
 import math
-import threading
 from collections.abc import Callable
 
 import numpy as np
 
-_LOCK = threading.Lock()
-_KERNEL: list[Callable[..., tuple[np.ndarray, np.ndarray]]] = []
+from ..jit import Lazy, njit
+
+_KERNEL = Lazy(lambda: njit(coarse_sweep_loop))
 
 
 def sweep_kernel() -> Callable[..., tuple[np.ndarray, np.ndarray]]:
     """The compiled :func:`coarse_sweep_loop` (numba imported on the first call)."""
-    if not _KERNEL:
-        with _LOCK:
-            if not _KERNEL:
-                import numba
-
-                _KERNEL.append(numba.njit(cache=True, nogil=True)(coarse_sweep_loop))
-    return _KERNEL[0]
+    return _KERNEL.get()
 
 
 def coarse_sweep_loop(
@@ -140,18 +134,12 @@ def coarse_sweep_loop(
     return best, free
 
 
-_HITS: list[Callable[..., np.ndarray]] = []
+_HITS = Lazy(lambda: njit(ragged_hits_loop))
 
 
 def hits_kernel() -> Callable[..., np.ndarray]:
     """The compiled :func:`ragged_hits_loop` (numba imported on the first call)."""
-    if not _HITS:
-        with _LOCK:
-            if not _HITS:
-                import numba
-
-                _HITS.append(numba.njit(cache=True, nogil=True)(ragged_hits_loop))
-    return _HITS[0]
+    return _HITS.get()
 
 
 def ragged_hits_loop(

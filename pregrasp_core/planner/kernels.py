@@ -11,32 +11,30 @@ side.
 from __future__ import annotations
 
 import math
-import threading
 from types import SimpleNamespace
 
 import numpy as np
 
-_LOCK = threading.Lock()
-_KERNELS: SimpleNamespace | None = None
+from ..jit import Lazy, njit
 
 
 def kernels() -> SimpleNamespace:
     """The compiled kernels (``slices``, ...); the first call imports numba and compiles them
     (a few seconds the very first time, then loaded from numba's cache)."""
-    global _KERNELS
-    if _KERNELS is None:
-        with _LOCK:
-            if _KERNELS is None:
-                import numba
+    return _KERNELS.get()
 
-                jit = numba.njit(cache=True, nogil=True)
-                _KERNELS = SimpleNamespace(
-                    slices=jit(slice_points),
-                    approach=jit(approach_sweep),
-                    link_distances=jit(link_distances),
-                    link_contacts=jit(link_contacts),
-                )
-    return _KERNELS
+
+def _build() -> SimpleNamespace:
+    """The kernels wrapped by numba (each compiled, or loaded, on its first call)."""
+    return SimpleNamespace(
+        slices=njit(slice_points),
+        approach=njit(approach_sweep),
+        link_distances=njit(link_distances),
+        link_contacts=njit(link_contacts),
+    )
+
+
+_KERNELS = Lazy(_build)
 
 
 def slice_points(

@@ -1,0 +1,44 @@
+"""Compiled loops on first use: the one way the core's numba kernels are built.
+
+Every module with compiled loops (the planner's, the decomposition's, the quality stage's, the
+closing model's) keeps numba out of the package's import: its kernels are plain Python
+functions, compiled (or loaded from numba's on-disk cache, ``cache=True``) on the first call
+that needs them. :class:`Lazy` builds such a value once per process, even when several threads
+ask at the same time; :func:`njit` compiles one function with the options every kernel shares
+(``cache=True``; ``nogil=True``, so that threads run the kernels side by side).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from typing import Generic, TypeVar, cast
+
+T = TypeVar("T")
+F = TypeVar("F", bound=Callable[..., object])
+
+
+class Lazy(Generic[T]):
+    """A value built by ``build()`` on the first :meth:`get` of the process, once (a lock and
+    a second look keep two threads that ask together from building it twice)."""
+
+    def __init__(self, build: Callable[[], T]) -> None:
+        self._build = build
+        self._lock = threading.Lock()
+        self._value: T | None = None
+
+    def get(self) -> T:
+        """The value, built on the first call."""
+        if self._value is None:
+            with self._lock:
+                if self._value is None:
+                    self._value = self._build()
+        return self._value
+
+
+def njit(fn: F, fastmath: bool | set[str] = False) -> F:
+    """``fn`` compiled by numba (imported here, on the first call): ``cache=True``,
+    ``nogil=True``, and ``fastmath`` as given (False: none)."""
+    import numba
+
+    return cast(F, numba.njit(fn, cache=True, nogil=True, fastmath=fastmath))
