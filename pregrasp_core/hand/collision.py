@@ -78,10 +78,7 @@ def obb_apart(
 
 def collision_objects(model: HandModel, q: np.ndarray) -> dict[str, fcl.CollisionObject]:
     """Link name -> python-fcl box object placed at configuration ``q`` (J,), hand frame."""
-    Q, single = model.as_q(q)
-    if not single:
-        raise ValueError(f"q must have shape ({model.n_joints},), got {Q.shape}")
-    Tb = kinematics.box_poses(model, Q[0])
+    Tb = kinematics.box_poses(model, model.one_q(q))
     out = {}
     for i, n in enumerate(model.link_names):
         geom = fcl.Box(*(2.0 * model.link_box_half[i]))
@@ -137,11 +134,9 @@ class SelfCollisionChecker:
         The ball test of :meth:`collisions_many` skips pairs proven apart and python-fcl
         decides the rest, so the answer is python-fcl's on every checked pair (the batch's
         separating-axis filter does not pay for one hand; see ``SAT_MIN_PAIRS``)."""
-        Q, single = self.model.as_q(q)
-        if not single:
-            raise ValueError(f"q must have shape ({self.model.n_joints},), got {Q.shape}")
+        q1 = self.model.one_q(q)
         if box_poses is None:
-            Tb = kinematics.box_poses(self.model, Q[0])  # (L, 4, 4)
+            Tb = kinematics.box_poses(self.model, q1)  # (L, 4, 4)
         else:
             Tb = np.asarray(box_poses, dtype=np.float64)
             L = len(self.model.link_names)

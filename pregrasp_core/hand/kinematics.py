@@ -41,11 +41,8 @@ def with_flexion(
     model: HandModel, q: np.ndarray, finger: str | Finger, q_flex: np.ndarray
 ) -> np.ndarray:
     """A copy of ``q`` (J,) with the finger's two flexion joints set to ``q_flex`` (2,)."""
-    Q, single = model.as_q(q)
-    if not single:
-        raise ValueError(f"q must have shape ({model.n_joints},), got {Q.shape}")
+    out = model.one_q(q).copy()
     f = model.finger(finger)
-    out = Q[0].copy()
     out[list(f.flex_index)] = np.asarray(q_flex, dtype=np.float64).reshape(2)
     return out
 

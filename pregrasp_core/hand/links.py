@@ -36,10 +36,7 @@ def points_in_links(
     """(N, L) bool: point n lies inside link l's collision box grown by ``margin`` on every
     side, for one configuration ``q`` (J,). Columns in ``link_names`` order."""
     p = as_points(p_hand, "p_hand")
-    Q, single = model.as_q(q)
-    if not single:
-        raise ValueError(f"q must have shape ({model.n_joints},), got {Q.shape}")
-    Tb = box_poses(model, Q[0])  # (L, 4, 4)
+    Tb = box_poses(model, model.one_q(q))  # (L, 4, 4)
     R = Tb[:, :3, :3]  # (L, 3, 3) box axes as columns
     L = R.shape[0]
     # box-frame coordinates of every point in every box with one matrix product:

@@ -57,9 +57,7 @@ def _concatenate(parts: list[trimesh.Trimesh]) -> trimesh.Trimesh:
 def hand_mesh(model: HandModel, q: np.ndarray) -> trimesh.Trimesh:
     """The visual mesh of the whole hand at configuration ``q`` (J,), in the hand frame,
     with per-face colours from the URDF materials."""
-    T = fk_array(model, np.asarray(q, dtype=np.float64))
-    if T.ndim != 3:
-        raise ValueError(f"q must have shape ({model.n_joints},), got {np.shape(q)}")
+    T = fk_array(model, model.one_q(q))
     parts = []
     for i, n in enumerate(model.link_names):
         m = model.visual_meshes[n].copy()
@@ -70,9 +68,7 @@ def hand_mesh(model: HandModel, q: np.ndarray) -> trimesh.Trimesh:
 
 def collision_mesh(model: HandModel, q: np.ndarray) -> trimesh.Trimesh:
     """The collision boxes at ``q`` (J,) as one mesh in the hand frame (for drawing)."""
-    Tb = box_poses(model, np.asarray(q, dtype=np.float64))
-    if Tb.ndim != 3:
-        raise ValueError(f"q must have shape ({model.n_joints},), got {np.shape(q)}")
+    Tb = box_poses(model, model.one_q(q))
     parts = [
         trimesh.creation.box(extents=2.0 * model.link_box_half[i], transform=Tb[i])
         for i in range(len(model.link_names))

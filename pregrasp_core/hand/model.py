@@ -243,6 +243,14 @@ class HandModel:
             return arr, False
         raise ValueError(f"q must have shape ({J},) or (B, {J}), got {arr.shape}")
 
+    def one_q(self, q: np.ndarray) -> np.ndarray:
+        """``q`` as one configuration (J,) float64 (:meth:`as_q`'s coercion); a ``ValueError``
+        for a batch (B, J) or any other shape."""
+        Q, single = self.as_q(q)
+        if not single:
+            raise ValueError(f"q must have shape ({self.n_joints},), got {Q.shape}")
+        return Q[0]
+
     def finger(self, finger: str | Finger) -> Finger:
         """The :class:`Finger` with this name (or the finger itself)."""
         if isinstance(finger, Finger):

@@ -165,6 +165,29 @@ def test_fk_rejects_bad_shapes(hand):
         hand.fk(np.zeros((2, 3, 7)))
 
 
+def test_single_configuration_calls_reject_batches(hand):
+    # every call that takes one configuration (J,): a batch (1, J) or a wrong length is refused
+    # with the shape in the message; a list of 7 numbers is taken as float64
+    q = hand.preshape(GRASP_TYPES[0])
+    calls = {
+        "one_q": hand.one_q,
+        "with_flexion": lambda x: hand.with_flexion(x, "f1", np.zeros(2)),
+        "points_in_links": lambda x: hand.points_in_links(np.zeros((1, 3)), x),
+        "collision_objects": hand.collision_objects,
+        "self_collisions": hand.self_collisions,
+        "hand_mesh": hand.hand_mesh,
+        "collision_mesh": hand.collision_mesh,
+    }
+    for call in calls.values():
+        with pytest.raises(ValueError, match=r"q must have shape \(7,\), got \(1, 7\)"):
+            call(q[None])
+        with pytest.raises(ValueError, match=r"q must have shape \(7,\) or \(B, 7\), got \(6,\)"):
+            call(q[:6])
+        call(list(q))  # accepted
+    one = hand.one_q(list(q))
+    assert one.dtype == np.float64 and one.shape == (7,) and np.array_equal(one, q)
+
+
 def test_mimic_spread_is_synchronous_and_mirrored(hand):
     for s in (0.0, 0.3, math.pi / 3, math.pi / 2):
         q = _q(hand, f1_spread=s)
