@@ -10,6 +10,8 @@ measured against the mesh the view was cast from (``pregrasp_core.sensor.truth``
 - penetration: the deepest of 7 x 7 x 7 grid points in every link box inside the mesh;
 - contacts: the largest distance of the grasp's contact points to the mesh surface;
 - the number of its contacts on assumed (completed) points;
+- the completion's copies against the mesh: the median signed distance of the copied points
+  (positive inside; not the midpoints that close holes), whether the copy leans in or out;
 - parts: leaves of the decomposition against the complete cloud's (the mesh sampled to 20,000
   points), the issue's "within 1".
 
@@ -61,6 +63,7 @@ class Row:
     fc: bool = False
     pen: float = np.inf
     cont: float = np.inf
+    copy: float = np.nan
 
 
 def main() -> int:
@@ -92,7 +95,8 @@ def main() -> int:
           f"smoothing {'off' if args.no_smooth else 'on'}")  # fmt: skip
     print(
         f"{'object':<12} {'cam':>3} {'noise':>5} {'kept':>4} {'fc':>4} {'eps':>6} "
-        f"{'pen mm':>6} {'link':<13} {'cont mm':>7} {'assumed':>7} {'parts':>7} {'s':>5}"
+        f"{'pen mm':>6} {'link':<13} {'cont mm':>7} {'assumed':>7} {'parts':>7} {'copy mm':>7} "
+        f"{'s':>5}"
     )
     truths: dict[str, MeshDistance] = {}
     full_parts: dict[str, int] = {}
@@ -128,7 +132,12 @@ def main() -> int:
             row.pen, row.cont = ch.penetration, ch.worst_contact
             line += (f"{g.epsilon:>6.3f} {ch.penetration * 1e3:>6.1f} {ch.link:<13} "
                      f"{ch.worst_contact * 1e3:>7.1f} {n_ass:>3}/{g.n_contacts:<3}")  # fmt: skip
-        line += f" {parts:>3}/{full_parts.get(name, -1):<3} {dt:>5.1f}"
+        done = cloud.sensor.completion if cloud.sensor is not None else None
+        if done is not None and np.any(done.assumed & ~done.filled):
+            row.copy = float(
+                np.median(truths[name].signed(cloud.points[done.assumed & ~done.filled]))
+            )
+        line += f" {parts:>3}/{full_parts.get(name, -1):<3} {row.copy * 1e3:>+7.1f} {dt:>5.1f}"
         rows.append(row)
         print(line, flush=True)
 
@@ -146,16 +155,20 @@ def main() -> int:
         def med(a: np.ndarray) -> str:
             return f"{np.median(a):.1f} / {a.max():.1f}" if len(a) else "-"
 
+        cp = np.array([r.copy for r in rs if np.isfinite(r.copy)]) * 1e3
+        lean = (f"{np.median(cp):+.1f} / {np.median(np.abs(cp)):.1f} / {np.abs(cp).max():.1f}"
+                if len(cp) else "-")  # fmt: skip
         return (f"| {label} | {fc}/{n} | {med(pm)} | {pen}/{n} | {med(cm)} | {cont}/{n} | "
-                f"{both}/{n} | {parts}/{n} |")  # fmt: skip
+                f"{both}/{n} | {parts}/{n} | {lean} |")  # fmt: skip
 
     print()
     print(
         "| views | best grasp force closure | penetration median / worst (mm) | "
         "penetration <= 2 mm | contact median / worst (mm) | contacts within 3 mm | "
-        "all three | parts within 1 |"
+        "all three | parts within 1 | copies' median signed distance: median / median abs / "
+        "worst abs (mm) |"
     )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for name in sorted({r.object for r in rows}):
         print(summary(name, [r for r in rows if r.object == name]))
     for noise in sorted({r.noise for r in rows}):

@@ -93,7 +93,8 @@ class SensorView:
             return nv.copy()
         R = self.completion.transform[:3, :3]
         out = nv[self.completion.source]
-        out[self.assumed] = out[self.assumed] @ R.T
+        mv = self.completion.moved
+        out[mv] = out[mv] @ R.T
         return out
 
 

@@ -20,6 +20,7 @@ from types import ModuleType
 import numpy as np
 import pytest
 import trimesh
+from scipy.spatial.transform import Rotation
 
 from pregrasp_core.io import load_point_cloud
 from pregrasp_core.paths import OBJECTS_DIR
@@ -27,7 +28,7 @@ from pregrasp_core.pipeline import PipelineParams, run_pipeline
 from pregrasp_core.planner import grasps_sections
 from pregrasp_core.sensor import segment_table
 from pregrasp_core.sensor.smooth import smooth_view
-from pregrasp_core.sensor.synthetic import LABEL_OBJECT
+from pregrasp_core.sensor.synthetic import LABEL_OBJECT, orbit_camera, render_view
 from pregrasp_core.sensor.truth import MeshDistance, check_grasp
 
 REPO = Path(__file__).resolve().parents[2]
@@ -141,3 +142,66 @@ def test_best_grasp_of_a_view_holds_on_the_true_mesh(
     item = doc["grasps"]["items"][gs.best]  # type: ignore[index]
     assert item["n_assumed_contacts"] == sum(c.assumed for c in g.contacts)
     assert [c["assumed"] for c in item["contacts"]] == [c.assumed for c in g.contacts]
+
+
+def moved_view(mv: ModuleType, name: str, yaw_deg: float, shift: tuple[float, float],
+               azimuth_deg: float, elevation_deg: float, noise: float, seed: int):  # fmt: skip
+    """(true mesh, view) of a demo object turned by ``yaw_deg`` about the table's normal and
+    moved by ``shift`` on the table, seen from a camera that is not one of the benchmark's
+    (``make_views``' intrinsics and distance rule, any azimuth and elevation)."""
+    mesh = trimesh.load(OBJECTS_DIR / f"{name}.obj", force="mesh")
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("z", yaw_deg, degrees=True).as_matrix()
+    T[:2, 3] = shift
+    mesh.apply_transform(T)
+    target, distance, table_half = mv.view_setup(mesh)
+    target[:2] = shift
+    cam = orbit_camera(target, distance, np.radians(azimuth_deg), np.radians(elevation_deg))
+    view = render_view(
+        mesh.vertices, mesh.faces, cam, mv.INTRINSICS, mv.WIDTH, mv.HEIGHT,
+        table_half=table_half + float(np.hypot(*shift)), noise=noise,
+        rng=np.random.default_rng(seed),
+    )  # fmt: skip
+    return mesh, view
+
+
+@pytest.mark.parametrize(
+    ("name", "yaw", "shift", "azimuth", "elevation", "noise"),
+    [pytest.param("mug", 40.0, (0.05, -0.03), 80.0, 45.0, 0.0, marks=pytest.mark.xfail(
+        reason="measured: f2_distal 4.0 mm inside the true mug (main: the same grasp); the "
+        "chosen mirror is not the plane through the handle, 5 degrees from the nearest of "
+        "MIRROR_ANGLES", strict=False)),
+     ("can_soda", 0.0, (-0.04, 0.02), 200.0, 25.0, 0.001),
+     pytest.param("box_cereal", 25.0, (0.0, 0.06), 60.0, 40.0, 0.001, marks=pytest.mark.xfail(
+        reason="measured: the copies 1.9 mm outside the true box (median; main: 0.1 mm); its "
+        "best grasp holds (0.4 mm, contacts within 2.4 mm)", strict=False)),
+     ("ramekin", 70.0, (0.03, 0.03), 120.0, 35.0, 0.002),
+     ("bottle", 15.0, (-0.02, -0.05), 330.0, 50.0, 0.002)],
+)  # fmt: skip
+def test_grasp_of_a_new_view_holds_on_the_true_mesh(
+    make_views, tmp_path: Path, name: str, yaw: float, shift: tuple[float, float],
+    azimuth: float, elevation: float, noise: float,
+) -> None:  # fmt: skip
+    """Views outside the benchmark's 45 (other cameras, the object turned and moved on the
+    table): the best grasp is force closure, penetrates the true mesh by at most 2 mm and its
+    contacts lie within 3 mm of its surface; the completion's copies are not biased inward or
+    outward by more than 1.5 mm (median signed distance to the true mesh; the code before the
+    range image: +1.6 to +3.0 mm on the mug, the ramekin and the bottle here)."""
+    mesh, view = moved_view(make_views, name, yaw, shift, azimuth, elevation, noise, seed=7)
+    pts, lab = view.points_world()
+    label = np.where(lab == LABEL_OBJECT, 2, 1).astype(np.uint8)
+    path = tmp_path / f"{name}.pcd"
+    path.write_bytes(make_views.pcd_bytes(pts, label, view.T_world_camera))
+    cloud = load_point_cloud(path)
+    assert cloud.assumed is not None and cloud.assumed.any()
+    truth = MeshDistance(mesh)
+    copies = cloud.sensor.completion
+    assert copies is not None
+    sd = truth.signed(cloud.points[copies.assumed & ~copies.filled])
+    assert abs(float(np.median(sd))) < 0.0015, np.median(sd)
+    res = run_pipeline(cloud, PipelineParams(), until="grasps")
+    gs = res.grasps
+    assert gs is not None and gs.best is not None and res.hand is not None
+    check = check_grasp(gs.grasps[gs.best], res.hand, truth)
+    assert check.penetration <= 0.002, (check.link, check.penetration)
+    assert check.worst_contact <= 0.003, check.contact_distance

@@ -395,10 +395,18 @@ def test_completion_recovers_the_true_box(name: str, azimuth: float) -> None:
     done = complete_view(pts, vp, plane)
     assert np.array_equal(done.points[~done.assumed], pts)
     assert done.assumed.sum() > 0.3 * len(pts)
-    # each assumed point is its source moved by the symmetry
+    # each copy is its source moved by the symmetry; the points that close holes lie between
+    # two others, in a hole (no other point within a spacing)
     M = done.transform
-    src = done.source[done.assumed]
-    assert np.allclose(done.points[done.assumed], pts[src] @ M[:3, :3].T + M[:3, 3])
+    copy = done.assumed & ~done.filled
+    src = done.source[copy]
+    assert np.allclose(done.points[copy], pts[src] @ M[:3, :3].T + M[:3, 3])
+    assert np.array_equal(done.moved, copy | (done.filled & done.moved))
+    if done.filled.any():
+        others = cKDTree(done.points[~done.filled])
+        d, _ = others.query(done.points[done.filled])
+        spacing = float(np.median(cKDTree(pts).query(pts, k=2)[0][:, 1]))
+        assert d.min() > spacing and d.max() <= CompletionParams().gap_max
     assert np.array_equal(done.source[~done.assumed], np.arange(len(pts)))
     assert abs(abs(np.linalg.det(M[:3, :3])) - 1.0) < 1e-12
     lo, hi = done.points.min(axis=0), done.points.max(axis=0)
