@@ -16,11 +16,12 @@ CORNER_SIGNS: np.ndarray = np.stack([(np.arange(8) >> b) & 1 for b in range(3)],
 CORNER_SIGNS.setflags(write=False)
 
 
-def as_points(points: np.ndarray, name: str = "points") -> np.ndarray:
-    """``points`` as (N, 3) float64; a ``ValueError`` naming ``name`` and the shape if not."""
+def as_points(points: np.ndarray, name: str = "points", rows: str = "N") -> np.ndarray:
+    """``points`` as (N, 3) float64; a ``ValueError`` naming ``name`` and the shape if not
+    (``rows``: the letter the message gives the row count, e.g. K for contacts)."""
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"{name} must have shape (N, 3), got {pts.shape}")
+        raise ValueError(f"{name} must have shape ({rows}, 3), got {pts.shape}")
     return pts
 
 

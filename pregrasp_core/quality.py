@@ -45,6 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+from .geometry import as_points
 from .jit import Lazy, njit
 from .limits import MAX_EXACT_TOP, check_int
 from .tolerances import GEOM_EPS, HULL_CHECK_TOL, QUALITY_EPS, QUALITY_RANK_TOL
@@ -129,10 +130,7 @@ class GraspQuality:
 
 
 def _as_vectors(x: np.ndarray, name: str) -> np.ndarray:
-    arr = np.asarray(x, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"{name} must have shape (K, 3), got {arr.shape}")
-    return arr
+    return as_points(x, name, rows="K")
 
 
 def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
