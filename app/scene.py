@@ -467,7 +467,9 @@ class SceneRenderer:
                 NAMES["hand"], show_axes=False
             )
             urdf_path = Path(getattr(self.hand, "urdf_path", "") or _default_urdf())
-            self._urdf = ViserUrdf(self.server, urdf_path, root_node_name=NAMES["hand"])
+            self._urdf = ViserUrdf(
+                self.server, display_urdf(urdf_path), root_node_name=NAMES["hand"]
+            )
         return self._urdf
 
     def _draw_lift(self, state: AppState) -> None:
@@ -516,11 +518,11 @@ class SceneRenderer:
         urdf.update_cfg(np.asarray(q, dtype=np.float64))
 
 
-HEMISPHERE_LIGHT = ((255, 255, 255), (90, 90, 100), 2.5)
+HEMISPHERE_LIGHT = ((255, 255, 255), (90, 90, 100), 0.8)
 """Sky colour, ground colour and intensity of the hemisphere light that stands in for viser's
 default environment map (with :data:`AMBIENT_LIGHT`, the fill of the faces the directional
 lights miss)."""
-AMBIENT_LIGHT = 0.6
+AMBIENT_LIGHT = 0.3
 """Intensity of a white ambient light (so no face is black)."""
 
 
@@ -561,6 +563,39 @@ def camera_offset(diag: float, fov: float, fill: float = FRAME_FILL) -> np.ndarr
     the distance where a sphere of diameter ``diag`` spans ``fill`` of the vertical field of
     view ``fov`` (radians)."""
     return VIEW_DIRECTION * (0.5 * diag / np.tan(0.5 * fill * fov))
+
+
+HAND_ROUGHNESS = 0.7
+"""Roughness of the drawn hand's (non-metallic) material."""
+
+
+def display_urdf(path: Path) -> Any:
+    """The hand's URDF (``yourdfpy.URDF``) with its visual meshes loaded, each in its URDF
+    colour as a non-metallic material.
+
+    The meshes carry only a colour, and a glTF material without ``metallicFactor`` is fully
+    metallic: lit by the environment map it looked grey, but a metal has no diffuse light, so
+    under :func:`configure_lighting` (no environment map) every face turned away from the
+    directional lights would be black."""
+    from functools import partial
+
+    import trimesh
+    import yourdfpy
+
+    urdf = yourdfpy.URDF.load(
+        path,
+        build_scene_graph=True,
+        load_meshes=True,
+        filename_handler=partial(yourdfpy.filename_handler_magic, dir=path.parent),
+    )
+    for mesh in urdf.scene.geometry.values():
+        rgba = np.asarray(mesh.visual.face_colors, dtype=np.uint8)[0]
+        mesh.visual = trimesh.visual.TextureVisuals(
+            material=trimesh.visual.material.PBRMaterial(
+                baseColorFactor=rgba, metallicFactor=0.0, roughnessFactor=HAND_ROUGHNESS
+            )
+        )
+    return urdf
 
 
 def _default_urdf() -> Path:

@@ -35,3 +35,26 @@ def test_a_browser_gets_lights_without_shadows_or_environment_map(app):
         assert np.allclose(sky, [0.0, 0.0, 1.0], atol=1e-9)
     finally:
         b.close()
+
+
+def test_the_drawn_hand_is_non_metallic_in_its_urdf_colours():
+    """Without an environment map a metallic surface has no diffuse light (its faces turned
+    away from the lights are black); the hand's meshes carry only a colour, which glTF would
+    draw fully metallic. Reference: the URDF's own materials, read from the XML."""
+    import xml.etree.ElementTree as ET
+
+    from app.scene import display_urdf
+    from pregrasp_core.paths import HAND_URDF
+
+    root = ET.parse(HAND_URDF).getroot()
+    rgba = {m.get("name"): m.find("color").get("rgba") for m in root.iter("material")
+            if m.find("color") is not None}  # fmt: skip
+    want = sorted(
+        tuple(round(float(v) * 255) for v in rgba[v.find("material").get("name")].split())
+        for v in root.iter("visual")
+    )
+    meshes = list(display_urdf(HAND_URDF).scene.geometry.values())
+    got = sorted(tuple(int(c) for c in m.visual.material.baseColorFactor) for m in meshes)
+    # one mesh per visual, each in its link's colour (to the 8-bit step: 0.32 -> 81 or 82)
+    assert len(got) == len(want) and np.abs(np.array(got) - np.array(want)).max() <= 1
+    assert all(m.visual.material.metallicFactor == 0.0 for m in meshes)
