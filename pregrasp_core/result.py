@@ -70,7 +70,33 @@ def to_jsonable(obj: object) -> JsonValue:
     Dataclasses become dicts of their fields, enums their value, numpy arrays nested lists,
     numpy scalars Python scalars, paths strings, tuples lists; NaN and infinities ``None``
     (JSON has no such numbers). Raises ``TypeError`` for anything else.
+
+    The plain types (most of a result document: the sections are built of dicts, lists and
+    ``tolist()`` floats) are told by their exact type first, a float's finiteness by
+    ``x - x == 0.0`` (NaN for an infinity or a NaN) without a call per float; everything else
+    (subclasses such as str enums and numpy floats included) goes through
+    :func:`_to_jsonable_other`.
     """
+    t = type(obj)
+    if t is float:
+        return obj if obj - obj == 0.0 else None  # type: ignore[operator, return-value]
+    if t is str or t is int or t is bool or obj is None:
+        return obj  # type: ignore[return-value]
+    if t is dict:
+        return {
+            (k if type(k) is str else str(k)): to_jsonable(v)
+            for k, v in obj.items()  # type: ignore[attr-defined]
+        }
+    if t is list or t is tuple:
+        return [
+            x if type(x) is float and x - x == 0.0 else to_jsonable(x)
+            for x in obj  # type: ignore[attr-defined]
+        ]
+    return _to_jsonable_other(obj)
+
+
+def _to_jsonable_other(obj: object) -> JsonValue:
+    """:func:`to_jsonable` of the values that are not exactly a plain JSON type."""
     if obj is None or isinstance(obj, (bool, str)):
         return obj
     if isinstance(obj, enum.Enum):
@@ -124,7 +150,7 @@ def _dump(obj: object, nl: str, out: list[str]) -> None:
     level ``obj`` sits at (one space per level, as ``indent=1``)."""
     t = type(obj)
     if t is float:
-        out.append(_finite_repr(obj))  # type: ignore[arg-type]
+        out.append(_float_repr(obj) if obj - obj == 0.0 else "null")  # type: ignore[operator]
     elif t is str:
         out.append(_encode_str(obj))  # type: ignore[arg-type]
     elif t is int:
@@ -171,7 +197,12 @@ def _dump_list(
     sep = "," + inner
     if floats or all(type(x) is float for x in items):
         if type(items[0]) is float:
-            out.append("[" + inner + sep.join(map(_finite_repr, items)) + nl + "]")  # type: ignore[arg-type]
+            # every float's repr in C; only a list holding an inf or a nan ("n" in its text,
+            # never in a finite float's repr) is written again with nulls for them
+            text = sep.join(map(_float_repr, items))
+            if "n" in text:
+                text = sep.join(map(_finite_repr, items))  # type: ignore[arg-type]
+            out.append("[" + inner + text + nl + "]")
             return
     elif all(type(x) is int for x in items):
         out.append("[" + inner + sep.join(map(_int_repr, items)) + nl + "]")
@@ -193,12 +224,26 @@ def _dump_dict(d: dict[object, object], nl: str, out: list[str]) -> None:
         out.append("{}")
         return
     inner = nl + " "
-    first = True
+    sep = "," + inner
+    lead = inner
     out.append("{")
     for k, v in d.items():  # loop over the keys
-        out.append((inner if first else "," + inner) + _encode_str(str(k)) + ": ")
-        first = False
-        _dump(v, inner, out)
+        key = lead + _encode_str(str(k)) + ": "
+        lead = sep
+        t = type(v)  # the scalars written here, without a call of _dump each
+        if t is float:
+            out.append(key + (_float_repr(v) if v - v == 0.0 else "null"))  # type: ignore[operator]
+        elif t is str:
+            out.append(key + _encode_str(v))  # type: ignore[arg-type]
+        elif t is int:
+            out.append(key + _int_repr(v))
+        elif v is None:
+            out.append(key + "null")
+        elif t is bool:
+            out.append(key + ("true" if v else "false"))
+        else:
+            out.append(key)
+            _dump(v, inner, out)
     out.append(nl + "}")
 
 

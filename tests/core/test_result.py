@@ -169,6 +169,47 @@ def test_to_jsonable():
         to_jsonable(object())
 
 
+def _random_plain(rng: np.random.Generator, depth: int = 0) -> object:
+    """A random nested value of plain JSON types with floats of every kind (inf, nan, -0.0,
+    subnormal, huge), as the result sections hold them."""
+    special = [math.inf, -math.inf, math.nan, -0.0, 5e-324, 1e308, 0.1]
+    kind = rng.integers(0, 7 if depth < 4 else 4)
+    if kind == 0:
+        return float(special[rng.integers(len(special))]) if rng.random() < 0.3 else rng.normal()
+    if kind == 1:
+        return int(rng.integers(-5, 5))
+    if kind == 2:
+        return [None, True, False, "t\u00e9xt"][rng.integers(4)]
+    if kind == 3:
+        return [rng.normal() if rng.random() < 0.8 else math.inf for _ in range(rng.integers(5))]
+    if kind == 4:
+        return [_random_plain(rng, depth + 1) for _ in range(rng.integers(4))]
+    if kind == 5:
+        return tuple(_random_plain(rng, depth + 1) for _ in range(rng.integers(3)))
+    return {f"k{i}": _random_plain(rng, depth + 1) for i in range(rng.integers(4))}
+
+
+def test_to_jsonable_of_plain_values_is_the_json_modules_reading():
+    """Plain values (the fast paths by exact type): the same as what the json module reads
+    back from its own text with every NaN and infinity as null, to the float's sign and bits;
+    tuples become lists, and str subclasses, numpy floats and non-str keys take the general
+    path."""
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        value = _random_plain(rng)
+        text = json.dumps(value, allow_nan=True)
+        for token in ("-Infinity", "Infinity", "NaN"):
+            text = text.replace(token, "null")
+        expected = json.loads(text)
+        got = to_jsonable(value)
+        assert json.dumps(got, allow_nan=False) == json.dumps(expected, allow_nan=False)
+        assert dumps_result(value) == json.dumps(expected, indent=1, allow_nan=False)
+    got = to_jsonable({1: (np.float64(np.inf), np.float32(0.5), -0.0, _Word.A), "x": [_Count.B]})
+    assert got == {"1": [None, 0.5, -0.0, "a"], "x": [3]}
+    assert math.copysign(1.0, got["1"][2]) == -1.0  # type: ignore[index]
+    assert type(got["x"][0]) is int  # type: ignore[index]
+
+
 class _Word(str, enum.Enum):
     A = "a"
 
