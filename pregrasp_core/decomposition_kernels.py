@@ -70,6 +70,16 @@ def _kernel_mask(q, lo, ext, grid):  # pragma: no cover - compiled by numba
     return keep
 
 
+def _widen(v, mx, mn):  # pragma: no cover - compiled by numba, inline (see kernels())
+    # a running extent [mn, mx] with the value v added: the comparisons of numpy's running
+    # maximum and minimum
+    if v > mx:
+        mx = v
+    if v < mn:
+        mn = v
+    return mx, mn
+
+
 def _cut_scan(pT, order, a, lo, hi):  # pragma: no cover - compiled by numba
     # numpy (best_cut, one axis): s = pT[:, order]; x = s[a]; pre/suf = running max - running
     # min of the two other rows from the front / the back; for every cut i in [lo, hi]:
@@ -87,15 +97,8 @@ def _cut_scan(pT, order, a, lo, hi):  # pragma: no cover - compiled by numba
     mn1 = np.inf
     for i in range(hi + 1):
         j = order[i]
-        v0, v1 = pT[b0, j], pT[b1, j]
-        if v0 > mx0:
-            mx0 = v0
-        if v0 < mn0:
-            mn0 = v0
-        if v1 > mx1:
-            mx1 = v1
-        if v1 < mn1:
-            mn1 = v1
+        mx0, mn0 = _widen(pT[b0, j], mx0, mn0)
+        mx1, mn1 = _widen(pT[b1, j], mx1, mn1)
         if i >= lo:
             pre0[i - lo] = mx0 - mn0
             pre1[i - lo] = mx1 - mn1
@@ -109,15 +112,8 @@ def _cut_scan(pT, order, a, lo, hi):  # pragma: no cover - compiled by numba
     best = np.inf
     for i in range(n - 1, lo, -1):  # i = the first point of the right child
         j = order[i]
-        v0, v1 = pT[b0, j], pT[b1, j]
-        if v0 > mx0:
-            mx0 = v0
-        if v0 < mn0:
-            mn0 = v0
-        if v1 > mx1:
-            mx1 = v1
-        if v1 < mn1:
-            mn1 = v1
+        mx0, mn0 = _widen(pT[b0, j], mx0, mn0)
+        mx1, mn1 = _widen(pT[b1, j], mx1, mn1)
         if i <= hi + 1:
             t = i - 1 - lo  # the cut between sorted positions i - 1 and i
             xl, xr = pT[a, order[i - 1]], pT[a, j]
@@ -424,6 +420,7 @@ def kernels() -> Kernels:
 
 def _build() -> Kernels:
     """Import numba and wrap the kernels (compiled lazily, on their first call)."""
+    import numba
     from numba.core.extending import intrinsic
 
     @intrinsic
@@ -438,6 +435,8 @@ def _build() -> Kernels:
         return a(a, b, c), codegen  # type: ignore[operator]
 
     globals()["_fma"] = fma  # the compiled kernels resolve _fma here
+    # and _widen: compiled into its callers (numba's own inlining, so no call in the loop)
+    globals()["_widen"] = numba.njit(_widen, inline="always", cache=True)
 
     return Kernels(
         pattern_search=njit(_pattern_search, fastmath=set(MINMAX_FLAGS)),
