@@ -103,24 +103,24 @@ def box_poses(model: HandModel, q: np.ndarray) -> np.ndarray:
 def fingertips(model: HandModel, q: np.ndarray) -> dict[str, np.ndarray]:
     """Finger name -> fingertip centre (end of the distal link on its axis) in the hand frame:
     (B, 3) for ``q`` (B, J), (3,) for (J,)."""
-    T = fk_array(model, q)
-    out = {}
-    for f in model.fingers:
-        Td = T[..., model.link_names.index(f.links[2]), :, :]
-        out[f.name] = Td[..., :3, 3] + f.distal_length * Td[..., :3, 2]
-    return out
+    return _distal_ends(model, q, pads=False)
 
 
 def tip_pads(model: HandModel, q: np.ndarray) -> dict[str, np.ndarray]:
     """Finger name -> the fingertip's inner edge (end of the distal link, on the closing side,
     in the flexion plane): the point apertures are measured between. (3,) or (B, 3)."""
+    return _distal_ends(model, q, pads=True)
+
+
+def _distal_ends(model: HandModel, q: np.ndarray, pads: bool) -> dict[str, np.ndarray]:
+    # finger -> end of the distal link on its axis (origin + length z), with pads moved half
+    # the link's thickness along its x (the closing side); left to right, as one sum
     T = fk_array(model, q)
     out = {}
     for f in model.fingers:
         Td = T[..., model.link_names.index(f.links[2]), :, :]
-        out[f.name] = (
-            Td[..., :3, 3] + f.distal_length * Td[..., :3, 2] + 0.5 * f.thickness * Td[..., :3, 0]
-        )
+        end = Td[..., :3, 3] + f.distal_length * Td[..., :3, 2]
+        out[f.name] = end + 0.5 * f.thickness * Td[..., :3, 0] if pads else end
     return out
 
 
