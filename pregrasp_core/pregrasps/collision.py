@@ -176,7 +176,6 @@ def _batch_hits(
     T_cell, half = cell  # (C, 4, 4), (C, 3)
     r_out = np.linalg.norm(half, axis=1)  # (C,)
     r_in = half.min(axis=1)
-    R = np.einsum("gij,cjk->gcik", T_world_hand[:, :3, :3], T_cell[:, :3, :3])  # (G, C, 3, 3)
     centres = np.einsum("gij,cj->gci", T_world_hand[:, :3, :3], T_cell[:, :3, 3])
     centres += T_world_hand[:, None, :3, 3]  # (G, C, 3) world cell centres
     d, _ = kd.query(centres.reshape(-1, 3), k=1, distance_upper_bound=float(r_out.max()))
@@ -185,6 +184,10 @@ def _batch_hits(
     g, c = np.nonzero((d <= r_out) & ~(d < r_in) & ~hit[:, None])  # (U,) undecided cells
     if len(g) == 0:
         return hit
+    # the cells' rotations only for the hands with an undecided cell: the same einsum over
+    # those hands (same layout per hand), so each rotation has the bits of the full (G, C) one
+    ug, g_row = np.unique(g, return_inverse=True)  # (H,) hands, (U,) row of each cell's hand
+    R = np.einsum("gij,cjk->gcik", T_world_hand[ug][:, :3, :3], T_cell[:, :3, :3])  # (H, C, 3, 3)
     n_in = kd.query_ball_point(centres[g, c], r_out[c], return_length=True)  # (U,) points
     group = (np.cumsum(n_in) - n_in) // PAIR_BATCH  # (U,) batch of each cell, by its pairs
     for j in np.unique(group[n_in > 0]):  # loop over the batches of pairs (one when few)
@@ -197,7 +200,7 @@ def _batch_hits(
         lens = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(u))
         ip = np.concatenate([np.asarray(x, dtype=np.int64) for x in lists if len(x)])
         k = np.repeat(np.arange(len(u)), lens)  # (M,) undecided cell of each pair
-        local = np.einsum("mj,mjk->mk", pts[ip] - centres[gu[k], cu[k]], R[gu[k], cu[k]])
+        local = np.einsum("mj,mjk->mk", pts[ip] - centres[gu[k], cu[k]], R[g_row[u][k], cu[k]])
         # + CELL_SEAM: a point on the seam of two cells may miss both by round-off
         inside = np.all(np.abs(local) <= half[cu[k]] + CELL_SEAM, axis=1)
         hit[np.unique(gu[k[inside]])] = True
