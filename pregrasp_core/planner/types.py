@@ -61,7 +61,8 @@ class PlannerParams:
     assumed_clearance: float = 0.002
     """The hand keeps this far from points a single view's completion assumed (moved out along
     their normals for the approach, the closing and the checks; contacts keep the assumed point
-    itself): the copies lie 1-3 mm inside the true surface (``planner/assumed.py``)."""
+    itself): the copies lie within about 1.5 mm of the true surface either way, up to 2 mm at
+    2 mm of sensor noise (``planner/assumed.py``)."""
     threads: int = 0
     """Parallel workers of the planner; 0 = one per CPU this process may use (at most 64), 1 =
     none. From a process running one thread, the chunks of pre-grasps are planned in forked
