@@ -20,7 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .jit import Lazy, njit
+from .jit import Lazy, inline_helpers, njit
 
 
 def _fma(a, b, c):  # pragma: no cover - replaced by the llvm.fma intrinsic in kernels()
@@ -420,7 +420,6 @@ def kernels() -> Kernels:
 
 def _build() -> Kernels:
     """Import numba and wrap the kernels (compiled lazily, on their first call)."""
-    import numba
     from numba.core.extending import intrinsic
 
     @intrinsic
@@ -435,8 +434,7 @@ def _build() -> Kernels:
         return a(a, b, c), codegen  # type: ignore[operator]
 
     globals()["_fma"] = fma  # the compiled kernels resolve _fma here
-    # and _widen: compiled into its callers (numba's own inlining, so no call in the loop)
-    globals()["_widen"] = numba.njit(_widen, inline="always", cache=True)
+    inline_helpers(globals(), "_widen")  # compiled into cut_scan (no call in its loops)
 
     return Kernels(
         pattern_search=njit(_pattern_search, fastmath=set(MINMAX_FLAGS)),

@@ -42,3 +42,15 @@ def njit(fn: F, fastmath: bool | set[str] = False) -> F:
     import numba
 
     return cast(F, numba.njit(fn, cache=True, nogil=True, fastmath=fastmath))
+
+
+def inline_helpers(namespace: dict[str, object], *names: str) -> None:
+    """Replace each named plain-Python helper of ``namespace`` (a module's ``globals()``) by its
+    numba compilation with ``inline="always"``: the kernels that call it then find a compiled
+    function there and numba copies its body into theirs (no call in their loops, the same
+    operations in the same order). Call before the kernels' first compilation."""
+    import numba
+
+    for name in names:
+        fn = cast(Callable[..., object], namespace[name])
+        namespace[name] = numba.njit(fn, inline="always", cache=True)

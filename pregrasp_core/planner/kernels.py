@@ -15,7 +15,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ..jit import Lazy, njit
+from ..jit import Lazy, inline_helpers, njit
 
 
 def kernels() -> SimpleNamespace:
@@ -26,6 +26,7 @@ def kernels() -> SimpleNamespace:
 
 def _build() -> SimpleNamespace:
     """The kernels wrapped by numba (each compiled, or loaded, on its first call)."""
+    inline_helpers(globals(), "_ball_meets_keep", "_to_view", "_in_keep", "_moved")
     return SimpleNamespace(
         slices=njit(slice_points),
         approach=njit(approach_sweep),
@@ -35,6 +36,32 @@ def _build() -> SimpleNamespace:
 
 
 _KERNELS = Lazy(_build)
+
+
+def _ball_meets_keep(cx, cy, cz, rc, r, z_lo, z_hi):  # pragma: no cover - numba, inline
+    # the ball (centre cx, cy, cz, radius rc) meets the view's keep box |x|, |y| <= r,
+    # z_lo <= z <= z_hi
+    return abs(cx) <= r + rc and abs(cy) <= r + rc and cz >= z_lo - rc and cz <= z_hi + rc
+
+
+def _to_view(xyz, i, T0):  # pragma: no cover - numba, inline
+    # cloud point i in the frame of T0 (to_frame_t: R^T (p - t), each sum left to right)
+    d0, d1, d2 = xyz[0, i] - T0[0, 3], xyz[1, i] - T0[1, 3], xyz[2, i] - T0[2, 3]
+    x = d0 * T0[0, 0] + d1 * T0[1, 0] + d2 * T0[2, 0]
+    y = d0 * T0[0, 1] + d1 * T0[1, 1] + d2 * T0[2, 1]
+    z = d0 * T0[0, 2] + d1 * T0[1, 2] + d2 * T0[2, 2]
+    return x, y, z
+
+
+def _in_keep(x, y, z, r, z_lo, z_hi):  # pragma: no cover - numba, inline
+    return abs(x) <= r and abs(y) <= r and z >= z_lo and z <= z_hi
+
+
+def _moved(z, dz):  # pragma: no cover - numba, inline
+    # z after the view's moves, one after the other
+    for s in range(dz.shape[0]):
+        z += dz[s]
+    return z
 
 
 def slice_points(
@@ -79,7 +106,7 @@ def slice_points(
     for c in range(centres.shape[0]):  # mark the points of the candidate cells
         rc = rad[c]
         cx, cy, cz = centres[c, 0], centres[c, 1], centres[c, 2]
-        if not (abs(cx) <= r + rc and abs(cy) <= r + rc and cz >= z_lo - rc and cz <= z_hi + rc):
+        if not _ball_meets_keep(cx, cy, cz, rc, r, z_lo, z_hi):
             continue  # the cell's ball misses the keep box
         cz = cz + dz_sum
         near = False
@@ -113,10 +140,8 @@ def slice_points(
         x = d0 * r00 + d1 * r10 + d2 * r20
         y = d0 * r01 + d1 * r11 + d2 * r21
         z = d0 * r02 + d1 * r12 + d2 * r22
-        if abs(x) <= r and abs(y) <= r and z >= z_lo and z <= z_hi:
-            for s in range(dz.shape[0]):  # the moves, one after the other
-                z += dz[s]
-            px[k], py[k], pz[k] = x, y, z
+        if _in_keep(x, y, z, r, z_lo, z_hi):
+            px[k], py[k], pz[k] = x, y, _moved(z, dz)
             k += 1
     m = k
     uv = np.empty((m * F, 2))
@@ -210,7 +235,6 @@ def approach_sweep(
     that frame; xyz, order, start, count: the cloud and its cells."""
     best = np.inf
     L = Tb.shape[0]
-    tx, ty, tz = T0[0, 3], T0[1, 3], T0[2, 3]
     for c in range(cm.shape[0]):
         for il in range(L):
             if not (
@@ -224,11 +248,7 @@ def approach_sweep(
                 continue
             R = Tb[il]
             for k in range(start[c], start[c] + count[c]):
-                i = order[k]
-                d0, d1, d2 = xyz[0, i] - tx, xyz[1, i] - ty, xyz[2, i] - tz
-                px = d0 * T0[0, 0] + d1 * T0[1, 0] + d2 * T0[2, 0]
-                py = d0 * T0[0, 1] + d1 * T0[1, 1] + d2 * T0[2, 1]
-                pz = d0 * T0[0, 2] + d1 * T0[1, 2] + d2 * T0[2, 2]
+                px, py, pz = _to_view(xyz, order[k], T0)
                 if not (
                     pz >= wlo[il, 2]
                     and pz <= top[il]
@@ -288,7 +308,6 @@ def link_distances(
     ``(ids (K,), d (K,), first (L + 1,))``: link l's points ``ids[first[l]:first[l + 1]]`` in
     ascending cloud order."""
     L = Tb.shape[0]
-    tx, ty, tz = T0[0, 3], T0[1, 3], T0[2, 3]
     cap = 1024
     ids = np.empty(cap, dtype=np.int64)
     dist = np.empty(cap)
@@ -301,7 +320,7 @@ def link_distances(
     for c in range(C):  # the cells whose balls meet the keep box; their bounds, moved
         rc = rad[c]
         cx, cy, cz = centres[c, 0], centres[c, 1], centres[c, 2]
-        ok[c] = abs(cx) <= r + rc and abs(cy) <= r + rc and cz >= z_lo - rc and cz <= z_hi + rc
+        ok[c] = _ball_meets_keep(cx, cy, cz, rc, r, z_lo, z_hi)
         cz = cz + dz_sum
         cm[c, 0], cm[c, 1], cm[c, 2] = cx - rc, cy - rc, cz - rc
         cp[c, 0], cp[c, 1], cp[c, 2] = cx + rc, cy + rc, cz + rc
@@ -321,14 +340,10 @@ def link_distances(
                 continue
             for k in range(start[c], start[c] + count[c]):
                 i = order[k]
-                d0, d1, d2 = xyz[0, i] - tx, xyz[1, i] - ty, xyz[2, i] - tz
-                x = d0 * T0[0, 0] + d1 * T0[1, 0] + d2 * T0[2, 0]
-                y = d0 * T0[0, 1] + d1 * T0[1, 1] + d2 * T0[2, 1]
-                z = d0 * T0[0, 2] + d1 * T0[1, 2] + d2 * T0[2, 2]
-                if not (abs(x) <= r and abs(y) <= r and z >= z_lo and z <= z_hi):
+                x, y, z = _to_view(xyz, i, T0)
+                if not _in_keep(x, y, z, r, z_lo, z_hi):
                     continue
-                for s in range(dz.shape[0]):  # the moves, one after the other
-                    z += dz[s]
+                z = _moved(z, dz)
                 if not (
                     x >= blo[il, 0]
                     and x <= bhi[il, 0]
