@@ -179,11 +179,12 @@ class CompletedView:
         return int(np.count_nonzero(~self.assumed))
 
 
-class VisibilityMap:
-    """What the camera saw along each direction: the object's nearest range, or free space."""
+class _VirtualCamera:
+    """A virtual pinhole camera at ``viewpoint`` looking at the points' centre, its image rows
+    along the support plane (what :class:`VisibilityMap` and :class:`RangeImage` project into),
+    and the points' median spacing."""
 
-    def __init__(self, points: np.ndarray, viewpoint: np.ndarray, plane: SupportPlane,
-                 bin_factor: float) -> None:  # fmt: skip
+    def __init__(self, points: np.ndarray, viewpoint: np.ndarray, plane: SupportPlane) -> None:
         self.viewpoint = viewpoint
         self.plane = plane
         centre = points.mean(axis=0)
@@ -195,6 +196,20 @@ class VisibilityMap:
         self.R = np.stack([r, np.cross(f, r), f], axis=1)  # (3, 3) virtual camera axes (columns)
         d, _ = cKDTree(points).query(points, k=2)
         self.spacing = float(np.median(d[:, 1]))
+
+    def project(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """((..., 2) normalised image coordinates, (...,) range) of points ``q`` (..., 3)."""
+        qc = (q - self.viewpoint) @ self.R  # (..., 3) virtual camera frame
+        z = np.maximum(qc[..., 2], 1e-9)
+        return qc[..., :2] / z[..., None], np.linalg.norm(qc, axis=-1)
+
+
+class VisibilityMap(_VirtualCamera):
+    """What the camera saw along each direction: the object's nearest range, or free space."""
+
+    def __init__(self, points: np.ndarray, viewpoint: np.ndarray, plane: SupportPlane,
+                 bin_factor: float) -> None:  # fmt: skip
+        super().__init__(points, viewpoint, plane)
         uv, rng = self.project(points)
         depth = float(np.median(rng))
         self.cell = bin_factor * max(self.spacing, 1e-6) / depth  # normalised image units
@@ -217,12 +232,6 @@ class VisibilityMap:
         seen = np.isfinite(nbrs).sum(axis=0)
         near = np.where(np.isfinite(D) | (seen < HOLE_NEIGHBOURS), D, nbrs.min(axis=0))
         self.D = near
-
-    def project(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """((..., 2) normalised image coordinates, (...,) range) of points ``q`` (..., 3)."""
-        qc = (q - self.viewpoint) @ self.R  # (..., 3) virtual camera frame
-        z = np.maximum(qc[..., 2], 1e-9)
-        return qc[..., :2] / z[..., None], np.linalg.norm(qc, axis=-1)
 
     def bins(self, uv: np.ndarray) -> np.ndarray:
         """(..., 2) int64 bin indices (row, column) of image coordinates ``uv`` (..., 2)."""
@@ -248,24 +257,14 @@ class VisibilityMap:
         return self.excess(q) > tolerance
 
 
-class RangeImage:
+class RangeImage(_VirtualCamera):
     """What the camera saw, interpolated: the seen range at any image point, or how far outside
     the seen silhouette it lies (see the module)."""
 
     def __init__(self, points: np.ndarray, viewpoint: np.ndarray, plane: SupportPlane,
                  cell_factor: float = 0.5, edge_factor: float = 3.0) -> None:  # fmt: skip
-        self.viewpoint = viewpoint
-        self.plane = plane
-        centre = points.mean(axis=0)
-        f = centre - viewpoint
-        f /= np.linalg.norm(f)
-        a = plane.normal if abs(float(f @ plane.normal)) < 0.99 else np.eye(3)[np.argmin(np.abs(f))]
-        r = np.cross(f, a)
-        r /= np.linalg.norm(r)
-        self.R = np.stack([r, np.cross(f, r), f], axis=1)  # (3, 3) virtual camera axes (columns)
-        d, _ = cKDTree(points).query(points, k=2)
-        self.spacing = float(np.median(d[:, 1]))
-        uv, rng = self._uv_range(points)
+        super().__init__(points, viewpoint, plane)
+        uv, rng = self.project(points)
         depth = float(np.median(rng))
         self.cell = cell_factor * max(self.spacing, 1e-6) / depth  # normalised image units
         self.lo = uv.min(axis=0) - 4 * self.cell
@@ -298,11 +297,6 @@ class RangeImage:
         self.coef = C  # (H, W, 3)
         _, near = ndimage.distance_transform_edt(~seen, return_indices=True)
         self.near = near  # (2, H, W): the nearest seen cell of every cell
-
-    def _uv_range(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        qc = (q - self.viewpoint) @ self.R
-        z = np.maximum(qc[..., 2], 1e-9)
-        return qc[..., :2] / z[..., None], np.linalg.norm(qc, axis=-1)
 
     def excess(self, q: np.ndarray) -> np.ndarray:
         """(...,) metres by which the points ``q`` (..., 3) contradict the view: how far they lie

@@ -112,6 +112,18 @@ def test_smooth_view_takes_the_noise_off_a_plane_and_keeps_a_sphere() -> None:
     assert np.median(np.abs(r - 0.03)) < 1.5e-4 and np.abs(r - 0.03).max() < 4e-4
 
 
+def loaded_view(mv: ModuleType, view, path: Path):
+    """The scene ``view`` written as a user's PCD file (labels, camera pose) at ``path`` and read
+    back as the pipeline reads it: the table removed, the object completed (some points
+    assumed)."""
+    pts, lab = view.points_world()
+    label = np.where(lab == LABEL_OBJECT, 2, 1).astype(np.uint8)
+    path.write_bytes(mv.pcd_bytes(pts, label, view.T_world_camera))
+    cloud = load_point_cloud(path)
+    assert cloud.assumed is not None and cloud.assumed.any()
+    return cloud
+
+
 @pytest.mark.parametrize(
     ("name", "cam", "noise"),
     [("can_soda", 1, 0.001), ("mug", 1, 0.001), ("bottle", 1, 0.002), ("ramekin", 1, 0.002)],
@@ -120,12 +132,7 @@ def test_best_grasp_of_a_view_holds_on_the_true_mesh(
     make_views, tmp_path: Path, name: str, cam: int, noise: float
 ) -> None:
     mesh, view = view_of(make_views, name, cam, noise)
-    pts, lab = view.points_world()
-    label = np.where(lab == LABEL_OBJECT, 2, 1).astype(np.uint8)
-    path = tmp_path / f"{name}.pcd"
-    path.write_bytes(make_views.pcd_bytes(pts, label, view.T_world_camera))
-    cloud = load_point_cloud(path)
-    assert cloud.assumed is not None and cloud.assumed.any()
+    cloud = loaded_view(make_views, view, tmp_path / f"{name}.pcd")
     res = run_pipeline(cloud, PipelineParams(), until="grasps")
     gs = res.grasps
     assert gs is not None and gs.best is not None  # force closure
@@ -188,12 +195,7 @@ def test_grasp_of_a_new_view_holds_on_the_true_mesh(
     outward by more than 1.5 mm (median signed distance to the true mesh; the code before the
     range image: +1.6 to +3.0 mm on the mug, the ramekin and the bottle here)."""
     mesh, view = moved_view(make_views, name, yaw, shift, azimuth, elevation, noise, seed=7)
-    pts, lab = view.points_world()
-    label = np.where(lab == LABEL_OBJECT, 2, 1).astype(np.uint8)
-    path = tmp_path / f"{name}.pcd"
-    path.write_bytes(make_views.pcd_bytes(pts, label, view.T_world_camera))
-    cloud = load_point_cloud(path)
-    assert cloud.assumed is not None and cloud.assumed.any()
+    cloud = loaded_view(make_views, view, tmp_path / f"{name}.pcd")
     truth = MeshDistance(mesh)
     copies = cloud.sensor.completion
     assert copies is not None
