@@ -17,12 +17,20 @@ grasps     ``normals`` and ``grasps`` (GraspSet)  pool, ``params.planner`` (norm
 
 ``timings`` holds the seconds each stage took when it was computed (a reused stage keeps the
 time it took then; ``reused`` names the stages taken from ``previous``).
+
+The normals depend on nothing but the cloud: a run up to ``grasps`` that has to compute them
+starts them on a thread of their own (:class:`_Background`) before the decomposition and joins
+it before the planner (which needs them, and forks copies of the process, which must then run
+one thread only). Their kernels (the k-d tree, the batched PCA, the compiled grid search and
+votes) release Python's global lock, so on two cores they run beside the decomposition, the
+face masks and the pool; the normals are the same bits either way.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -143,10 +151,72 @@ def run_pipeline(
     """
     params = with_cloud(PipelineParams() if params is None else params, cloud)
     last = _stage_index(until)
-    points = np.asarray(cloud.points, dtype=np.float64)
     prev = previous
     if prev is not None and not _same_cloud(prev.cloud, cloud):
         prev = None
+    # the normals need only the cloud: on a thread of their own beside the stages up to the pool
+    background = None
+    if last >= 4 and not _normals_reusable(prev, params):
+        background = _Background(view_normals, cloud, params.planner.normals)
+    try:
+        return _run_stages(cloud, params, hand, last, prev, progress, limits, background)
+    finally:
+        if background is not None:  # joined whatever happened: no thread outlives the run
+            background.join()
+
+
+def _normals_reusable(prev: PipelineResult | None, params: PipelineParams) -> bool:
+    """Whether ``prev`` (of the same cloud) holds the normals ``params`` asks for."""
+    return (
+        prev is not None
+        and prev.normals is not None
+        and prev.params.planner.normals == params.planner.normals
+    )
+
+
+class _Background:
+    """``fn(*args)`` on a thread of its own, started at once; :meth:`result` joins it and gives
+    its value and its wall-clock seconds (or raises what it raised)."""
+
+    def __init__(self, fn: Callable[..., Any], *args: Any) -> None:
+        self._value: Any = None
+        self._error: BaseException | None = None
+        self._seconds = 0.0
+
+        def run() -> None:
+            t0 = time.perf_counter()
+            try:
+                self._value = fn(*args)
+            except BaseException as exc:  # raised again by result(), in the caller's thread
+                self._error = exc
+            self._seconds = time.perf_counter() - t0
+
+        self._thread = threading.Thread(target=run, name="pipeline-normals", daemon=True)
+        self._thread.start()
+
+    def join(self) -> None:
+        self._thread.join()
+
+    def result(self) -> tuple[Any, float]:
+        self.join()
+        if self._error is not None:
+            raise self._error
+        return self._value, self._seconds
+
+
+def _run_stages(
+    cloud: PointCloud,
+    params: PipelineParams,
+    hand: Hand | None,
+    last: int,
+    prev: PipelineResult | None,
+    progress: Callable[[float], None] | None,
+    limits: WorkLimits | None,
+    background: _Background | None,
+) -> PipelineResult:
+    """The stages of :func:`run_pipeline` up to ``ALL_STAGES[last]`` (``prev``: the previous
+    result of the same cloud or None); the normals from ``background`` when it computes them."""
+    points = np.asarray(cloud.points, dtype=np.float64)
     pp = prev.params if prev is not None else None
     timings: dict[str, float] = {}
     reused: list[str] = []
@@ -234,11 +304,7 @@ def run_pipeline(
             _pool,
         )
         tick(3)
-    normals_same = (
-        prev is not None
-        and prev.normals is not None
-        and prev.params.planner.normals == params.planner.normals
-    )
+    normals_same = _normals_reusable(prev, params)
     if last < 4 and normals_same:
         # carried through a run that stops before the planner (the viewer's threshold change
         # shows the new pool first, then plans from that result: no second normal estimation)
@@ -251,10 +317,9 @@ def run_pipeline(
             assert prev is not None
             out["normals"] = prev.normals
             timings["normals"] = prev.timings.get("normals", 0.0)
-        else:
-            t0 = time.perf_counter()
-            out["normals"] = view_normals(cloud, params.planner.normals)
-            timings["normals"] = time.perf_counter() - t0
+        else:  # computed on their own thread since the run started: joined here
+            assert background is not None
+            out["normals"], timings["normals"] = background.result()
 
         def _plan_progress(done: int, total: int) -> None:
             if progress is not None:

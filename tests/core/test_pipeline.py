@@ -251,3 +251,36 @@ def test_normals_are_carried_through_a_run_that_stops_at_the_pool(first, hand, p
     assert run_pipeline(first.cloud, p3, hand, previous=planned, until="pool").normals is None
     other = l_shape_cloud(seed=1)
     assert run_pipeline(other, p2, hand, previous=planned, until="pool").normals is None
+
+
+def test_normals_beside_the_stages_equal_a_serial_run_and_leave_no_thread(
+    hand, params, monkeypatch
+):
+    """A run up to the planner computes the normals on a thread of their own beside the stages
+    up to the pool: the planner gets the bits ``view_normals`` gives alone, and no thread
+    outlives the run (the planner forks only from a process running one thread), also when a
+    stage or the normals fail."""
+    import threading
+
+    from pregrasp_core import pipeline
+    from pregrasp_core.pipeline import view_normals
+
+    cloud = l_shape_cloud()
+    before = threading.active_count()
+    res = run_pipeline(cloud, params, hand, until="grasps")
+    assert threading.active_count() == before
+    ref = view_normals(res.cloud, res.params.planner.normals)
+    assert res.normals is not None and res.normals.tobytes() == ref.tobytes()
+    assert res.grasps is not None and len(res.grasps.grasps) == len(res.pool)
+    assert list(res.timings) == [*STAGES, "normals", "grasps"] and res.timings["normals"] > 0
+    with pytest.raises(WorkLimitError, match="max_parts"):
+        run_pipeline(cloud, params, hand, until="grasps", limits=WorkLimits(1))
+    assert threading.active_count() == before
+
+    def fails(*args):
+        raise RuntimeError("normals failed")
+
+    monkeypatch.setattr(pipeline, "view_normals", fails)
+    with pytest.raises(RuntimeError, match="normals failed"):
+        run_pipeline(cloud, params, hand, until="grasps")
+    assert threading.active_count() == before
