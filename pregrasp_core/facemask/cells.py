@@ -3,6 +3,7 @@ or the support plane stand in front of the cell within the clearance."""
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import numpy as np
@@ -134,23 +135,45 @@ def subface_regions(grasp_type: GraspType | str) -> list[list[np.ndarray]]:
     return regions
 
 
+@functools.cache
+def _region_table(scheme_key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`subface_regions` of a grasp type (its scheme's key) as flat tables, computed once:
+    ``(regions (R, 6 G G) bool, cells (R,) per region, first (S,) row of each sub-face's first
+    region, faces (S,) the face of each sub-face)``, the sub-faces face by face (read-only)."""
+    rows: list[np.ndarray] = []
+    first: list[int] = []
+    faces: list[int] = []
+    for f, per in enumerate(subface_regions(scheme_key)):  # six faces
+        for reg in per:  # (R_s, 6, G, G) regions of one sub-face
+            first.append(len(rows))
+            faces.append(f)
+            rows.extend(r.reshape(-1) for r in reg)
+    regions = np.stack(rows)
+    out = (
+        regions,
+        regions.sum(axis=1),
+        np.asarray(first, dtype=np.int64),
+        np.asarray(faces, dtype=np.int64),
+    )
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
 def usable_subfaces_by_cells(
     covered: np.ndarray, grasp_type: GraspType | str, min_coverage: float
 ) -> list[np.ndarray]:
     """The usable sub-faces of one box under the ``subface`` rule: a list of 6 arrays
     ``(S_f,) bool``. covered: (6, G, G) bool, the box's :attr:`FaceMasks.covered`. A sub-face is
     usable when none of its regions (:func:`subface_regions`: its own cells, the bands of the
-    adjacent faces it borders) has ``min_coverage`` of its cells covered."""
+    adjacent faces it borders) has ``min_coverage`` of its cells covered (the regions of every
+    grasp type are the same for every box: tabled once per type, counted in one pass)."""
     cov = np.asarray(covered, dtype=bool)
     G = SUBFACE_GRID
     if cov.shape != (6, G, G):
         raise ValueError(f"covered must have shape (6, {G}, {G}), got {cov.shape}")
-    out = []
-    for per in subface_regions(grasp_type):  # six faces
-        ok = np.zeros(len(per), dtype=bool)
-        for s, reg in enumerate(per):  # (R, 6, G, G) regions of sub-face s
-            n = reg.sum(axis=(1, 2, 3))  # (R,) cells per region
-            hit = (reg & cov).sum(axis=(1, 2, 3))
-            ok[s] = bool(np.all(hit < min_coverage * np.maximum(n, 1)))
-        out.append(ok)
-    return out
+    subface_scheme(grasp_type)  # a known grasp type (else ValueError)
+    regions, n, first, faces = _region_table(str(getattr(grasp_type, "value", grasp_type)))
+    hit = (regions & cov.reshape(-1)).sum(axis=1)  # (R,) covered cells per region
+    ok = np.logical_and.reduceat(hit < min_coverage * np.maximum(n, 1), first)  # (S,)
+    return [ok[faces == f] for f in range(6)]

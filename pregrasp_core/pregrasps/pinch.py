@@ -32,9 +32,10 @@ about the line through them free, ``docs/quality.md``), which is why every pinch
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -134,7 +135,7 @@ def pinch_preshape(hand: Hand, kind: str, half_width: float) -> tuple[np.ndarray
     flexion plane). ``None`` when a finger cannot reach its point within its joint limits or
     the preshape collides with itself."""
     spread = KINDS[kind][1]
-    c = pinch_center(hand, kind)
+    c = _center(hand, kind)
     q = np.zeros(len(hand.joint_names))
     q[list(hand.joint_names).index("f1_spread")] = spread
     target = []  # per finger: (finger, plane, v, first flexion, its depth)
@@ -177,6 +178,48 @@ def pinch_preshape(hand: Hand, kind: str, half_width: float) -> tuple[np.ndarray
         q[list(f.flex_index)] = flex
     q = np.asarray(hand.clamp(q), dtype=np.float64)
     return None if hand.self_collision(q) else (q, depth)
+
+
+_HAND_PINCHES: weakref.WeakKeyDictionary[Hand, dict[tuple[str, float | None], Any]] = (
+    weakref.WeakKeyDictionary()
+)
+
+HAND_PINCHES_KEPT: int = 4096
+"""Pinch preshapes and centres kept per hand by :func:`_pinch_cache` (then it starts again)."""
+
+
+def _pinch_cache(hand: Hand) -> dict[tuple[str, float | None], Any]:
+    """The hand's cache of :func:`pinch_preshape` and :func:`pinch_center`: both are functions
+    of their arguments only, and a pool asks for the same ones many times (both rolls of a
+    tripod, every candidate, every pool of the viewer's re-plans)."""
+    cache = _HAND_PINCHES.get(hand)
+    if cache is None or len(cache) > HAND_PINCHES_KEPT:
+        cache = {}
+        _HAND_PINCHES[hand] = cache
+    return cache
+
+
+def _center(hand: Hand, kind: str) -> np.ndarray:
+    """:func:`pinch_center`, computed once per hand and kind (read-only)."""
+    cache = _pinch_cache(hand)
+    got = cache.get((kind, None))
+    if got is None:
+        got = cache[(kind, None)] = pinch_center(hand, kind)
+        got.setflags(write=False)
+    return got
+
+
+def _preshape(hand: Hand, kind: str, half_width: float) -> tuple[np.ndarray, float] | None:
+    """:func:`pinch_preshape`, computed once per hand, kind and half width (the preshape
+    read-only: the pool stacks copies of it)."""
+    cache = _pinch_cache(hand)
+    key = (kind, float(half_width))
+    if key not in cache:
+        got = pinch_preshape(hand, kind, half_width)
+        if got is not None:
+            got[0].setflags(write=False)
+        cache[key] = got
+    return cache[key]
 
 
 @dataclass(frozen=True)
@@ -281,7 +324,7 @@ def _placed(
     if kind == "tripod":  # the tripod encloses the whole cross-section (its diagonal)
         width = float(np.hypot(width, length))
     gt, spread = KINDS[kind]
-    c = pinch_center(hand, kind)
+    c = _center(hand, kind)
     if kind == "tip":
         half_run = max(0.5 * length - 0.5 * TIP_MIN_LENGTH, 0.0)
         offsets = centred_grid(half_run, params.interval)  # along the hand's x, symmetric
@@ -306,7 +349,7 @@ def _placed(
                 if not under.any():
                     continue
                 half = float(np.max(np.abs(rel[under] @ c_dir)))
-            got = pinch_preshape(hand, kind, half)
+            got = _preshape(hand, kind, half)
             if got is None:
                 continue
             q_pinch, depth = got

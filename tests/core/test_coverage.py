@@ -321,3 +321,22 @@ def test_demo_objects_without_one_before_get_a_force_closure_best_grasp(hand, na
     gs = res.grasps
     assert gs.best is not None, gs.best_reason
     assert gs.grasps[gs.best].epsilon > 0 and gs.n_force_closure >= 1
+
+
+def test_the_pinch_preshapes_are_computed_once_per_hand_and_equal_fresh_ones(hand):
+    """The pool's cache of pinch preshapes (the same part widths come back for both rolls and
+    every re-plan) gives what ``pinch_preshape`` computes afresh, read-only."""
+    from pregrasp_core.pregrasps import pinch
+
+    for kind in pinch.KINDS:
+        for half in (0.004, 0.01, 0.02, 0.035, 0.2):
+            fresh = pinch.pinch_preshape(hand, kind, half)
+            got = pinch._preshape(hand, kind, half)
+            assert pinch._preshape(hand, kind, half) is got
+            if fresh is None:
+                assert got is None
+                continue
+            assert got is not None and got[0].tobytes() == fresh[0].tobytes()
+            assert got[1] == fresh[1] and not got[0].flags.writeable
+        c = pinch._center(hand, kind)
+        assert c.tobytes() == pinch.pinch_center(hand, kind).tobytes() and not c.flags.writeable

@@ -542,3 +542,27 @@ def test_usable_subfaces_match_the_geometry_of_the_rectangles(blocked, grasp_typ
             on_plane = np.isclose(corners @ FACE_NORMAL.T, box.half_extents[np.arange(6) // 2])
             borders = [g for g in range(6) if g != f and on_plane[:, g].sum() == 2]
             assert use[f][s] == (not blocked[f] and not any(blocked[g] for g in borders))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.sampled_from(["spherical", "cylindrical", "three_finger_tip", "two_finger_tip"]),
+    st.integers(0, 2**32 - 1),
+    st.floats(0.0, 0.8),
+    st.sampled_from([0.0, 0.1, 0.25, 0.5, 1.0]),
+)
+def test_usable_subfaces_by_cells_counts_every_region_of_every_subface(gt, seed, fill, min_cov):
+    """The sub-face test (its regions tabled once per grasp type) says what its definition
+    says: a sub-face is usable when each of its regions (``subface_regions``) has fewer than
+    ``min_coverage`` of its cells covered."""
+    from pregrasp_core.facemask.cells import subface_regions, usable_subfaces_by_cells
+
+    cov = np.random.default_rng(seed).uniform(size=(6, 12, 12)) < fill
+    got = usable_subfaces_by_cells(cov, gt, min_cov)
+    regions = subface_regions(gt)
+    assert len(got) == 6
+    for f in range(6):
+        want = [
+            all((r & cov).sum() < min_cov * max(int(r.sum()), 1) for r in reg) for reg in regions[f]
+        ]
+        assert got[f].dtype == bool and got[f].tolist() == want
