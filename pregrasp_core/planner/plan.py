@@ -5,24 +5,36 @@ pool when there is one; then the ranking (:func:`plan_grasps`)."""
 from __future__ import annotations
 
 import dataclasses
+import fcntl
 import functools
+import gc
 import logging
 import os
 import pickle
+import tempfile
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
 from ..geometry import as_points, as_points_like
 from ..normals import NormalParams, estimate_normals
+from ..quality import LEVEL_EXACT, GraspQuality
 from .approach import Prepared, prepare
 from .assumed import assumed_mask, obstacle_points
 from .context import Context
-from .rank import first_level, quality_frame, score_grasp, settle_exact
+from .rank import (
+    Qualities,
+    QualityJob,
+    first_level,
+    quality_frame,
+    run_quality_job,
+    score_grasp,
+    settle_exact,
+)
 from .slicing import ClosedFinger, Slice, close_slices, closing_records, finger_slices
 from .types import REJECTION_REASONS, Grasp, GraspSet, PlannerParams
 from .verify import finish
@@ -119,13 +131,13 @@ def _plan_chunks(
     ex: ThreadPoolExecutor | None,
     grasps: list[Grasp],
     progress: Callable[[int, int], None] | None,
-    starts: Sequence[int] | None = None,
+    chunks: Iterable[tuple[int, int]] | None = None,
 ) -> None:
     """Plan the pre-grasps of ``pool`` chunk by chunk into ``grasps`` (see :func:`plan_grasps`).
-    The per-pre-grasp phases run on the thread pool ``ex`` when there is one (numpy and qhull
-    release Python's global lock for most of their work); every pre-grasp is planned
-    independently, so the results never depend on the threads. ``starts``: the first
-    pre-grasp of each chunk to plan (default: every chunk, ``range(0, P, _CHUNK)``)."""
+    The per-pre-grasp phases run on the thread pool ``ex`` when there is one (numpy releases
+    Python's global lock for some of their work); every pre-grasp is planned independently,
+    so the results never depend on the threads or on the chunks. ``chunks``: the pre-grasp
+    ranges ``[c0, c1)`` to plan, in this order (default: every chunk of ``_CHUNK``)."""
 
     def each(fn: Callable[[_In], _Out], items: list[_In]) -> list[_Out]:
         return (
@@ -136,9 +148,11 @@ def _plan_chunks(
     # GraspIt's torque origin: the object's centroid and largest radius (docs/quality.md)
     frame = quality_frame(prm.quality, ctx.points)
     score = functools.partial(score_grasp, prm.quality, frame, first_level(prm.quality, P))
-    for c0 in range(0, P, _CHUNK) if starts is None else starts:  # loop over chunks
+    if chunks is None:
+        chunks = ((c0, min(P, c0 + _CHUNK)) for c0 in range(0, P, _CHUNK))
+    for c0, c1 in chunks:  # loop over chunks
         t0 = time.perf_counter()
-        preps = each(functools.partial(prepare, ctx, pool), list(range(c0, min(P, c0 + _CHUNK))))
+        preps = each(functools.partial(prepare, ctx, pool), list(range(c0, c1)))
         todo = [p for p in preps if isinstance(p, Prepared)]
         t1 = time.perf_counter()
         cls = close_slices(ctx, [sl for p in todo for sl in p.slices])
@@ -177,6 +191,174 @@ def _can_fork() -> bool:
     return hasattr(os, "fork") and threading.active_count() == 1
 
 
+_MIN_FORK_CHUNK: int = 8
+"""The smallest chunk of a forked plan (:func:`_fork_chunks`)."""
+
+
+def _fork_chunks(P: int, n_proc: int) -> list[tuple[int, int]]:
+    """The chunks ``[c0, c1)`` of a plan on ``n_proc`` processes, in pool order: each
+    ``1 / (2 n_proc)`` of the pre-grasps left after it, between :data:`_MIN_FORK_CHUNK` and
+    :data:`_CHUNK` (guided scheduling: large chunks first, small ones at the end, so that the
+    processes taking them one by one finish together)."""
+    out, c0 = [], 0
+    while c0 < P:
+        c1 = min(P, c0 + min(_CHUNK, max(_MIN_FORK_CHUNK, -(-(P - c0) // (2 * n_proc)))))
+        out.append((c0, c1))
+        c0 = c1
+    return out
+
+
+class _ChunkQueue:
+    """The index of the next chunk to plan, shared by a process and its forked copies: a
+    counter in an unnamed temporary file, read and advanced under a POSIX record lock (the
+    kernel releases it when its holder dies, so a killed copy never blocks the others)."""
+
+    def __init__(self) -> None:
+        self._file = tempfile.TemporaryFile()
+        self._fd = self._file.fileno()
+        os.pwrite(self._fd, bytes(8), 0)
+
+    def take(self) -> int:
+        """The next index (0, 1, 2, ... over all the processes, each once)."""
+        fcntl.lockf(self._fd, fcntl.LOCK_EX)
+        try:
+            k = int.from_bytes(os.pread(self._fd, 8, 0), "little")
+            os.pwrite(self._fd, (k + 1).to_bytes(8, "little"), 0)
+        finally:
+            fcntl.lockf(self._fd, fcntl.LOCK_UN)
+        return k
+
+    def close(self) -> None:
+        self._file.close()
+
+
+def _send(fd: int, obj: object) -> None:
+    """``obj`` pickled (every float's bits kept) down the pipe ``fd``, its length first."""
+    data = pickle.dumps(obj, pickle.HIGHEST_PROTOCOL)
+    view = memoryview(len(data).to_bytes(8, "little") + data)
+    while view:
+        view = view[os.write(fd, view) :]
+
+
+def _recv(fd: int) -> Any:
+    """The next object :func:`_send` put into the pipe ``fd``; None when the pipe was closed
+    before a whole one (its writer ended)."""
+    head = _read_exactly(fd, 8)
+    if head is None:
+        return None
+    data = _read_exactly(fd, int.from_bytes(head, "little"))
+    return None if data is None else pickle.loads(data)
+
+
+def _read_exactly(fd: int, n: int) -> bytes | None:
+    parts, left = [], n
+    while left:
+        part = os.read(fd, min(left, 1 << 20))
+        if not part:
+            return None
+        parts.append(part)
+        left -= len(part)
+    return b"".join(parts)
+
+
+@dataclasses.dataclass
+class _Copy:
+    """A forked copy of the planning process: its pid and pipes (its answers, our requests)."""
+
+    pid: int
+    answers: int
+    requests: int
+    alive: bool = True
+
+
+def _serve_copy(
+    ctx: Context,
+    pool: PreGraspPool,
+    P: int,
+    chunks: list[tuple[int, int]],
+    queue: _ChunkQueue,
+    answers: int,
+    requests: int,
+) -> None:
+    """The work of a forked copy: plan the chunks it takes from ``queue``, send back
+    ``(True, grasps, phase clocks, chunk indices)`` (or ``(False, exception)``), then score
+    the quality jobs the parent sends (:func:`_shared_qualities`) until it closes the pipe."""
+    taken: list[int] = []
+
+    def claimed() -> Iterator[tuple[int, int]]:
+        while (k := queue.take()) < len(chunks):
+            taken.append(k)
+            yield chunks[k]
+
+    try:
+        out: list[Grasp] = []
+        _plan_chunks(ctx, pool, P, None, out, None, claimed())
+        msg: tuple[Any, ...] = (True, out, ctx.clock, taken)
+    except BaseException as exc:  # noqa: BLE001 - sent to the parent, raised there
+        msg = (False, exc)
+    try:
+        _send(answers, msg)
+    except Exception:  # noqa: BLE001 - an exception that does not pickle
+        _send(answers, (False, RuntimeError(repr(msg[1]))))
+    if not msg[0]:
+        return
+    while (jobs := _recv(requests)) is not None:  # the parent's quality jobs
+        try:
+            reply: object = (True, [run_quality_job(j) for j in jobs])
+        except BaseException as exc:  # noqa: BLE001 - raised in the parent
+            reply = (False, exc)
+        _send(answers, reply)
+
+
+def _job_cost(job: QualityJob) -> float:
+    """A rough relative cost of a quality job (measured: an exact 6D hull grows as about the
+    1.7th power of its wrenches; the half-cone bounds take about a third of it)."""
+    return len(job[0]) ** 1.7 * (1.0 if job[3] == LEVEL_EXACT else 0.35)
+
+
+def _shared_qualities(copies: list[_Copy]) -> Qualities:
+    """:func:`~pregrasp_core.planner.rank.settle_exact`'s quality jobs shared between this
+    process and its live copies (the largest first, each to the least loaded; this process
+    scores its share while the copies score theirs). A copy that ends without an answer has its
+    share scored here; an exception in a copy is raised here."""
+
+    def qualities(jobs: list[QualityJob]) -> list[GraspQuality]:
+        live = [c for c in copies if c.alive]
+        if len(jobs) < 2 or not live:
+            return [run_quality_job(j) for j in jobs]
+        shares: list[list[int]] = [[] for _ in range(len(live) + 1)]
+        loads = [0.0] * len(shares)
+        for i in sorted(range(len(jobs)), key=lambda i: -_job_cost(jobs[i])):
+            w = loads.index(min(loads))
+            shares[w].append(i)
+            loads[w] += _job_cost(jobs[i])
+        sent = []
+        for c, share in zip(live, shares[1:], strict=True):
+            if share:
+                try:
+                    _send(c.requests, [jobs[i] for i in share])
+                    sent.append((c, share))
+                except OSError:  # the copy is gone
+                    c.alive = False
+                    shares[0].extend(share)
+        done: list[GraspQuality | None] = [None] * len(jobs)
+        for i in shares[0]:
+            done[i] = run_quality_job(jobs[i])
+        for c, share in sent:
+            reply = _recv(c.answers)
+            if reply is None:  # the copy ended: its share here
+                c.alive = False
+                reply = (True, [run_quality_job(jobs[i]) for i in share])
+            ok, value = reply
+            if not ok:
+                raise value
+            for i, q in zip(share, value, strict=True):
+                done[i] = q
+        return [q for q in done if q is not None]
+
+    return qualities
+
+
 def _plan_forked(
     ctx: Context,
     pool: PreGraspPool,
@@ -185,83 +367,109 @@ def _plan_forked(
     grasps: list[Grasp],
     progress: Callable[[int, int], None] | None,
 ) -> None:
-    """:func:`_plan_chunks` of every chunk on ``n_proc`` processes: this one and ``n_proc - 1``
-    forked copies of it (all of the context inherited, nothing rebuilt), chunk ``c`` planned by
-    process ``c % n_proc`` (this one: the last of them); each copy sends back its grasps
-    (pickled, which keeps every float's bits) and its phase clocks, and ``grasps`` gets every
-    chunk in pool order. The chunks are
-    those of one process, and every pre-grasp is planned independently, so the grasps are
-    those of a single process, bit for bit. A copy that dies without an answer has its chunks
-    planned here; an exception in a copy is raised here."""
-    starts = list(range(0, P, _CHUNK))
-    # this process takes the last share (never more chunks than a copy's): the exact settling
-    # and the ranking come after it
-    mine = [starts[w::n_proc] for w in range(n_proc)][::-1]
-    children: list[tuple[int, int, list[int]]] = []  # (pid, read end, chunks)
-    for w in range(1, n_proc):  # fork the copies before this process starts working
-        r, wfd = os.pipe()
-        pid = os.fork()
-        if pid == 0:  # the copy: plan its chunks, send them, leave without any clean-up
-            code = 0
-            try:
-                os.close(r)
-                out: list[Grasp] = []
-                _plan_chunks(ctx, pool, P, None, out, None, mine[w])
-                payload = pickle.dumps((True, out, ctx.clock), pickle.HIGHEST_PROTOCOL)
-            except BaseException as exc:  # noqa: BLE001 - sent to the parent, raised there
-                try:
-                    payload = pickle.dumps((False, exc, None), pickle.HIGHEST_PROTOCOL)
-                except Exception:  # noqa: BLE001 - an exception that does not pickle
-                    payload = pickle.dumps((False, RuntimeError(repr(exc)), None))
-            try:
-                with os.fdopen(wfd, "wb") as fh:
-                    fh.write(payload)
-            except BaseException:  # noqa: BLE001
-                code = 1
-            os._exit(code)
-        os.close(wfd)
-        children.append((pid, r, mine[w]))
-    by_start: dict[int, list[Grasp]] = {}
-    results: list[tuple[bool, object, dict[str, float] | None]] = []
+    """:func:`_plan_chunks` of every chunk, then the exact settling, on ``n_proc`` processes:
+    this one and ``n_proc - 1`` forked copies of it (all of the context inherited, nothing
+    rebuilt). The chunks (:func:`_fork_chunks`) are taken one by one from a shared queue by
+    whichever process is free; each copy sends back its grasps (pickled, which keeps every
+    float's bits), its phase clocks and which chunks they are, and ``grasps`` gets every chunk
+    in pool order; the copies then score their share of the exact settling's quality jobs
+    (:func:`_shared_qualities`). Every pre-grasp is planned independently of its chunk, and
+    every quality job is the same call wherever it runs, so the grasps are those of a single
+    process, bit for bit. The chunks of a copy that dies without an answer are planned here; an
+    exception in a copy is raised here."""
+    chunks = _fork_chunks(P, n_proc)
+    queue = _ChunkQueue()
+    copies: list[_Copy] = []
+    gc.freeze()  # the collector of a copy then leaves the inherited objects' pages shared
     try:
+        for _ in range(1, n_proc):  # fork the copies before this process starts working
+            answers_r, answers_w = os.pipe()
+            requests_r, requests_w = os.pipe()
+            pid = os.fork()
+            if pid == 0:  # the copy: plan, answer, then leave without any clean-up
+                code = 0
+                try:
+                    os.close(answers_r)
+                    os.close(requests_w)
+                    for c in copies:  # the other copies' pipes of this process
+                        os.close(c.answers)
+                        os.close(c.requests)
+                    _serve_copy(ctx, pool, P, chunks, queue, answers_w, requests_r)
+                except BaseException:  # noqa: BLE001
+                    code = 1
+                os._exit(code)
+            os.close(answers_w)
+            os.close(requests_r)
+            copies.append(_Copy(pid, answers_r, requests_w))
+        by_chunk: dict[int, list[Grasp]] = {}
+        taken: list[int] = []
+
+        def claimed() -> Iterator[tuple[int, int]]:
+            while (k := queue.take()) < len(chunks):
+                taken.append(k)
+                yield chunks[k]
+
         own: list[Grasp] = []
-        _plan_chunks(ctx, pool, P, None, own, progress, mine[0])
-        _split_chunks(own, mine[0], P, by_start)
-    finally:  # always collect the copies (no zombie, no open pipe)
-        for pid, r, _ in children:
-            with os.fdopen(r, "rb") as fh:
-                data = fh.read()
-            os.waitpid(pid, 0)
-            results.append(pickle.loads(data) if data else (False, None, None))
-    for (_, _, chunks), (ok, value, clock) in zip(children, results, strict=True):
-        if ok:
-            assert isinstance(value, list) and clock is not None
-            _split_chunks(value, chunks, P, by_start)
-            for k, v in clock.items():
-                ctx.clock[k] += v
-        elif value is not None:
-            raise value if isinstance(value, BaseException) else RuntimeError(str(value))
-        else:  # the copy died (e.g. killed): plan its chunks here
+        _plan_chunks(ctx, pool, P, None, own, progress, claimed())
+        _split_chunks(own, taken, chunks, by_chunk)
+        error: BaseException | None = None
+        for c in copies:
+            msg = _recv(c.answers)
+            if msg is None:
+                c.alive = False
+            elif not msg[0]:
+                c.alive = False
+                error = error or msg[1]
+            else:
+                _, got, clock, their = msg
+                _split_chunks(got, their, chunks, by_chunk)
+                for k, v in clock.items():
+                    ctx.clock[k] += v
+        if error is not None:
+            raise error
+        missing = [k for k in range(len(chunks)) if k not in by_chunk]
+        if missing:  # a copy died (e.g. killed): plan its chunks here
             logger.warning("a planner process ended without an answer; planning its chunks here")
             redo: list[Grasp] = []
-            _plan_chunks(ctx, pool, P, None, redo, None, chunks)
-            _split_chunks(redo, chunks, P, by_start)
-    for c0 in starts:
-        grasps.extend(by_start[c0])
-    if progress is not None:
-        progress(P, P)
+            _plan_chunks(ctx, pool, P, None, redo, None, [chunks[k] for k in missing])
+            _split_chunks(redo, missing, chunks, by_chunk)
+        for k in range(len(chunks)):
+            grasps.extend(by_chunk[k])
+        if progress is not None:
+            progress(P, P)
+        t0 = time.perf_counter()  # exact scores wherever they decide the ranking's top
+        prm = ctx.params
+        grasps[:], _ = settle_exact(
+            grasps,
+            prm.quality,
+            quality_frame(prm.quality, ctx.surface),
+            None,
+            _shared_qualities(copies),
+        )
+        ctx.clock["quality"] += time.perf_counter() - t0
+    finally:  # always end the copies (no zombie, no open pipe)
+        for c in copies:
+            os.close(c.requests)
+        for c in copies:
+            os.close(c.answers)
+            os.waitpid(c.pid, 0)
+        queue.close()
+        gc.unfreeze()
 
 
 def _split_chunks(
-    got: list[Grasp], chunks: list[int], P: int, by_start: dict[int, list[Grasp]]
+    got: list[Grasp],
+    taken: list[int],
+    chunks: list[tuple[int, int]],
+    by_chunk: dict[int, list[Grasp]],
 ) -> None:
-    """The grasps of the chunks ``chunks`` (first pre-grasps, planned in this order) into
-    ``by_start``."""
+    """The grasps ``got`` of the chunks ``taken`` (indices into ``chunks``, planned in this
+    order) into ``by_chunk``."""
     k = 0
-    for c0 in chunks:
-        n = min(P, c0 + _CHUNK) - c0
-        by_start[c0] = got[k : k + n]
-        k += n
+    for c in taken:
+        c0, c1 = chunks[c]
+        by_chunk[c] = got[k : k + c1 - c0]
+        k += c1 - c0
     if k != len(got):
         raise RuntimeError(f"a planner process returned {len(got)} grasps for {k} pre-grasps")
 
@@ -319,15 +527,13 @@ def plan_grasps(
     fork = n_proc > 1 and _can_fork()
     ex = ThreadPoolExecutor(n_threads) if n_threads > 1 and P > 1 and not fork else None
     try:
-        if fork:
+        if fork:  # with the exact settling shared by the processes
             _plan_forked(ctx, pool, P, n_proc, grasps, progress)
-            if n_threads > 1:  # the copies are gone: threads for the exact scores
-                ex = ThreadPoolExecutor(n_threads)
         else:
             _plan_chunks(ctx, pool, P, ex, grasps, progress)
-        t0 = time.perf_counter()  # exact scores wherever they decide the ranking's top
-        grasps, _ = settle_exact(grasps, prm.quality, quality_frame(prm.quality, pts), ex)
-        ctx.clock["quality"] += time.perf_counter() - t0
+            t0 = time.perf_counter()  # exact scores wherever they decide the ranking's top
+            grasps, _ = settle_exact(grasps, prm.quality, quality_frame(prm.quality, pts), ex)
+            ctx.clock["quality"] += time.perf_counter() - t0
     finally:
         if ex is not None:
             ex.shutdown()

@@ -22,8 +22,7 @@ kept grasp exactly from the start. See ``docs/quality.md``.
 from __future__ import annotations
 
 import dataclasses
-import functools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -130,15 +129,30 @@ def next_level(g: Grasp) -> int:
     return LEVEL_HALF_CONES if fc_bound else LEVEL_EXACT
 
 
+QualityJob = tuple[np.ndarray, int, int, int]
+"""The arguments of one :func:`~pregrasp_core.quality.wrench_quality` call: the edge wrenches,
+the number of contacts, the cone edges per contact and the level."""
+
+Qualities = Callable[[list[QualityJob]], list[GraspQuality]]
+"""Scores a list of jobs, in order (e.g. shared among processes, ``planner/plan.py``)."""
+
+
+def run_quality_job(job: QualityJob) -> GraspQuality:
+    """:func:`~pregrasp_core.quality.wrench_quality` of one job."""
+    return wrench_quality(*job)
+
+
 def settle_exact(
     grasps: Sequence[Grasp],
     params: QualityParams,
     frame: Frame,
     ex: ThreadPoolExecutor | None = None,
+    qualities: Qualities | None = None,
 ) -> tuple[list[Grasp], int]:
     """``(grasps, n_refined)``: ``grasps`` (pool order) with exact scores for every grasp that
     can enter the best ``params.exact_top`` or the first place of its grasp type (module
-    docstring); the refinements of one round run on ``ex`` when given."""
+    docstring); the refinements of one round run on ``ex`` when given, or are handed to
+    ``qualities`` (the same :func:`~pregrasp_core.quality.wrench_quality` calls, in order)."""
     out = list(grasps)
     kept = [i for i, g in enumerate(out) if g.kept]
     groups: list[tuple[list[int], int]] = [(kept, int(params.exact_top))]
@@ -146,30 +160,31 @@ def settle_exact(
         groups.append(([i for i in kept if out[i].grasp_type == t], 1))
     wrenches: dict[int, np.ndarray] = {}  # built once per refined grasp
 
-    def refine(i: int, exact: bool) -> Grasp:
+    def job(i: int, exact: bool) -> QualityJob:
         g = out[i]
         if i not in wrenches:
             wrenches[i] = grasp_wrenches(params, frame, g)
         level = LEVEL_EXACT if exact else next_level(g)
-        q = wrench_quality(wrenches[i], g.n_contacts, params.n_edges, level)
-        return with_quality(g, q)
+        return wrenches[i], g.n_contacts, params.n_edges, level
 
     n_refined = 0
     for members, k in groups:  # loop over the groups (the ranking, then each type)
         # a group no larger than k is all in its first k: straight to the exact hull
-        fn = functools.partial(refine, exact=len(members) <= k)
+        exact = len(members) <= k
         while k > 0:  # each round refines every inexact grasp among the group's first k
             top = sorted(members, key=lambda i: rank_key(out[i]))[:k]
             todo = [i for i in top if not is_exact(out[i])]
             if not todo:
                 break
-            done = (
-                list(ex.map(fn, todo))
-                if ex is not None and len(todo) > 1
-                else [fn(i) for i in todo]
-            )
-            for i, g in zip(todo, done, strict=True):
-                out[i] = g
+            jobs = [job(i, exact) for i in todo]
+            if qualities is not None:
+                done = qualities(jobs)
+            elif ex is not None and len(jobs) > 1:
+                done = list(ex.map(run_quality_job, jobs))
+            else:
+                done = [run_quality_job(j) for j in jobs]
+            for i, q in zip(todo, done, strict=True):
+                out[i] = with_quality(out[i], q)
             n_refined += len(todo)
     return out, n_refined
 

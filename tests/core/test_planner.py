@@ -571,6 +571,54 @@ def check_fork_paths(hand, monkeypatch) -> None:
     monkeypatch.setattr(plan_mod, "_plan_chunks", raising)
     with pytest.raises(ValueError, match="from the copy"):
         plan_grasps(pts, nrm, pool, hand, PlannerParams(threads=2))
+    monkeypatch.setattr(plan_mod, "_plan_chunks", real_chunks)
+    # the exact settling's quality jobs: shared with the copy (some of them scored there), the
+    # same grasps when the copy dies on its first job, its error raised here
+    real_job, scored_in = plan_mod.run_quality_job, []
+
+    def counting_job(job):
+        scored_in.append(os.getpid())
+        if os.getpid() != parent:
+            os.write(report_w, b"j")
+        return real_job(job)
+
+    report_r, report_w = os.pipe()
+    monkeypatch.setattr(plan_mod, "run_quality_job", counting_job)
+    _same_grasps(one, plan_grasps(pts, nrm, pool, hand, PlannerParams(threads=2)))
+    os.close(report_w)
+    with os.fdopen(report_r, "rb") as fh:
+        assert len(fh.read()) > 0  # the copy scored jobs of the settling
+    assert len(scored_in) > 0  # and so did this process
+
+    def dying_job(job):
+        if os.getpid() != parent:
+            os._exit(3)
+        return real_job(job)
+
+    monkeypatch.setattr(plan_mod, "run_quality_job", dying_job)
+    _same_grasps(one, plan_grasps(pts, nrm, pool, hand, PlannerParams(threads=2)))
+
+    def raising_job(job):
+        if os.getpid() != parent:
+            raise ValueError("from a job of the copy")
+        return real_job(job)
+
+    monkeypatch.setattr(plan_mod, "run_quality_job", raising_job)
+    with pytest.raises(ValueError, match="from a job of the copy"):
+        plan_grasps(pts, nrm, pool, hand, PlannerParams(threads=2))
+
+
+@pytest.mark.parametrize("P, n_proc", [(1, 2), (70, 2), (276, 2), (1000, 3), (5000, 2)])
+def test_fork_chunks_cover_the_pool_in_order_large_first(P, n_proc):
+    """The chunks of a forked plan: every pre-grasp once, in pool order, none larger than a
+    chunk of one process nor smaller than the minimum (but the last), never growing."""
+    from pregrasp_core.planner import plan as plan_mod
+
+    chunks = plan_mod._fork_chunks(P, n_proc)
+    assert [c for c0, c1 in chunks for c in range(c0, c1)] == list(range(P))
+    sizes = [c1 - c0 for c0, c1 in chunks]
+    assert max(sizes) <= plan_mod._CHUNK and min(sizes[:-1] or [8]) >= plan_mod._MIN_FORK_CHUNK
+    assert sizes == sorted(sizes, reverse=True)
 
 
 def test_pipeline_grasps_stage_reuses_normals_and_pool(hand):
