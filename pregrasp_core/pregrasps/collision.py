@@ -155,6 +155,7 @@ def hand_hits_points(
     if P == 0 or len(pts) == 0:
         return out
     kd = cKDTree(pts) if kd is None else kd
+    parts: list[tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]] = []  # (hands, their cells)
     for every in _by_preshape(q):  # loop over the distinct preshapes (a few)
         key = (q[every[0]].tobytes(), float(margin))
         if cells is None or key not in cells:
@@ -163,45 +164,80 @@ def hand_hits_points(
                 cells[key] = cell
         else:
             cell = cells[key]
-        for start in range(0, len(every), HAND_BATCH):  # loop over batches of hands
-            sel = every[start : start + HAND_BATCH]
-            out[sel] = _batch_hits(T_world_hand[sel], cell, pts, kd)
+        parts += [(every[s : s + HAND_BATCH], cell) for s in range(0, len(every), HAND_BATCH)]
+    # consecutive parts in batches of at most HAND_BATCH hands (the pinches adapt their
+    # preshape to the part: many preshapes of a few hands each, tested together)
+    batch: list[tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]] = []
+    n = 0
+    for k, (sel, cell) in enumerate(parts):  # loop over the parts
+        batch.append((sel, cell))
+        n += len(sel)
+        if k + 1 == len(parts) or n + len(parts[k + 1][0]) > HAND_BATCH:
+            idx = np.concatenate([b[0] for b in batch])
+            out[idx] = _batch_hits([(T_world_hand[b[0]], b[1]) for b in batch], pts, kd)
+            batch, n = [], 0
     return out
 
 
 def _batch_hits(
-    T_world_hand: np.ndarray, cell: tuple[np.ndarray, np.ndarray], pts: np.ndarray, kd: cKDTree
+    parts: list[tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]], pts: np.ndarray, kd: cKDTree
 ) -> np.ndarray:
-    """(G,) bool: :func:`hand_hits_points` for G hands of one preshape, its cells ``cell``."""
-    T_cell, half = cell  # (C, 4, 4), (C, 3)
-    r_out = np.linalg.norm(half, axis=1)  # (C,)
-    r_in = half.min(axis=1)
-    centres = np.einsum("gij,cj->gci", T_world_hand[:, :3, :3], T_cell[:, :3, 3])
-    centres += T_world_hand[:, None, :3, 3]  # (G, C, 3) world cell centres
-    d, _ = kd.query(centres.reshape(-1, 3), k=1, distance_upper_bound=float(r_out.max()))
-    d = d.reshape(len(T_world_hand), -1)  # (G, C); inf when nothing within the largest radius
-    hit = np.any(d < r_in, axis=1)  # (G,)
-    g, c = np.nonzero((d <= r_out) & ~(d < r_in) & ~hit[:, None])  # (U,) undecided cells
-    if len(g) == 0:
+    """(G,) bool: :func:`hand_hits_points` for the hands of ``parts`` one after the other, each
+    part ``(T_world_hand (G_p, 4, 4), the cells of their preshape)``. Every (hand, cell) row
+    gets the operations it got when each preshape was tested on its own (the same einsums per
+    part, then row by row): the same answers."""
+    rows_c, rows_out, rows_in, rows_hand, rows_cell = [], [], [], [], []
+    G = 0
+    for T, (T_cell, half) in parts:  # loop over the parts (a few preshapes)
+        centres = np.einsum("gij,cj->gci", T[:, :3, :3], T_cell[:, :3, 3])
+        centres += T[:, None, :3, 3]  # (G_p, C, 3) world cell centres
+        g_p, c_p = len(T), len(T_cell)
+        rows_c.append(centres.reshape(-1, 3))
+        rows_out.append(np.tile(np.linalg.norm(half, axis=1), g_p))
+        rows_in.append(np.tile(half.min(axis=1), g_p))
+        rows_hand.append(np.repeat(np.arange(G, G + g_p), c_p))
+        rows_cell.append(np.tile(np.arange(c_p), g_p))
+        G += g_p
+    centres, r_out, r_in = np.concatenate(rows_c), np.concatenate(rows_out), np.concatenate(rows_in)
+    hand_of, cell_of = np.concatenate(rows_hand), np.concatenate(rows_cell)
+    # one nearest-point query per row; the bound only prunes (a row's own radius decides it)
+    d, _ = kd.query(centres, k=1, distance_upper_bound=float(r_out.max()))
+    inner = d < r_in
+    hit = np.zeros(G, dtype=bool)
+    hit[hand_of[inner]] = True
+    und = np.flatnonzero((d <= r_out) & ~inner & ~hit[hand_of])  # (U,) undecided rows
+    if len(und) == 0:
         return hit
-    # the cells' rotations only for the hands with an undecided cell: the same einsum over
-    # those hands (same layout per hand), so each rotation has the bits of the full (G, C) one
-    ug, g_row = np.unique(g, return_inverse=True)  # (H,) hands, (U,) row of each cell's hand
-    R = np.einsum("gij,cjk->gcik", T_world_hand[ug][:, :3, :3], T_cell[:, :3, :3])  # (H, C, 3, 3)
-    n_in = kd.query_ball_point(centres[g, c], r_out[c], return_length=True)  # (U,) points
+    # the cells' rotations only for the hands with an undecided cell: per part the same einsum
+    # over those hands (same layout per hand), so each rotation has the bits of the full one
+    R = np.empty((len(und), 3, 3))
+    halves = np.empty((len(und), 3))
+    start = 0
+    for T, (T_cell, half) in parts:  # loop over the parts
+        stop = start + len(T)
+        mine = np.flatnonzero((hand_of[und] >= start) & (hand_of[und] < stop))
+        if len(mine):
+            g = hand_of[und[mine]] - start
+            c = cell_of[und[mine]]
+            ug, g_row = np.unique(g, return_inverse=True)
+            Rp = np.einsum("gij,cjk->gcik", T[ug][:, :3, :3], T_cell[:, :3, :3])  # (H, C, 3, 3)
+            R[mine] = Rp[g_row, c]
+            halves[mine] = half[c]
+        start = stop
+    cu_c, cu_r, gu_all = centres[und], r_out[und], hand_of[und]
+    n_in = kd.query_ball_point(cu_c, cu_r, return_length=True)  # (U,) points
     group = (np.cumsum(n_in) - n_in) // PAIR_BATCH  # (U,) batch of each cell, by its pairs
     for j in np.unique(group[n_in > 0]):  # loop over the batches of pairs (one when few)
         u = np.flatnonzero((group == j) & (n_in > 0))
-        u = u[~hit[g[u]]]  # hands hit by an earlier batch are done
+        u = u[~hit[gu_all[u]]]  # hands hit by an earlier batch are done
         if len(u) == 0:
             continue
-        gu, cu = g[u], c[u]
-        lists = kd.query_ball_point(centres[gu, cu], r_out[cu], return_sorted=False)
+        lists = kd.query_ball_point(cu_c[u], cu_r[u], return_sorted=False)
         lens = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(u))
         ip = np.concatenate([np.asarray(x, dtype=np.int64) for x in lists if len(x)])
-        k = np.repeat(np.arange(len(u)), lens)  # (M,) undecided cell of each pair
-        local = np.einsum("mj,mjk->mk", pts[ip] - centres[gu[k], cu[k]], R[g_row[u][k], cu[k]])
+        k = u[np.repeat(np.arange(len(u)), lens)]  # (M,) undecided row of each pair
+        local = np.einsum("mj,mjk->mk", pts[ip] - cu_c[k], R[k])
         # + CELL_SEAM: a point on the seam of two cells may miss both by round-off
-        inside = np.all(np.abs(local) <= half[cu[k]] + CELL_SEAM, axis=1)
-        hit[np.unique(gu[k[inside]])] = True
+        inside = np.all(np.abs(local) <= halves[k] + CELL_SEAM, axis=1)
+        hit[np.unique(gu_all[k[inside]])] = True
     return hit

@@ -702,3 +702,27 @@ def test_the_pool_size_check_counts_pinches(hand, default_object):
     assert both > surfaces
     with pytest.raises(PregraspError, match="more than the limit"):
         check_pool_size(jobs, replace(params, pinch=True), both - 1, boxes)
+
+
+@pytest.mark.parametrize("hand_batch", [7, 4096])
+def test_collision_of_many_preshapes_in_one_batch_gives_the_hand_models_answer(
+    hand, monkeypatch, hand_batch
+):
+    """Hands of many preshapes (as the pinches, which adapt theirs to the part) tested in shared
+    batches (a batch holds several preshapes, a preshape spans several batches) give the answer
+    of the hand model's own test, hand by hand."""
+    rng = np.random.default_rng(11)
+    pts = rng.uniform(-0.1, 0.1, (3000, 3))
+    G = 120
+    T = np.tile(np.eye(4), (G, 1, 1))
+    T[:, :3, :3] = Rotation.random(G, random_state=12).as_matrix()
+    T[:, :3, 3] = rng.uniform(-0.25, 0.25, (G, 3))
+    base = np.stack([hand.preshape(g) for g in TYPES])
+    shapes = base[rng.integers(0, 4, 15)] + rng.uniform(-0.2, 0.2, (15, base.shape[1]))
+    shapes = np.stack([hand.clamp(s) for s in shapes])
+    q = shapes[rng.integers(0, 15, G)]  # 15 preshapes, in no order
+    ref = np.array([hand.hands_hit_points(pts, T[i : i + 1], q[i], 0.004)[0] for i in range(G)])
+    monkeypatch.setattr(collision, "HAND_BATCH", hand_batch)
+    monkeypatch.setattr(collision, "PAIR_BATCH", 256)
+    ours = hand_hits_points(hand, T, np.full(G, "spherical"), q, pts, margin=0.004)
+    assert np.array_equal(ours, ref) and 10 < ours.sum() < G - 10
