@@ -7,15 +7,20 @@ Python, which runs exactly the callback a browser's edit runs (re-run the decomp
 everything downstream, redraw, update the GUI), and stops the clock when the client has received
 the frame carrying the new "boxes: N" label, which the app sends after the scene update.
 
-Second table (``--clients``): after planning, one client sends a volume-ratio edit exactly as
-viser's browser client does (a GuiUpdateMessage; the app applies a browser's number edit once it
-has rested 0.3 s, the debounce, which the times include); "scene" = until every client has
+Second table (``--clients``): the viewer's default object as a user gets it (the mug at
+``ViewerConfig().n_points`` = 20,000 points; ``--client-points 20000 5000`` adds a 5,000-point
+row), planned once; then one client sends a volume-ratio edit exactly as viser's browser client
+does (a GuiUpdateMessage, handled as a browser's edit is); "scene" = until every client has
 received the new "boxes: N" label (sent after the boxes, masks and pool are drawn), "best
 grasp" = until every client has received the new "N force-closure of M kept" line (sent after
-the re-plan is committed and drawn). The clients are websocket connections speaking viser's
-protocol (zstd msgpack frames), as the security tests use: every broadcast is serialised and
-sent to each, which is what several tabs cost the server; headless Chromium pages would add
-their own rendering (software WebGL) to the machine's load and measure that instead.
+the re-plan is committed and drawn); "stages" = the pipeline stages the edit re-ran before the
+planner (decomposition, classes, face masks, pool), "planner" = the planner's own time, and
+"other" = best grasp - stages - planner: what lies between the edit and the line besides the
+pipeline (the app's handling, scene and GUI updates, messages to the clients). The clients are
+websocket connections speaking viser's protocol (zstd msgpack frames), as the security tests
+use: every broadcast is serialised and sent to each, which is what several tabs cost the
+server; headless Chromium pages would add their own rendering (software WebGL) to the
+machine's load and measure that instead.
 
 Rows: a volume-ratio change (re-runs the decomposition and everything downstream) and a level
 slider change (no pipeline stage: boxes, colours and face masks redrawn). Columns: pipeline =
@@ -25,7 +30,7 @@ until the client has received the new scene (median, min and max over the trials
 are wall-clock on one machine; under load they are noisy, so compare rows of one run.
 
     .venv/bin/python benchmarks/bench_app.py [--points 20000 200000] [--trials 7]
-        [--clients 1 4] [--client-points 5000] [--client-trials 5]
+        [--clients 1 4] [--client-points 20000 5000] [--client-trials 5]
 """
 
 from __future__ import annotations
@@ -57,6 +62,9 @@ from app.server import ViewerConfig, run  # noqa: E402
 
 BOXES = re.compile(rb"boxes: (\d+)")
 
+
+SCENE_STAGES = ("decompose", "classify", "facemask", "pool")
+"""The stages a volume-ratio edit re-runs before the planner (all of them: the tree changes)."""
 
 FC_LINE = re.compile(rb"\d+ force-closure of \d+ kept")
 
@@ -208,7 +216,7 @@ def bench_clients(n_points: int, n_clients: int, trials: int) -> dict:
         time.sleep(1.0)
         c.plan()
         h = app.gui.params[("decomposition", "volume_ratio")]
-        scene, best, plan_s = [], [], []
+        scene, best, plan_s, stages_s = [], [], [], []
         for k in range(trials + 1):
             value = (0.5, 0.9)[k % 2]
             while not (c.idle() and not app.gui._timers):
@@ -229,6 +237,7 @@ def bench_clients(n_points: int, n_clients: int, trials: int) -> dict:
             scene.append(t_scene - t0)
             best.append(t_best - t0)
             plan_s.append(s.result.timings.get("grasps", float("nan")))
+            stages_s.append(sum(s.result.timings.get(st, 0.0) for st in SCENE_STAGES))
         return {
             "points": n_points,
             "clients": n_clients,
@@ -238,6 +247,10 @@ def bench_clients(n_points: int, n_clients: int, trials: int) -> dict:
             "best": statistics.median(best),
             "best_max": max(best),
             "planner": statistics.median(plan_s),
+            "stages": statistics.median(stages_s),
+            "other": statistics.median(
+                b - p - st for b, p, st in zip(best, plan_s, stages_s, strict=True)
+            ),
         }
     finally:
         for cl in clients:
@@ -251,7 +264,13 @@ def main() -> None:
     ap.add_argument("--points", type=int, nargs="+", default=[20000, 200000])
     ap.add_argument("--trials", type=int, default=7)
     ap.add_argument("--clients", type=int, nargs="+", default=[1, 4])
-    ap.add_argument("--client-points", type=int, default=5000)
+    ap.add_argument(
+        "--client-points",
+        type=int,
+        nargs="+",
+        default=[ViewerConfig().n_points],
+        help="points of the clients table's rows (default: the viewer's default object)",
+    )
     ap.add_argument("--client-trials", type=int, default=5)
     ap.add_argument("--skip-single", action="store_true", help="only the clients table")
     args = ap.parse_args()
@@ -266,21 +285,23 @@ def main() -> None:
         single_table(args)
     print()
     print(
-        f"# after planning: a browser's volume-ratio edit (0.3 s debounce included) until every "
-        f"client has it; {args.client_trials} changes per row after one warm-up, medians (max)"
+        f"# after planning: a browser's volume-ratio edit until every client has it; "
+        f"{args.client_trials} changes per row after one warm-up, medians (max)"
     )
     print()
     print("| points | clients | pool | new scene (ms) | max | new best grasp (ms) | max "
-          "| planner (ms) |")  # fmt: skip
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for n in args.clients:
-        r = bench_clients(args.client_points, n, args.client_trials)
-        print(
-            f"| {r['points']:,} | {r['clients']} | {r['pool']} | {r['scene'] * 1e3:.0f} | "
-            f"{r['scene_max'] * 1e3:.0f} | {r['best'] * 1e3:.0f} | {r['best_max'] * 1e3:.0f} | "
-            f"{r['planner'] * 1e3:.0f} |",
-            flush=True,
-        )
+          "| stages (ms) | planner (ms) | other (ms) |")  # fmt: skip
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for points in args.client_points:
+        for n in args.clients:
+            r = bench_clients(points, n, args.client_trials)
+            print(
+                f"| {r['points']:,} | {r['clients']} | {r['pool']} | {r['scene'] * 1e3:.0f} | "
+                f"{r['scene_max'] * 1e3:.0f} | {r['best'] * 1e3:.0f} | "
+                f"{r['best_max'] * 1e3:.0f} | {r['stages'] * 1e3:.0f} | "
+                f"{r['planner'] * 1e3:.0f} | {r['other'] * 1e3:.0f} |",
+                flush=True,
+            )
 
 
 def single_table(args) -> None:
