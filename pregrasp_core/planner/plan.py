@@ -11,6 +11,7 @@ import gc
 import logging
 import os
 import pickle
+import select
 import tempfile
 import threading
 import time
@@ -250,6 +251,24 @@ def _recv(fd: int) -> Any:
     return None if data is None else pickle.loads(data)
 
 
+_PIPE_SIZE: int = 1 << 20
+"""Bytes a copy's answer pipe holds (Linux's default largest, ``/proc/sys/fs/pipe-max-size``):
+a chunk's grasps, about 1.3 kB each, go in without waiting for the parent to read them."""
+
+
+def _widen_pipe(fd: int) -> None:
+    """The pipe ``fd`` made to hold :data:`_PIPE_SIZE` bytes where the system allows it."""
+    try:
+        fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, _PIPE_SIZE)
+    except (AttributeError, OSError):  # not Linux, or a lower limit: the default size
+        pass
+
+
+def _readable(fd: int) -> bool:
+    """Whether reading the pipe ``fd`` would not block (data, or its writer gone)."""
+    return bool(select.select([fd], [], [], 0.0)[0])
+
+
 def _read_exactly(fd: int, n: int) -> bytes | None:
     parts, left = [], n
     while left:
@@ -269,6 +288,9 @@ class _Copy:
     answers: int
     requests: int
     alive: bool = True
+    """It can still score quality jobs."""
+    working: bool = True
+    """It may still send chunks."""
 
 
 def _serve_copy(
@@ -280,27 +302,34 @@ def _serve_copy(
     answers: int,
     requests: int,
 ) -> None:
-    """The work of a forked copy: plan the chunks it takes from ``queue``, send back
-    ``(True, grasps, phase clocks, chunk indices)`` (or ``(False, exception)``), then score
-    the quality jobs the parent sends (:func:`_shared_qualities`) until it closes the pipe."""
+    """The work of a forked copy: plan the chunks it takes from ``queue``, sending each one's
+    grasps as soon as they are planned (``("chunk", index, grasps)``), then
+    ``("done", phase clocks)`` (or ``("error", exception)``); then score the quality jobs the
+    parent sends (:func:`_shared_qualities`) until it closes the pipe."""
     taken: list[int] = []
+    out: list[Grasp] = []
 
     def claimed() -> Iterator[tuple[int, int]]:
         while (k := queue.take()) < len(chunks):
             taken.append(k)
             yield chunks[k]
 
+    sent = [0]
+
+    def send_chunk(done: int, total: int) -> None:  # called after each chunk
+        _send(answers, ("chunk", taken[-1], out[sent[0] : done]))
+        sent[0] = done
+
     try:
-        out: list[Grasp] = []
-        _plan_chunks(ctx, pool, P, None, out, None, claimed())
-        msg: tuple[Any, ...] = (True, out, ctx.clock, taken)
+        _plan_chunks(ctx, pool, P, None, out, send_chunk, claimed())
+        msg: tuple[Any, ...] = ("done", ctx.clock)
     except BaseException as exc:  # noqa: BLE001 - sent to the parent, raised there
-        msg = (False, exc)
+        msg = ("error", exc)
     try:
         _send(answers, msg)
     except Exception:  # noqa: BLE001 - an exception that does not pickle
-        _send(answers, (False, RuntimeError(repr(msg[1]))))
-    if not msg[0]:
+        _send(answers, ("error", RuntimeError(repr(msg[1]))))
+    if msg[0] != "done":
         return
     while (jobs := _recv(requests)) is not None:  # the parent's quality jobs
         try:
@@ -370,13 +399,14 @@ def _plan_forked(
     """:func:`_plan_chunks` of every chunk, then the exact settling, on ``n_proc`` processes:
     this one and ``n_proc - 1`` forked copies of it (all of the context inherited, nothing
     rebuilt). The chunks (:func:`_fork_chunks`) are taken one by one from a shared queue by
-    whichever process is free; each copy sends back its grasps (pickled, which keeps every
-    float's bits), its phase clocks and which chunks they are, and ``grasps`` gets every chunk
-    in pool order; the copies then score their share of the exact settling's quality jobs
-    (:func:`_shared_qualities`). Every pre-grasp is planned independently of its chunk, and
-    every quality job is the same call wherever it runs, so the grasps are those of a single
-    process, bit for bit. The chunks of a copy that dies without an answer are planned here; an
-    exception in a copy is raised here."""
+    whichever process is free; each copy sends back the grasps of each chunk as soon as it is
+    planned (pickled, which keeps every float's bits; this process reads them between its own
+    chunks), then its phase clocks, and ``grasps`` gets every chunk in pool order; the copies
+    then score their share of the exact settling's quality jobs (:func:`_shared_qualities`).
+    Every pre-grasp is planned independently of its chunk, and every quality job is the same
+    call wherever it runs, so the grasps are those of a single process, bit for bit. The
+    chunks of a copy that dies without an answer are planned here; an exception in a copy is
+    raised here."""
     chunks = _fork_chunks(P, n_proc)
     queue = _ChunkQueue()
     copies: list[_Copy] = []
@@ -384,6 +414,7 @@ def _plan_forked(
     try:
         for _ in range(1, n_proc):  # fork the copies before this process starts working
             answers_r, answers_w = os.pipe()
+            _widen_pipe(answers_w)
             requests_r, requests_w = os.pipe()
             pid = os.fork()
             if pid == 0:  # the copy: plan, answer, then leave without any clean-up
@@ -403,6 +434,31 @@ def _plan_forked(
             copies.append(_Copy(pid, answers_r, requests_w))
         by_chunk: dict[int, list[Grasp]] = {}
         taken: list[int] = []
+        error: list[BaseException] = []
+
+        def collect(block: bool) -> None:
+            """The copies' answers so far (``block``: every answer, until each is done)."""
+            for c in copies:
+                while c.working and (block or _readable(c.answers)):
+                    msg = _recv(c.answers)
+                    if msg is None:  # the copy ended
+                        c.working = c.alive = False
+                    elif msg[0] == "chunk":
+                        _split_chunks(msg[2], [msg[1]], chunks, by_chunk)
+                    elif msg[0] == "done":
+                        c.working = False
+                        for k, v in msg[1].items():
+                            ctx.clock[k] += v
+                    else:
+                        c.working = c.alive = False
+                        error.append(msg[1])
+
+        def own_chunk(done: int, total: int) -> None:  # after each chunk of this process
+            collect(False)  # (the copies' grasps unpickled while they still plan)
+            if progress is not None:
+                progress(
+                    done + sum(c1 - c0 for k, (c0, c1) in enumerate(chunks) if k in by_chunk), P
+                )
 
         def claimed() -> Iterator[tuple[int, int]]:
             while (k := queue.take()) < len(chunks):
@@ -410,23 +466,11 @@ def _plan_forked(
                 yield chunks[k]
 
         own: list[Grasp] = []
-        _plan_chunks(ctx, pool, P, None, own, progress, claimed())
+        _plan_chunks(ctx, pool, P, None, own, own_chunk, claimed())
         _split_chunks(own, taken, chunks, by_chunk)
-        error: BaseException | None = None
-        for c in copies:
-            msg = _recv(c.answers)
-            if msg is None:
-                c.alive = False
-            elif not msg[0]:
-                c.alive = False
-                error = error or msg[1]
-            else:
-                _, got, clock, their = msg
-                _split_chunks(got, their, chunks, by_chunk)
-                for k, v in clock.items():
-                    ctx.clock[k] += v
-        if error is not None:
-            raise error
+        collect(True)
+        if error:
+            raise error[0]
         missing = [k for k in range(len(chunks)) if k not in by_chunk]
         if missing:  # a copy died (e.g. killed): plan its chunks here
             logger.warning("a planner process ended without an answer; planning its chunks here")
