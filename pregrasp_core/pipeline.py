@@ -413,12 +413,15 @@ def result_document(
     include_indices: bool = False,
     extra_timings: dict[str, float] | None = None,
     simulation: SimulatedRanking | None = None,
+    plain: bool = True,
 ) -> JsonDocument:
     """The ``pregrasp/1`` document of a pipeline result (tree with face masks, pool, timings).
 
     extra_timings: stages run outside the pipeline (e.g. ``load``), listed first. simulation:
     the lift test of the best grasps (``result.grasps`` re-ranked by it): each simulated
-    grasp's outcome, its ``best`` and ``parameters.simulation``.
+    grasp's outcome, its ``best`` and ``parameters.simulation``. plain: as
+    :func:`pregrasp_core.result.result_document` (``False``: the pool and grasps sections as
+    built, for ``write_result`` or ``to_jsonable`` only).
     """
     params = result.params if params is None else params
     if result.tree is None:
@@ -443,4 +446,5 @@ def result_document(
         face_masks=None if result.masks is None else result.masks.masks,
         include_indices=include_indices,
         extra_sections=extra,
+        plain=plain,
     )

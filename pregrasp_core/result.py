@@ -24,7 +24,7 @@ import tempfile
 from collections.abc import Mapping, Sequence
 from importlib import metadata
 from pathlib import Path
-from typing import TYPE_CHECKING, TypeAlias
+from typing import TYPE_CHECKING, TypeAlias, cast
 
 import numpy as np
 
@@ -369,6 +369,7 @@ def result_document(
     include_indices: bool = False,
     extra_sections: Mapping[str, object] | None = None,
     seed: int | None = None,
+    plain: bool = True,
 ) -> JsonDocument:
     """The ``pregrasp/1`` document as a JSON-ready dict.
 
@@ -377,7 +378,10 @@ def result_document(
     timings: stage name -> seconds; shapes: one ``NodeShape`` per node; face_masks, include_indices:
     see :func:`tree_section`; extra_sections: further top-level sections (e.g. ``"pool"``,
     ``"grasps"``, ``"best"``) made JSON-ready with :func:`to_jsonable`, after the core ones;
-    seed: the sampling seed of the input (else ``cloud.info["seed"]`` if present).
+    seed: the sampling seed of the input (else ``cloud.info["seed"]`` if present). plain: the
+    extra sections made plain JSON; ``False`` leaves them as built (numpy arrays, dataclasses):
+    for a document that goes to :func:`write_result` (or :func:`to_jsonable`) only, which
+    writes the same text without the copy.
     """
     if int(np.asarray(cloud.points).shape[0]) != tree.n_points:
         raise ValueError(
@@ -401,7 +405,8 @@ def result_document(
     for name, section in (extra_sections or {}).items():
         if name in CORE_SECTIONS:
             raise ValueError(f"extra section {name!r} would replace a core section")
-        doc[str(name)] = to_jsonable(section)
+        # not plain: values to_jsonable takes (write_result writes them as it would)
+        doc[str(name)] = to_jsonable(section) if plain else cast(JsonValue, section)
     return doc
 
 

@@ -211,12 +211,15 @@ def result_doc(
     include_indices: bool,
     lift: LiftTest | None = None,
 ) -> dict[str, Any]:
-    """The ``pregrasp/1`` document of a planned result (with the lift test's outcomes)."""
+    """The ``pregrasp/1`` document of a planned result (with the lift test's outcomes), its
+    pool and grasps sections as built (numpy arrays): for ``write_result``, or ``to_jsonable``
+    for plain JSON (the same text either way, without a plain copy of ~10^5 numbers first)."""
     return result_document(
         result,
         include_indices=include_indices,
         extra_timings={"load": timings["load"]},
         simulation=None if lift is None else lift.section(),
+        plain=False,
     )
 
 

@@ -284,3 +284,18 @@ def test_normals_beside_the_stages_equal_a_serial_run_and_leave_no_thread(
     with pytest.raises(RuntimeError, match="normals failed"):
         run_pipeline(cloud, params, hand, until="grasps")
     assert threading.active_count() == before
+
+
+def test_a_document_left_as_built_writes_the_plain_documents_file(hand, params, tmp_path):
+    """``pregrasp plan`` writes its document without making the pool and grasps plain first
+    (``plain=False``): the same file, byte for byte, and the JSON module reads it back as the
+    plain document."""
+    from pregrasp_core.result import to_jsonable
+
+    res = run_pipeline(l_shape_cloud(), params, hand, until="grasps")
+    plain = result_document(res)
+    raw = result_document(res, plain=False)
+    assert to_jsonable(raw) == plain
+    a = write_result(plain, tmp_path / "plain.json").read_bytes()
+    b = write_result(raw, tmp_path / "raw.json").read_bytes()
+    assert a == b and json.loads(b) == plain
