@@ -15,7 +15,10 @@ alike), in a fresh process per round:
   the CPU times count the process and its waited-for children (the forked planners);
 * the planner's phases at ``threads=1`` (``GraspSet.phase_seconds``), ms per pre-grasp;
 * ``first plan``: the warm-up plan of each process (numba imported and its cached kernels
-  loaded: the first plan of a process pays it).
+  loaded: the first plan of a process pays it);
+* the in-process run's parts: the stages around the planner (``plan_loaded`` less its
+  ``grasps`` stage: decomposition to pool, and the normals, on a thread of their own since
+  ``85eaa04``), each stage's seconds, the result document and the writing of the file.
 
 A digest of the result file (without timings) and of the grasps at 1 and 2 threads says, per
 tree, that the results do not depend on the round or the threads. Usage::
@@ -82,8 +85,14 @@ def cpu():  # CPU seconds of this process and of its waited-for children (forked
 rec = {"imports": t_imports, "first_plan": t_first}
 t0, c0 = time.perf_counter(), cpu()
 result, timings, lift = plan_loaded(cloud, 0.0, params, hand)
-write_result(result_doc(result, timings, False, lift), out)
+t1 = time.perf_counter()
+doc = result_doc(result, timings, False, lift)
+t2 = time.perf_counter()
+write_result(doc, out)
 rec["in_process"] = time.perf_counter() - t0
+rec["around"] = t1 - t0 - timings["grasps"]
+rec["stages"] = {k: v for k, v in timings.items() if k != "load"}
+rec["doc"], rec["write"] = t2 - t1, time.perf_counter() - t2
 rec["in_process_cpu"] = cpu() - c0
 rec["file"] = digest_file(out)
 pool, support = result.pool, result.masks.support
@@ -179,6 +188,18 @@ def main() -> None:
         "in-process: loaded cloud to written file (s)",
         [f"{med(r['in_process'] for r in recs[k]):.3f}" for k in trees],
     )
+    row(
+        "in-process: the stages around the planner (plan_loaded less its grasps stage) (s)",
+        col("around"),
+    )
+    for st in recs["now"][0]["stages"]:
+        note = " (on its own thread beside the others since 85eaa04)" if st == "normals" else ""
+        row(
+            f"in-process: stage {st}{note} (s)",
+            [format(med(r["stages"].get(st, float("nan")) for r in recs[k]), ".3f") for k in trees],
+        )
+    row("in-process: result document (s)", col("doc"))
+    row("in-process: writing the file (s)", col("write"))
     for t in (1, 2):
         label = "planner, 1 core" if t == 1 else "planner, 2 workers"
         row(
