@@ -147,6 +147,7 @@ class Controller:
         self._req_lock = threading.Lock()  # guards the two fields below (never held long)
         self._generation = 0  # bumped by every long request: older ones stop at their next stage
         self._pending: dict[str, Any] = {}  # params/n_points/seed asked for, not yet computed
+        self._orphaned = False  # the pending changes' computation was cancelled (cancel())
         self._running = 0  # long actions in progress (a plan runs outside the lock)
         self.lift = LiftRunner(self)
         """Runs the "simulate lift" button's MuJoCo lift on a worker thread (app.simulate_view)."""
@@ -177,6 +178,7 @@ class Controller:
             if gen is not None:
                 self._check(gen)
                 self._pending = {}
+                self._orphaned = False
             state = dataclasses.replace(state, version=self._state.version + 1)
             self._state = state
         if render:
@@ -394,6 +396,7 @@ class Controller:
             self._generation += 1
             gen = self._generation
             self._pending = {}
+            self._orphaned = False
         res = loaded.result
         n = len(ranked_grasps(res))
         n_parts = 0 if res.tree is None else len(res.tree.leaves())
@@ -416,6 +419,7 @@ class Controller:
                 params=res.params,
                 result=res,
                 planned=loaded.planned,
+                replanning=False,
                 loaded=loaded,
                 compare=None,
                 view=s.view.for_new_object(
@@ -560,14 +564,38 @@ class Controller:
             what = "change the thresholds" if "params" in changes else "resample the points"
             raise InputError(loaded_result_notice(loaded, what))
         with self._req_lock:
-            if all(self._pending.get(k, getattr(self._state, k)) == v for k, v in changes.items()):
+            asked = {k: self._pending.get(k, getattr(self._state, k)) for k in changes}
+            if asked == changes and not self._orphaned:
                 return self._state
             self._pending.update(changes)
+            self._orphaned = False  # this request computes every pending change
             self._generation += 1
             gen = self._generation
-        if "params" in changes and not ({"n_points", "seed"} & set(self._pending)):
-            return self._long(gen, self._rerun)
-        return self._long(gen, self._reload)
+            rerun = "params" in changes and not ({"n_points", "seed"} & set(self._pending))
+        return self._long(gen, self._rerun if rerun else self._reload)
+
+    def cancel(self) -> None:
+        """Stop the long action in progress at its next check (between stages and between
+        planner chunks) without starting another: a newer edit has made its result stale. The
+        pending changes stay; the next request includes them, and :meth:`run_pending` computes
+        them when no request follows."""
+        with self._req_lock:
+            if self._running:
+                self._generation += 1
+                self._orphaned = bool(self._pending) or self._state.replanning
+
+    def run_pending(self) -> AppState:
+        """Compute what :meth:`cancel` stopped and no newer request has taken up: the pending
+        changes, and the re-plan of a threshold change (nothing to do otherwise)."""
+        with self._req_lock:
+            if not (self._orphaned and (self._pending or self._state.replanning)):
+                self._orphaned = False
+                return self._state
+            self._orphaned = False
+            self._generation += 1
+            gen = self._generation
+            rerun = not ({"n_points", "seed"} & set(self._pending))
+        return self._long(gen, self._rerun if rerun else self._reload)
 
     def _long(self, gen: int, fn: Callable[[int], AppState]) -> AppState:
         """Run the long action ``fn(gen)``; a superseded one returns the state as it is, a failed
@@ -624,6 +652,7 @@ class Controller:
     def _load(self, source: ObjectSource, gen: int | None = None) -> AppState:
         if gen is None:
             with self._req_lock:
+                self._orphaned = False  # the load reads every pending change
                 self._generation += 1
                 gen = self._generation
         return self._long(gen, lambda g: self._load_now(source, g))
@@ -660,6 +689,7 @@ class Controller:
                 params=params,
                 result=result,
                 planned=False,
+                replanning=False,
                 loaded=None,
                 compare=None,
                 waiting=None,
@@ -699,7 +729,7 @@ class Controller:
                 return self._settle(gen, dataclasses.replace(s, params=params))
             if s.loaded is not None:
                 raise InputError(loaded_result_notice(s.loaded))
-        replan = s.planned
+        replan = s.planned or s.replanning  # a re-plan this edit cancelled: plan again
         t0 = time.perf_counter()
         result = self._run(s.result.cloud, params, previous=s.result, plan=False, gen=gen)
         dt = time.perf_counter() - t0
@@ -721,6 +751,7 @@ class Controller:
                     params=params,
                     result=result,
                     planned=False,
+                    replanning=replan,
                     view=view,
                     busy="plan" if replan else "",
                     progress=0.0,
@@ -747,6 +778,7 @@ class Controller:
                     now,
                     result=planned,
                     planned=True,
+                    replanning=False,
                     view=view,
                     busy="",
                     progress=0.0,
@@ -853,6 +885,7 @@ class Controller:
                 params=params,
                 result=result,
                 planned=True,
+                replanning=False,
                 view=view,
                 busy="",
                 progress=0.0,

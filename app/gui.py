@@ -155,8 +155,8 @@ class Gui:
         self.controller = controller
         self.scene = scene
         self._local = threading.local()
-        self._timers: dict[Any, threading.Timer] = {}  # pending debounced edit per control
-        self._timers_lock = threading.Lock()
+        self._runs: dict[Any, _EditRun] = {}  # control key -> its browser edits in progress
+        self._runs_lock = threading.Lock()
         self._values_lock = threading.RLock()  # a re-send and a sync of the values never mix
         self._edits: dict[int, list[float]] = {}  # id(handle) -> arrival of edits not yet read
         self._edits_lock = threading.Lock()
@@ -193,18 +193,18 @@ class Gui:
                 "points", c.state.n_points, min=N_POINTS_RANGE[0], max=N_POINTS_RANGE[1], step=1000
             )
             self.n_points.on_update(
-                lambda e: self._debounced(e, "n_points", c.set_n_points, e.target.value)
+                lambda e: self._coalesced(e, "n_points", c.set_n_points, e.target.value)
             )
             self.seed = gui.add_number(
                 "seed", c.state.seed, min=SEED_RANGE[0], max=SEED_RANGE[1], step=1
             )
-            self.seed.on_update(lambda e: self._debounced(e, "seed", c.set_seed, e.target.value))
+            self.seed.on_update(lambda e: self._coalesced(e, "seed", c.set_seed, e.target.value))
             self.units = gui.add_dropdown("units", (*UNITS, "custom"), initial_value="auto")
             self.units.on_update(lambda e: self._do(e, self._units, e.target.value))
             self.scale = gui.add_number(
                 "scale (x coords)", 1.0, min=MIN_SCALE, max=MAX_SCALE, step=0.001
             )
-            self.scale.on_update(lambda e: self._debounced(e, "scale", c.set_scale, e.target.value))
+            self.scale.on_update(lambda e: self._coalesced(e, "scale", c.set_scale, e.target.value))
             self.units_fix = gui.add_button("read as metres", visible=False)
             self.units_fix.on_click(lambda e: self._do(e, c.fix_units))
             self.pick_mode = gui.add_checkbox("click picks the object", False, disabled=True)
@@ -361,17 +361,22 @@ class Gui:
 
     def _param_cb(self, section: str, name: str) -> Callable[[Any], Any]:
         c = self.controller
-        return lambda e: self._debounced(
+        return lambda e: self._coalesced(
             e, (section, name), c.set_param, section, name, e.target.value
         )
 
-    def _debounced(self, event: Any, key: Any, fn: Callable[..., Any], *args: Any) -> None:
-        """Like :meth:`_do`, but a browser's edits of one control are applied only once they
-        have rested for :data:`PARAM_DEBOUNCE_S` (a number input sends every keystroke: typing
-        500 would otherwise run the pipeline for 5, 50 and 500). Edits of one control from
-        several browsers share the timer: the last edit wins, and once it has run every browser
-        is sent the value in use. Edits from Python (tests, scripts) have no client and apply
-        at once."""
+    def _coalesced(self, event: Any, key: Any, fn: Callable[..., Any], *args: Any) -> None:
+        """Like :meth:`_do` for a control whose action runs the pipeline (thresholds, points,
+        seed, scale): apply at once, coalesce the rest.
+
+        A browser's first edit of the control runs at once. Edits of it arriving while that
+        runs (a number input sends every keystroke: typing 500 sends 5, 50 and 500; or another
+        browser's edit) are coalesced: the latest replaces any edit still waiting, and the work
+        in progress, now stale, is cancelled at its next check (``Controller.cancel``: between
+        stages and between planner chunks). When the running edit ends, the waiting one runs,
+        so a burst of edits runs the pipeline at most twice and ends with the last value. Once
+        no edit of the control is left, every browser is sent the value in use. Edits from
+        Python (tests, scripts) have no client and apply at once."""
         if getattr(self._local, "syncing", False):
             return
         client = getattr(event, "client", None)
@@ -379,34 +384,48 @@ class Gui:
             self.controller.act(None, fn, *args)
             return
         target = getattr(event, "target", None)
-        timer = threading.Timer(PARAM_DEBOUNCE_S, lambda: None)
-        timer.function = lambda: self._run_debounced(key, timer, client, target, fn, *args)
-        timer.daemon = True
-        with self._timers_lock:
-            old = self._timers.pop(key, None)
-            if old is not None:
-                old.cancel()
-            self._timers[key] = timer
-            timer.start()
-        self._end_edit(event)  # the edit is now held by its timer (sync skips waiting controls)
+        job = (client, fn, args)
+        with self._runs_lock:
+            run = self._runs.get(key)
+            if run is not None:  # an edit of this control runs: this one waits for its end
+                run.waiting = job
+                self.controller.cancel()  # under the lock: never cancels the job run next
+            else:
+                self._runs[key] = _EditRun(target)
+        self._end_edit(event)  # the edit is now held by its run (sync skips those controls)
+        if run is None:
+            self._run_edits(key, job)
 
-    def _run_debounced(
-        self, key: Any, timer: Any, client: Any, target: Any, fn: Callable[..., Any], *args: Any
-    ) -> None:
+    def _run_edits(self, key: Any, job: tuple[Any, Callable[..., Any], tuple[Any, ...]]) -> None:
+        """Run ``job`` (client, action, args), then the edit of control ``key`` that arrived
+        meanwhile, if any, until none is left; then send the value in use to every browser."""
+        client = job[0]
         try:
-            self.controller.act(client, fn, *args)
+            next_job: tuple[Any, Callable[..., Any], tuple[Any, ...]] | None = job
+            while next_job is not None:
+                client, fn, args = next_job
+                self.controller.act(client, fn, *args)
+                with self._runs_lock:
+                    run = self._runs[key]
+                    next_job, run.waiting = run.waiting, None
         finally:
-            with self._timers_lock:
-                if self._timers.get(key) is timer:
-                    del self._timers[key]
-            self.repush(target)
+            with self._runs_lock:
+                run = self._runs.pop(key)
+            # what a cancel stopped and no edit took up (e.g. the last edit was refused)
+            self.controller.act(client, self.controller.run_pending)
+            self.repush(run.target)
+
+    def settled(self) -> bool:
+        """Whether no browser edit of a pipeline control runs or waits (tests and benchmarks
+        wait for this and ``Controller.idle``)."""
+        with self._runs_lock:
+            return not self._runs
 
     def close(self) -> None:
-        """Cancel the pending debounced edits."""
-        with self._timers_lock:
-            for t in self._timers.values():
-                t.cancel()
-            self._timers.clear()
+        """Drop the browser edits still waiting (the ones running end by themselves)."""
+        with self._runs_lock:
+            for run in self._runs.values():
+                run.waiting = None
 
     def on_bad_value(self, client_id: Any, handle: Any, reason: str) -> None:
         """A browser sent a value that is not even of the control's type (the update guard of
@@ -530,10 +549,8 @@ class Gui:
             "ghost_node.options", self.ghost_node, "options", (ALL, *(f"node {i}" for i in nodes))
         )
         self._sync_grasp_options(s)
-        with self._timers_lock:  # a control whose edit waits for its debounce keeps the edit
-            waiting = {id(self.params[k]) for k in self._timers if k in self.params}
-            numbers = (("n_points", self.n_points), ("seed", self.seed), ("scale", self.scale))
-            waiting |= {id(h) for k, h in numbers if k in self._timers}
+        with self._runs_lock:  # a control whose browser edits run or wait keeps the edit shown
+            waiting = {id(run.target) for run in self._runs.values()}
         waiting |= self._editing()
         with self._values_lock:
             for key, h, v in self._input_values(s):
@@ -581,9 +598,16 @@ EDIT_READ_S = 5.0
 """A browser edit whose callback has not run after this long (seconds) no longer holds its
 control's value back from :meth:`Gui.sync` (viser drops the callbacks of a closed tab)."""
 
-PARAM_DEBOUNCE_S = 0.3
-"""A browser's edit of a number (thresholds, points, seed) is applied once the control has
-rested this long (seconds)."""
+
+@dataclasses.dataclass
+class _EditRun:
+    """The browser edits of one pipeline control in progress (:meth:`Gui._coalesced`)."""
+
+    target: Any
+    """The control's handle (its value in use is sent to every browser at the end)."""
+    waiting: tuple[Any, Callable[..., Any], tuple[Any, ...]] | None = None
+    """The latest edit that arrived while one ran: (client, action, args), run next."""
+
 
 TABLE_ROWS = 20
 """Rows of the ranked grasp table and options of the grasp chooser."""

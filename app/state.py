@@ -96,6 +96,10 @@ class AppState:
     timings) of the current run, or ``None`` before the first run."""
     planned: bool = False
     """Whether ``result`` holds planned grasps for the current thresholds."""
+    replanning: bool = False
+    """Whether a threshold change found planned grasps and plans them again for the new
+    thresholds: a newer edit that cancels that re-plan plans again too (the grasps follow the
+    last edit); a plan the user started and an edit cancelled is not restarted."""
     loaded: Any = None
     """The ``app.result_file.ResultFile`` shown (``result`` is its content, nothing recomputed),
     or ``None`` when ``result`` was computed here from ``source``."""

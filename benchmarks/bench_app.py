@@ -219,7 +219,7 @@ def bench_clients(n_points: int, n_clients: int, trials: int) -> dict:
         scene, best, plan_s, stages_s = [], [], [], []
         for k in range(trials + 1):
             value = (0.5, 0.9)[k % 2]
-            while not (c.idle() and not app.gui._timers):
+            while not (c.idle() and app.gui.settled()):
                 time.sleep(0.01)
             t0 = time.perf_counter()
             clients[0].send(_messages.GuiUpdateMessage(h._impl.uuid, {"value": value}))

@@ -629,7 +629,7 @@ def test_one_browser_plans_while_another_changes_a_threshold(make_app):
                     "the view action answered",
                 )
                 waits[key].append(time.monotonic() - t0)
-            if c.idle() and not app.gui._timers and c.state.busy == "":
+            if c.idle() and app.gui.settled() and c.state.busy == "":
                 break
         s = c.state
         assert s.params.decomposition.volume_ratio == 0.5 and s.error == ""
@@ -691,3 +691,38 @@ def test_a_browser_edit_is_not_lost_to_a_state_committed_meanwhile(app):
         stop.set()
         t.join(timeout=5)
         b.close()
+
+
+def test_a_cancelled_computation_keeps_its_change_for_run_pending(app, monkeypatch):
+    """``Controller.cancel`` stops the work in progress at its next check and keeps its pending
+    change; ``run_pending`` computes it (once: a second call has nothing to do)."""
+    import threading
+
+    from pregrasp_core import pipeline as ppl
+
+    c = app.controller
+    real, calls = ppl.run_pipeline, []
+    gate, held = threading.Event(), threading.Event()
+
+    def run(cloud, params, hand=None, until="pool", **kw):
+        calls.append(params.decomposition.min_points)
+        if not held.is_set():
+            held.set()
+            assert gate.wait(60)
+        return real(cloud, params, hand, until=until, **kw)
+
+    monkeypatch.setattr(ppl, "run_pipeline", run)
+    before = c.state
+    t = threading.Thread(target=c.set_param, args=("decomposition", "min_points", 100))
+    t.start()
+    assert held.wait(30)
+    c.cancel()
+    gate.set()
+    t.join(timeout=60)
+    assert c.state.result is before.result  # stopped before its commit
+    assert c.pending("params").decomposition.min_points == 100 and not c.idle()
+    c.run_pending()
+    s = c.state
+    assert s.params.decomposition.min_points == 100 == s.result.params.decomposition.min_points
+    assert c.idle() and calls == [100, 100]
+    assert c.run_pending() is s and calls == [100, 100]

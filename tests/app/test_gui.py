@@ -209,30 +209,160 @@ def test_bad_threshold_is_reported_and_reverted(app):
     assert app.controller.state.shown_level == 0
 
 
-def test_browser_edits_of_a_threshold_are_debounced(app):
-    """A number input sends every keystroke; only the value the user stops at is applied."""
+class _Browser:
+    """Stands in for a browser: edits from a browser carry their client."""
+
+    def add_notification(self, *a, **k):
+        raise AssertionError(f"unexpected notification {a}")
+
+
+def _browser_edit(handle, value) -> None:
+    """What viser does with a browser's edit: store the value, then run the callbacks (viser
+    runs them on its thread pool; here on the calling thread)."""
     from viser._gui_handles import GuiEvent
 
-    from app.gui import PARAM_DEBOUNCE_S
+    handle._impl.value = value
+    for cb in handle._impl.update_cb:
+        cb(GuiEvent(client=_Browser(), client_id=1, target=handle))
 
-    class Client:  # stands in for a browser (edits from a browser carry their client)
-        def add_notification(self, *a, **k):
-            raise AssertionError(f"unexpected notification {a}")
 
-    results = []
-    app.controller.subscribe(lambda s: results.append(s.result))
+def _count_runs(monkeypatch, hold: str | None = None):
+    """Record every ``run_pipeline`` call (until, params); with ``hold``, the first call of
+    that kind waits for ``gate`` (returned with the list and the event ``held`` it sets)."""
+    import threading
+
+    from pregrasp_core import pipeline as ppl
+
+    real, calls = ppl.run_pipeline, []
+    gate, held = threading.Event(), threading.Event()
+
+    def run(cloud, params, hand=None, until="pool", **kw):
+        calls.append((until, params))
+        if until == hold and not held.is_set():
+            held.set()
+            assert gate.wait(60), "the test never released the held run"
+        return real(cloud, params, hand, until=until, **kw)
+
+    monkeypatch.setattr(ppl, "run_pipeline", run)
+    return calls, gate, held
+
+
+def _settle(app, timeout: float = 120.0) -> None:
+    deadline = time.monotonic() + timeout
+    c = app.controller
+    while not (app.gui.settled() and c.idle() and c.state.busy == ""):
+        assert time.monotonic() < deadline, "the edits never settled"
+        time.sleep(0.01)
+
+
+def test_a_browser_edit_of_a_threshold_applies_at_once(app, monkeypatch):
+    """No wait for the control to rest: the edit's callback runs the pipeline itself, once."""
+    calls, _, _ = _count_runs(monkeypatch)
     h = app.gui.params[("decomposition", "min_points")]
-    for typed in (3, 30, 300):  # "300" typed key by key: min points 3, 30, then 300
-        h._impl.value = typed  # what viser stores before it runs the callbacks
-        for cb in h._impl.update_cb:
-            cb(GuiEvent(client=Client(), client_id=1, target=h))
-    assert app.controller.state.params.decomposition.min_points == 500  # nothing applied yet
-    deadline = time.monotonic() + 30
-    while not results:  # the subscriber runs right after the state is replaced
-        assert time.monotonic() < deadline, "the debounced edit was never applied"
-        time.sleep(PARAM_DEBOUNCE_S / 3)
-    assert app.controller.state.params.decomposition.min_points == 300
-    assert len({id(r) for r in results}) == 1  # one pipeline run, for 300 only
+    want = app.controller.state.params.decomposition.min_points // 2
+    _browser_edit(h, want)  # returns when the new scene is committed
+    s = app.controller.state
+    assert s.params.decomposition.min_points == want and s.error == ""
+    assert s.result.params.decomposition.min_points == want
+    assert [until for until, _ in calls] == ["pool"]
+    assert app.gui.settled() and h.value == want
+    want_leaves = decompose(s.cloud.points, s.params.decomposition).leaves()
+    assert sorted(s.tree.leaves()) == sorted(want_leaves) == app.scene.box_ids
+
+
+def test_a_burst_of_browser_edits_ends_with_the_last_value_and_runs_the_pipeline_twice(
+    app, monkeypatch
+):
+    """Typing 600 sends 6, 60 and 600: 6 runs at once; 60 and 600 arrive while it runs and are
+    coalesced (the latest wins) and 6, now stale, is cancelled; 600 runs when it ends."""
+    import threading
+
+    calls, gate, held = _count_runs(monkeypatch, hold="pool")
+    committed = []
+    app.controller.subscribe(lambda s: committed.append(s.params.decomposition.min_points))
+    h = app.gui.params[("decomposition", "min_points")]
+    first = threading.Thread(target=_browser_edit, args=(h, 6))
+    first.start()  # viser runs each edit's callback on its own pool thread
+    assert held.wait(30), "the first edit did not start at once"
+    for typed in (60, 600):  # arrive while 6 runs: their callbacks return at once
+        t0 = time.monotonic()
+        _browser_edit(h, typed)
+        assert time.monotonic() - t0 < 1.0
+    assert not app.gui.settled()
+    gate.set()
+    first.join(timeout=120)
+    _settle(app)
+    s = app.controller.state
+    assert s.params.decomposition.min_points == 600 == s.result.params.decomposition.min_points
+    assert s.error == "" and h.value == 600
+    runs = [p.decomposition.min_points for _, p in calls]
+    assert runs == [6, 600], runs  # the pipeline ran twice: never for 60
+    assert 60 not in committed and 6 not in committed  # 6 was cancelled before its commit
+    want_leaves = decompose(s.cloud.points, s.params.decomposition).leaves()
+    assert sorted(s.tree.leaves()) == sorted(want_leaves) == app.scene.box_ids
+
+
+def test_a_refused_edit_after_a_cancelled_one_leaves_the_earlier_edit_applied(app, monkeypatch):
+    """60 runs and is cancelled by a newer edit, 2, which the parameters refuse (min points
+    >= 4; a browser past the guard): the refusal is shown and 60, whose run was cancelled, is
+    computed after all (``Controller.run_pending``), not lost."""
+    import threading
+
+    from viser._gui_handles import GuiEvent
+
+    notices = []
+
+    class Browser:
+        def add_notification(self, title, body, **kw):
+            notices.append(f"{title}: {body}")
+
+    calls, gate, held = _count_runs(monkeypatch, hold="pool")
+    h = app.gui.params[("decomposition", "min_points")]
+    first = threading.Thread(target=_browser_edit, args=(h, 60))
+    first.start()
+    assert held.wait(30)
+    h._impl.value = 2
+    for cb in h._impl.update_cb:
+        cb(GuiEvent(client=Browser(), client_id=2, target=h))
+    gate.set()
+    first.join(timeout=120)
+    _settle(app)
+    s = app.controller.state
+    assert any("min_points" in n for n in notices), notices
+    assert s.params.decomposition.min_points == 60 == s.result.params.decomposition.min_points
+    assert [p.decomposition.min_points for _, p in calls] == [60, 60]  # cancelled, run again
+    assert h.value == 60
+
+
+def test_an_edit_during_the_replan_cancels_it_and_the_grasps_follow_the_last_edit(app, monkeypatch):
+    """After planning, a threshold edit shows its scene and re-plans; a second edit arriving
+    during that re-plan cancels it (stale) and runs when it ends: scene, then a re-plan for the
+    second value. No grasps of the first value are ever committed."""
+    import threading
+
+    c = app.controller
+    c.plan()
+    assert c.state.planned
+    calls, gate, held = _count_runs(monkeypatch, hold="grasps")
+    planned = []
+    c.subscribe(lambda s: planned.append(s.params.decomposition.volume_ratio) if s.planned else 0)
+    h = app.gui.params[("decomposition", "volume_ratio")]
+    first = threading.Thread(target=_browser_edit, args=(h, 0.5))
+    first.start()
+    assert held.wait(60), "the re-plan of the first edit never started"
+    assert c.state.params.decomposition.volume_ratio == 0.5 and c.state.busy == "plan"
+    _browser_edit(h, 0.9)  # waits for the re-plan of 0.5 to stop
+    gate.set()
+    first.join(timeout=120)
+    _settle(app)
+    s = c.state
+    assert s.planned and s.error == "" and not s.replanning
+    assert s.params.decomposition.volume_ratio == 0.9
+    assert s.result.params.decomposition.volume_ratio == 0.9 and s.result.grasps is not None
+    assert set(planned) == {0.9}, planned  # the grasps shown are those of the last edit
+    kinds = [(until, p.decomposition.volume_ratio) for until, p in calls]
+    assert kinds == [("pool", 0.5), ("grasps", 0.5), ("pool", 0.9), ("grasps", 0.9)], kinds
+    assert h.value == 0.9
 
 
 def test_concurrent_callbacks_leave_scene_and_state_consistent(app):

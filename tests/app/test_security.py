@@ -392,7 +392,7 @@ def test_runaway_thresholds_end_in_a_clear_error_and_the_server_stays_responsive
         _wait(lambda: any("max_parts" in t for t in b.notifications()), 10, "the error")
         assert time.monotonic() - t0 < 10.0 and answered < 2.0
         assert any(t.startswith("Cannot do that") for t in b.notifications())
-        _wait(lambda: not app.gui._timers and app.controller.idle(), 60, "settled")
+        _wait(lambda: app.gui.settled() and app.controller.idle(), 60, "settled")
         s = app.controller.state
         assert s.params == s0.params and s.result is s0.result  # the object stays as it was
         assert "max_parts" in s.error
@@ -411,13 +411,18 @@ def test_two_browsers_editing_one_control_end_with_identical_widgets(app):
     a, b = Browser(app.server.get_port()), Browser(app.server.get_port())
     try:
         _wait(lambda: a.messages and b.messages, 10, "both connected")
+        uuid = h._impl.uuid
         for trial, (va, vb) in enumerate(((0.5, 0.97), (0.8, 0.6), (0.95, 0.7))):
             version = app.controller.state.version
+            na, nb = len(a.updates.get(uuid, [])), len(b.updates.get(uuid, []))
             a.set_value(h, va)
-            time.sleep(0.05)  # within 100 ms of each other
+            time.sleep(0.05)  # within 100 ms of each other: a's edit runs at once, b's waits
             b.set_value(h, vb)
-            _wait(lambda v=version: app.controller.state.version > v and not app.gui._timers,
-                  60, "the edit applied")  # fmt: skip
+            # the server has handled both edits once each browser has got the other's value
+            _wait(lambda n=na, w=vb: w in a.updates.get(uuid, [])[n:], 10, "b's edit at a")
+            _wait(lambda n=nb, w=va: w in b.updates.get(uuid, [])[n:], 10, "a's edit at b")
+            _wait(lambda v=version: app.controller.state.version > v and app.gui.settled()
+                  and app.controller.idle(), 60, "the edits applied")  # fmt: skip
             time.sleep(0.3)  # the last messages reach both browsers
             used = app.controller.state.params.decomposition.volume_ratio
             # each browser shows the last value it received after its own edit

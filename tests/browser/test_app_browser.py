@@ -247,7 +247,7 @@ def test_threshold_change_changes_the_boxes(page, live_app, shots_dir):
 
     watch = _Watch(drawn)
     t0 = time.perf_counter()
-    box.fill(ratio)  # sent as typed; it rests 0.3 s (debounce), then runs and is drawn
+    box.fill(ratio)  # sent as typed: the first edit runs at once, later ones coalesce
     box.press("Enter")
     page.get_by_text(f"boxes: {expected}", exact=True).wait_for(timeout=LOAD_TIMEOUT_MS)
     _check_shown(page, "threshold change", t0, time.perf_counter(), watch)
@@ -473,7 +473,7 @@ def test_two_browsers_editing_one_threshold_end_with_the_same_value(page, live_a
         c = live_app.controller
 
         def quiet() -> bool:
-            return c.idle() and not live_app.gui._timers and not live_app.gui._editing()
+            return c.idle() and live_app.gui.settled() and not live_app.gui._editing()
 
         for _ in range(600):  # start from a quiet app (no plan or edit still running)
             if quiet():
