@@ -395,7 +395,7 @@ def _plan_forked(
     n_proc: int,
     grasps: list[Grasp],
     progress: Callable[[int, int], None] | None,
-) -> None:
+) -> Callable[[], None]:
     """:func:`_plan_chunks` of every chunk, then the exact settling, on ``n_proc`` processes:
     this one and ``n_proc - 1`` forked copies of it (all of the context inherited, nothing
     rebuilt). The chunks (:func:`_fork_chunks`) are taken one by one from a shared queue by
@@ -406,10 +406,12 @@ def _plan_forked(
     Every pre-grasp is planned independently of its chunk, and every quality job is the same
     call wherever it runs, so the grasps are those of a single process, bit for bit. The
     chunks of a copy that dies without an answer are planned here; an exception in a copy is
-    raised here."""
+    raised here. Returns the call that waits for the copies to end (they leave as it returns,
+    so that they free their memory while the caller ranks the grasps)."""
     chunks = _fork_chunks(P, n_proc)
     queue = _ChunkQueue()
     copies: list[_Copy] = []
+    handed = False  # the copies' end handed to the caller
     gc.freeze()  # the collector of a copy then leaves the inherited objects' pages shared
     try:
         for _ in range(1, n_proc):  # fork the copies before this process starts working
@@ -491,14 +493,25 @@ def _plan_forked(
             _shared_qualities(copies),
         )
         ctx.clock["quality"] += time.perf_counter() - t0
-    finally:  # always end the copies (no zombie, no open pipe)
-        for c in copies:
+        for c in copies:  # no more jobs: the copies leave (their memory freed meanwhile)
             os.close(c.requests)
-        for c in copies:
-            os.close(c.answers)
-            os.waitpid(c.pid, 0)
-        queue.close()
-        gc.unfreeze()
+        handed = True
+    finally:  # on an exception: end the copies now (no zombie, no open pipe)
+        if not handed:
+            for c in copies:
+                os.close(c.requests)
+            _reap(copies, queue)
+    return functools.partial(_reap, copies, queue)
+
+
+def _reap(copies: list[_Copy], queue: _ChunkQueue) -> None:
+    """Wait for the ``copies`` (their request pipes closed: they are leaving) and release what
+    :func:`_plan_forked` holds."""
+    for c in copies:
+        os.close(c.answers)
+        os.waitpid(c.pid, 0)
+    queue.close()
+    gc.unfreeze()
 
 
 def _split_chunks(
@@ -570,9 +583,10 @@ def plan_grasps(
     n_proc = min(n_threads, -(-P // _CHUNK))  # forked processes: at most one per chunk
     fork = n_proc > 1 and _can_fork()
     ex = ThreadPoolExecutor(n_threads) if n_threads > 1 and P > 1 and not fork else None
+    end: Callable[[], None] | None = None  # waits for the forked copies
     try:
         if fork:  # with the exact settling shared by the processes
-            _plan_forked(ctx, pool, P, n_proc, grasps, progress)
+            end = _plan_forked(ctx, pool, P, n_proc, grasps, progress)
         else:
             _plan_chunks(ctx, pool, P, ex, grasps, progress)
             t0 = time.perf_counter()  # exact scores wherever they decide the ranking's top
@@ -581,23 +595,27 @@ def plan_grasps(
     finally:
         if ex is not None:
             ex.shutdown()
-    order = rank_grasps(grasps)
-    ranked = list(grasps)
-    for r, k in enumerate(order):
-        g = ranked[k]
-        ranked[k] = dataclasses.replace(g, rank=r)
-    rejected = {key: 0 for key in REJECTION_REASONS}
-    for g in ranked:
-        if g.rejection is not None:
-            rejected[g.rejection] += 1
-    logger.info(
-        "planned %d pre-grasps: %d kept, %d force closure, rejected %s",
-        P,
-        len(order),
-        sum(g.epsilon > 0 for g in ranked),
-        rejected,
-    )
-    return GraspSet(tuple(ranked), order, joint_names, rejected, dict(ctx.clock))
+    try:
+        order = rank_grasps(grasps)
+        ranked = list(grasps)
+        for r, k in enumerate(order):
+            g = ranked[k]
+            ranked[k] = dataclasses.replace(g, rank=r)
+        rejected = {key: 0 for key in REJECTION_REASONS}
+        for g in ranked:
+            if g.rejection is not None:
+                rejected[g.rejection] += 1
+        logger.info(
+            "planned %d pre-grasps: %d kept, %d force closure, rejected %s",
+            P,
+            len(order),
+            sum(g.epsilon > 0 for g in ranked),
+            rejected,
+        )
+        return GraspSet(tuple(ranked), order, joint_names, rejected, dict(ctx.clock))
+    finally:
+        if end is not None:  # the copies ended while the grasps were ranked
+            end()
 
 
 def cloud_normals(cloud: PointCloud, params: NormalParams | None = None) -> np.ndarray:
