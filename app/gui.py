@@ -155,6 +155,9 @@ class Gui:
         self.controller = controller
         self.scene = scene
         self._local = threading.local()
+        self._synced: AppState | None = None  # the state the panels show (sync runs locked)
+        self._fix: tuple[Any, Any, Any] = (None, None, None)  # cloud, scale -> unit_fix
+        self._demo_opts: tuple[Any, tuple[str, ...]] = (None, ())  # source -> chooser options
         self._runs: dict[Any, _EditRun] = {}  # control key -> its browser edits in progress
         self._runs_lock = threading.Lock()
         self._values_lock = threading.RLock()  # a re-send and a sync of the values never mix
@@ -504,10 +507,21 @@ class Gui:
                     return
 
     def sync(self, state: AppState) -> None:
-        """Mirror ``state`` into the GUI (values set here do not trigger actions)."""
+        """Mirror ``state`` into the GUI (values set here do not trigger actions).
+
+        A state that differs from the one shown only by its progress (a plan's progress
+        reports, 10 to 20 per plan, each on the planner's way) moves the progress bar and
+        nothing else: the whole mirror took 5 to 8 ms a report on the default object."""
         self._local.syncing = True
         try:
-            self._sync(state)
+            last = self._synced
+            if last is not None and only_progress_changed(last, state):
+                self._set(
+                    "progress.value", self.progress, "value", round(100.0 * state.progress, 1)
+                )
+            else:
+                self._sync(state)
+            self._synced = state
         finally:
             self._local.syncing = False
 
@@ -515,7 +529,7 @@ class Gui:
         busy = bool(s.busy)
         for key, h in (("plan", self.plan), ("export", self.export), ("upload", self.upload)):
             self._set(f"{key}.disabled", h, "disabled", busy or s.result is None)
-        fix = None if s.loaded is not None else unit_fix(s.cloud, getattr(s.source, "scale", None))
+        fix = None if s.loaded is not None else self._unit_fix(s)
         self._set("units_fix.visible", self.units_fix, "visible", fix is not None)
         if fix is not None:
             self._set("units_fix.label", self.units_fix, "label", fix[1])
@@ -534,10 +548,12 @@ class Gui:
         self._set("status", self.status, "content", text)
         self._set("camera_info", self.camera_info, "content", camera_markdown(s))
         if s.source is not None:
-            opts = tuple(p.stem for p in demo_choices())
-            if s.source.name not in opts:
-                opts = (*opts, s.source.name)
-            self._set("demo.options", self.demo, "options", opts)
+            if self._demo_opts[0] is not s.source:  # the files are listed once per object
+                opts = tuple(p.stem for p in demo_choices())
+                if s.source.name not in opts:
+                    opts = (*opts, s.source.name)
+                self._demo_opts = (s.source, opts)
+            self._set("demo.options", self.demo, "options", self._demo_opts[1])
         tree = s.tree
         if tree is not None:
             n = n_splits(tree)
@@ -567,6 +583,14 @@ class Gui:
         label = "simulating..." if running else "simulate lift"
         self._set("simulate.label", self.simulate, "label", label)
         self._set("lift_info", self.lift_info, "content", lift_markdown(s))
+
+    def _unit_fix(self, s: AppState) -> Any:
+        """``unit_fix`` of the state's cloud and scale, computed once per cloud and scale (it
+        measures the cloud's extent: 2.7 ms on 20,000 points)."""
+        cloud, scale = s.cloud, getattr(s.source, "scale", None)
+        if self._fix[0] is not cloud or self._fix[1] != scale or cloud is None:
+            self._fix = (cloud, scale, unit_fix(cloud, scale))
+        return self._fix[2]
 
     def _sync_pool(self, s: AppState) -> None:
         pool = getattr(s.result, "pool", None)
@@ -611,6 +635,16 @@ class _EditRun:
 
 TABLE_ROWS = 20
 """Rows of the ranked grasp table and options of the grasp chooser."""
+
+
+def only_progress_changed(old: AppState, new: AppState) -> bool:
+    """Whether ``new`` differs from ``old`` only by its progress (and version): every other
+    field is the same object (``dataclasses.replace`` keeps the unchanged ones)."""
+    return all(
+        getattr(old, f.name) is getattr(new, f.name)
+        for f in dataclasses.fields(AppState)
+        if f.name not in ("progress", "version")
+    )
 
 
 def _node(value: Any) -> int | None:

@@ -365,6 +365,25 @@ def test_an_edit_during_the_replan_cancels_it_and_the_grasps_follow_the_last_edi
     assert h.value == 0.9
 
 
+def test_progress_reports_move_the_bar_and_other_changes_the_whole_panel(app):
+    """A plan's progress report (a state that differs only by its progress) moves the progress
+    bar alone; any other change is mirrored as a whole (here the status line)."""
+    from app.gui import only_progress_changed
+
+    c = app.controller
+    s0 = c.state
+    assert only_progress_changed(s0, dataclasses.replace(s0, progress=0.5, version=9))
+    assert not only_progress_changed(s0, dataclasses.replace(s0, message="x"))
+    c.update(lambda s: dataclasses.replace(s, busy="plan", progress=0.0))
+    assert app.gui.progress.visible and app.gui.plan.label == "planning..."
+    for p in (0.25, 0.5, 0.75):
+        c.update(lambda s, p=p: dataclasses.replace(s, progress=p))
+        assert app.gui.progress.value == 100.0 * p
+    c.update(lambda s: dataclasses.replace(s, busy="", progress=0.0, message="all done"))
+    assert not app.gui.progress.visible and app.gui.plan.label == "plan grasps"
+    assert shown_text(app.gui.status.content) == "all done"
+
+
 def test_concurrent_callbacks_leave_scene_and_state_consistent(app):
     """viser runs callbacks on a thread pool: actions from several browsers at once must not
     interleave (the controller's lock), so the scene always matches the final state."""
