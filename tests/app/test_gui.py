@@ -368,12 +368,12 @@ def test_an_edit_during_the_replan_cancels_it_and_the_grasps_follow_the_last_edi
 def test_progress_reports_move_the_bar_and_other_changes_the_whole_panel(app):
     """A plan's progress report (a state that differs only by its progress) moves the progress
     bar alone; any other change is mirrored as a whole (here the status line)."""
-    from app.gui import only_progress_changed
+    from app.gui import changed_fields
 
     c = app.controller
     s0 = c.state
-    assert only_progress_changed(s0, dataclasses.replace(s0, progress=0.5, version=9))
-    assert not only_progress_changed(s0, dataclasses.replace(s0, message="x"))
+    assert changed_fields(s0, dataclasses.replace(s0, progress=0.5, version=9)) == {"progress"}
+    assert changed_fields(s0, dataclasses.replace(s0, message="x")) == {"message"}
     c.update(lambda s: dataclasses.replace(s, busy="plan", progress=0.0))
     assert app.gui.progress.visible and app.gui.plan.label == "planning..."
     for p in (0.25, 0.5, 0.75):
@@ -382,6 +382,26 @@ def test_progress_reports_move_the_bar_and_other_changes_the_whole_panel(app):
     c.update(lambda s: dataclasses.replace(s, busy="", progress=0.0, message="all done"))
     assert not app.gui.progress.visible and app.gui.plan.label == "plan grasps"
     assert shown_text(app.gui.status.content) == "all done"
+
+
+def test_the_animation_clock_moves_the_phase_slider(app):
+    """A tick of the animation clock (only the view's phase changes) moves the phase slider;
+    the hand is posed by the scene for that phase; any other view change still updates the
+    panel as a whole."""
+    c = app.controller
+    c.plan()
+    c.select_grasp(0)
+    for t in (0.1, 0.37, 0.8):
+        c.update(lambda s, t=t: dataclasses.replace(s, view=dataclasses.replace(s.view, anim_t=t)))
+        assert app.gui.phase.value == round(t, 2)
+        assert app.scene.rendered is c.state
+    c.tick(10.0)  # to the closed hand: the clock stops
+    assert app.gui.phase.value == 1.0 and not c.state.view.playing
+    gt = app.gui.ghost_type.options[1]
+    app.gui.ghost_type.value = gt  # another view change: the panel as a whole
+    pool = c.state.result.pool
+    want = int(ghost_selection(pool, gt, None).sum())
+    assert c.state.view.ghost_type == gt and f"{want} pass the filters" in app.gui.pool_info.content
 
 
 def test_concurrent_callbacks_leave_scene_and_state_consistent(app):
