@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import viser
@@ -84,6 +84,18 @@ SCENE_POINTS = 30000
 """Most points of a depth-camera scene (table, other objects) drawn behind the object."""
 BOX_OPACITY = 0.12
 """Opacity of unselected boxes (the selected one is drawn at 0.35)."""
+FLAT_MATERIAL: Literal["toon3"] = "toon3"
+"""Material of the flat translucent layers (boxes, face quads): three.js' toon material, lit
+by the same lights in three steps. On a flat face it draws one even shade, as the standard
+(physically based) material nearly does, at about half its cost per pixel in software WebGL,
+where these large translucent surfaces are most of a frame (docs/benchmarks.md, "Session 8:
+viewer")."""
+CLOUD_SHADING: Literal["flat"] = "flat"
+"""Shading of the cloud's points: one even colour per point (viser's default "gradient" shades
+each point like a ball, which costs a square root per pixel and carries no information)."""
+TABLE_EXTENT = 1.5
+"""Side of the table grid, in object diagonals (it shows the support plane; every pixel of it
+is shaded in each frame)."""
 
 _UNIT_QUAD_V = np.array([[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.5, 0.5, 0.0], [-0.5, 0.5, 0.0]])
 _UNIT_QUAD_F = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.uint32)
@@ -234,6 +246,7 @@ class SceneRenderer:
             point_size=max(diag * 0.006, 1e-4),
             precision="float32",
             point_shape="rounded",
+            point_shading=CLOUD_SHADING,
         )
         self._draw_scene(state, max(diag * 0.004, 1e-4))
         self._frame_object(np.asarray(state.cloud.points, dtype=np.float64))
@@ -253,6 +266,7 @@ class SceneRenderer:
             point_size=point_size,
             precision="float32",
             point_shape="rounded",
+            point_shading=CLOUD_SHADING,
         )
 
     def _frame_object(self, pts: np.ndarray) -> None:
@@ -268,8 +282,8 @@ class SceneRenderer:
             client.camera.look_at = center
         self._handles["table"] = self.server.scene.add_grid(
             "/table",
-            width=3 * diag,
-            height=3 * diag,
+            width=TABLE_EXTENT * diag,
+            height=TABLE_EXTENT * diag,
             cell_size=diag / 20,
             section_size=diag / 4,
             position=(center[0], center[1], lo[2]),
@@ -303,6 +317,7 @@ class SceneRenderer:
                 opacity=0.35 if i == sel else BOX_OPACITY,
                 wxyz=wxyz_from_matrices(b.rotation[None])[0],
                 position=b.center,
+                material=FLAT_MATERIAL,
                 cast_shadow=False,
                 receive_shadow=False,
             )
@@ -356,6 +371,7 @@ class SceneRenderer:
                 batched_colors=rgb,
                 opacity=0.6,
                 side="double",
+                material=FLAT_MATERIAL,
                 cast_shadow=False,
                 receive_shadow=False,
                 lod="off",
