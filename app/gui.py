@@ -163,6 +163,7 @@ class Gui:
         self._values_lock = threading.RLock()  # a re-send and a sync of the values never mix
         self._edits: dict[int, list[float]] = {}  # id(handle) -> arrival of edits not yet read
         self._edits_lock = threading.Lock()
+        self._edit_seq: dict[int, int] = {}  # id(handle) -> browser edits arrived (both locks)
         c, gui = controller, server.gui
         gui.configure_theme(control_width="large", dark_mode=False, show_logo=False)
 
@@ -281,6 +282,7 @@ class Gui:
         would put the old value back first and the edit would be lost)."""
         with self._edits_lock:
             self._edits.setdefault(id(handle), []).append(time.monotonic())
+            self._edit_seq[id(handle)] = self._edit_seq.get(id(handle), 0) + 1
 
     def _end_edit(self, event: Any) -> None:
         if getattr(event, "client", None) is None:
@@ -378,8 +380,9 @@ class Gui:
         in progress, now stale, is cancelled at its next check (``Controller.cancel``: between
         stages and between planner chunks). When the running edit ends, the waiting one runs,
         so a burst of edits runs the pipeline at most twice and ends with the last value. Once
-        no edit of the control is left, every browser is sent the value in use. Edits from
-        Python (tests, scripts) have no client and apply at once."""
+        no edit of the control has come for :data:`REPUSH_REST_S`, every browser is sent the
+        value in use (at once, it would put an older value into the box still being typed
+        in). Edits from Python (tests, scripts) have no client and apply at once."""
         if getattr(self._local, "syncing", False):
             return
         client = getattr(event, "client", None)
@@ -390,33 +393,57 @@ class Gui:
         job = (client, fn, args)
         with self._runs_lock:
             run = self._runs.get(key)
-            if run is not None:  # an edit of this control runs: this one waits for its end
+            start = run is None or not run.active
+            if run is not None and not start:  # an edit of it runs: this one waits its end
                 run.waiting = job
                 self.controller.cancel()  # under the lock: never cancels the job run next
             else:
-                self._runs[key] = _EditRun(target)
+                run = self._runs.setdefault(key, _EditRun(target))
+                run.active = True
+                run.rest += 1  # a value to be sent after a rest is sent after this edit
         self._end_edit(event)  # the edit is now held by its run (sync skips those controls)
-        if run is None:
+        if start:
             self._run_edits(key, job)
 
     def _run_edits(self, key: Any, job: tuple[Any, Callable[..., Any], tuple[Any, ...]]) -> None:
         """Run ``job`` (client, action, args), then the edit of control ``key`` that arrived
-        meanwhile, if any, until none is left; then send the value in use to every browser."""
+        meanwhile, if any, until none is left; then, after a rest, send the value in use to
+        every browser (:meth:`_rested`)."""
         client = job[0]
+        next_job: tuple[Any, Callable[..., Any], tuple[Any, ...]] | None = job
         try:
-            next_job: tuple[Any, Callable[..., Any], tuple[Any, ...]] | None = job
-            while next_job is not None:
-                client, fn, args = next_job
-                self.controller.act(client, fn, *args)
+            while True:
+                while next_job is not None:
+                    client, fn, args = next_job
+                    self.controller.act(client, fn, *args)
+                    with self._runs_lock:
+                        run = self._runs[key]
+                        next_job, run.waiting = run.waiting, None
+                # what a cancel stopped and no edit took up (e.g. the last edit was refused)
+                self.controller.act(client, self.controller.run_pending)
                 with self._runs_lock:
                     run = self._runs[key]
                     next_job, run.waiting = run.waiting, None
-        finally:
+                    if next_job is None:
+                        run.active = False
+                        run.timer = threading.Timer(REPUSH_REST_S, self._rested, (key, run.rest))
+                        run.timer.daemon = True
+                        run.timer.start()
+                        break
+        except BaseException:
             with self._runs_lock:
-                run = self._runs.pop(key)
-            # what a cancel stopped and no edit took up (e.g. the last edit was refused)
-            self.controller.act(client, self.controller.run_pending)
-            self.repush(run.target)
+                self._runs.pop(key, None)
+            raise
+
+    def _rested(self, key: Any, token: int) -> None:
+        """No edit of control ``key`` has come since its last run ended: send the value in use
+        to every browser, the editing ones included (:meth:`repush`)."""
+        with self._runs_lock:
+            run = self._runs.get(key)
+            if run is None or run.active or run.rest != token:
+                return  # a newer edit runs or came: it sends the value when it ends
+            del self._runs[key]
+        self.repush(run.target)
 
     def settled(self) -> bool:
         """Whether no browser edit of a pipeline control runs or waits (tests and benchmarks
@@ -425,14 +452,30 @@ class Gui:
             return not self._runs
 
     def close(self) -> None:
-        """Drop the browser edits still waiting (the ones running end by themselves)."""
+        """Drop the browser edits still waiting (the ones running end by themselves) and the
+        values still to be sent after a rest."""
         with self._runs_lock:
             for run in self._runs.values():
                 run.waiting = None
+                if run.timer is not None:
+                    run.timer.cancel()
 
     def on_bad_value(self, client_id: Any, handle: Any, reason: str) -> None:
-        """A browser sent a value that is not even of the control's type (the update guard of
-        :mod:`app.viser_hooks` calls this): tell that browser, and send the value in use."""
+        """A browser sent a value the update guard of :mod:`app.viser_hooks` refuses (not of
+        the control's type, outside its range): once no newer edit of that control has come
+        for :data:`REFUSAL_REST_S`, tell that browser and send the value in use."""
+        with self._edits_lock:
+            seq = self._edit_seq[id(handle)] = self._edit_seq.get(id(handle), 0) + 1
+        timer = threading.Timer(
+            REFUSAL_REST_S, self._answer_refusal, (client_id, handle, reason, seq)
+        )
+        timer.daemon = True
+        timer.start()
+
+    def _answer_refusal(self, client_id: Any, handle: Any, reason: str, seq: int) -> None:
+        with self._edits_lock:
+            if self._edit_seq.get(id(handle)) != seq:
+                return  # a newer edit of the control came: a keystroke on the way
         label = getattr(handle, "label", "a control")
         client = self.server.get_clients().get(client_id)
         self.controller.notify(
@@ -639,7 +682,26 @@ class _EditRun:
     """The control's handle (its value in use is sent to every browser at the end)."""
     waiting: tuple[Any, Callable[..., Any], tuple[Any, ...]] | None = None
     """The latest edit that arrived while one ran: (client, action, args), run next."""
+    active: bool = False
+    """Whether an edit of the control runs (else the run waits to send the value in use)."""
+    rest: int = 0
+    """Counts the chains of edits started: a send after a rest is for the latest one only."""
+    timer: threading.Timer | None = None
+    """The timer of the send after the last chain's rest."""
 
+
+REPUSH_REST_S = 0.5
+"""Once no edit of a pipeline control has come for this long (seconds) after its last run, the
+value in use is sent to every browser (:meth:`Gui._rested`). Applying an edit never waits for
+this; sending at once put an older value into the box still being typed in (typing 3000 into
+``points`` ended as 300: the value 30 came back while 300 was typed)."""
+
+REFUSAL_REST_S = 0.5
+"""A value the update guard refuses is answered (a notice, the value in use sent back) once no
+newer edit of that control has come for this long (seconds): a number typed key by key passes
+through refused values (typing 3000 into ``points``, whose minimum is 10, sends 3 first; 0.55
+into the volume ratio sends 0), and answering those at once put the old value back into the
+box being typed in (typing 3000 ended as "0005000"). Accepted edits never wait."""
 
 TABLE_ROWS = 20
 """Rows of the ranked grasp table and options of the grasp chooser."""

@@ -265,7 +265,8 @@ def test_a_browser_edit_of_a_threshold_applies_at_once(app, monkeypatch):
     assert s.params.decomposition.min_points == want and s.error == ""
     assert s.result.params.decomposition.min_points == want
     assert [until for until, _ in calls] == ["pool"]
-    assert app.gui.settled() and h.value == want
+    _settle(app)  # the value in use is sent to the browsers once the control rests
+    assert h.value == want and [until for until, _ in calls] == ["pool"]
     want_leaves = decompose(s.cloud.points, s.params.decomposition).leaves()
     assert sorted(s.tree.leaves()) == sorted(want_leaves) == app.scene.box_ids
 

@@ -29,7 +29,7 @@ from markdown_it import MarkdownIt
 from viser import _messages
 
 from app import viser_hooks
-from app.gui import accepted_range
+from app.gui import REFUSAL_REST_S, accepted_range
 from app.safe_text import md_text
 from app.server import exposure_warning
 
@@ -333,7 +333,7 @@ def test_bad_values_over_the_protocol_end_in_a_notice(app):
     try:
         h = app.gui.params[("decomposition", "min_points")]
         assert h.min == 4  # the widget's range is what DecompositionParams accepts
-        for value in ("abc", 3, 1e300, [1, 2]):
+        for value in ("abc", 1e300, [1, 2], 3):  # a burst: the last one is answered
             b.set_value(h, value)
         b.set_value(app.gui.ghost_node, "node x")
         b.set_value(app.gui.grasp, "#zero")
@@ -341,7 +341,13 @@ def test_bad_values_over_the_protocol_end_in_a_notice(app):
         interval = app.gui.params[("sampling", "interval")]
         b.set_value(interval, 0.0002)  # took 7.1 GB and 40 s before (issue 16)
         b.send(_messages.GuiUpdateMessage(app.gui.plan._impl.uuid, {"disabled": True}))
-        _wait(lambda: len(b.notifications()) >= 8, 30, "a notice per bad value")
+        _wait(lambda: len(b.notifications()) >= 5, 30, "a notice per control")
+        for value in ("abc", 1e300, [1, 2]):  # each one alone is answered too
+            n = len(b.notifications())
+            b.set_value(h, value)
+            _wait(lambda n=n: len(b.notifications()) > n, 30, f"the notice for {value!r}")
+        time.sleep(2 * REFUSAL_REST_S)
+        assert len(b.notifications()) == 8, b.notifications()
         assert any("sampling interval" in t and "outside" in t for t in b.notifications())
         assert all(t.startswith("Cannot do that") for t in b.notifications())
         assert any("min points" in t and "outside [4," in t for t in b.notifications())
@@ -352,6 +358,31 @@ def test_bad_values_over_the_protocol_end_in_a_notice(app):
         assert app.gui.plan.disabled is False  # a client may set values only
     finally:
         b.close()
+
+
+def test_a_number_typed_through_refused_keystrokes_ends_applied(app):
+    """Typing 2000 into points (minimum 10) sends 2, 20, 200, 2000: the refused 2 is not
+    answered (no notice, the old value is not put back into the box being typed in), the rest
+    run and coalesce, and every browser ends with 2000."""
+    c = app.controller
+    b, other = Browser(app.server.get_port()), Browser(app.server.get_port())
+    h = app.gui.n_points
+    try:
+        _wait(lambda: b.messages and other.messages, 10, "connected")
+        n = len(b.updates.get(h._impl.uuid, []))
+        for typed in (2, 20, 200, 2000):
+            b.set_value(h, typed)
+            time.sleep(0.05)  # viser's client sends at most one edit per 50 ms
+        _wait(lambda: c.state.n_points == 2000 and app.gui.settled() and c.idle(), 60, "applied")
+        time.sleep(2 * REFUSAL_REST_S)
+        assert b.notifications() == [] and c.state.error == ""
+        assert len(c.state.cloud.points) == 2000 and h.value == 2000
+        assert 3000 not in b.updates.get(h._impl.uuid, [])[n:]  # the old value never came back
+        _wait(lambda: b.updates[h._impl.uuid][-1] == 2000, 5, "the value in use at b")
+        _wait(lambda: other.updates[h._impl.uuid][-1] == 2000, 5, "the value in use elsewhere")
+    finally:
+        b.close()
+        other.close()
 
 
 def test_widget_ranges_are_what_the_parameter_dataclasses_accept(app):
