@@ -477,15 +477,11 @@ class SceneRenderer:
 
     def _ensure_urdf(self) -> Any:
         if self._urdf is None and self.hand is not None:
-            from viser.extras import ViserUrdf
-
             self._handles["hand_frame"] = self.server.scene.add_frame(
                 NAMES["hand"], show_axes=False
             )
             urdf_path = Path(getattr(self.hand, "urdf_path", "") or _default_urdf())
-            self._urdf = ViserUrdf(
-                self.server, display_urdf(urdf_path), root_node_name=NAMES["hand"]
-            )
+            self._urdf = HandMeshes(self.server, display_urdf(urdf_path), NAMES["hand"])
         return self._urdf
 
     def _draw_lift(self, state: AppState) -> None:
@@ -587,7 +583,7 @@ HAND_ROUGHNESS = 0.7
 
 def display_urdf(path: Path) -> Any:
     """The hand's URDF (``yourdfpy.URDF``) with its visual meshes loaded, each in its URDF
-    colour as a non-metallic material.
+    colour as a non-metallic material (:class:`HandMeshes` draws each mesh in that colour).
 
     The meshes carry only a colour, and a glTF material without ``metallicFactor`` is fully
     metallic: lit by the environment map it looked grey, but a metal has no diffuse light, so
@@ -612,6 +608,62 @@ def display_urdf(path: Path) -> Any:
             )
         )
     return urdf
+
+
+HAND_MATERIAL: Literal["toon3"] = "toon3"
+"""Material of the drawn hand's meshes (three.js' toon material in three steps): lit by the same
+lights as with the standard material, at about half its cost per pixel in software WebGL, where
+the hand is a large part of every frame while it moves (docs/benchmarks.md, "Session 8:
+viewer")."""
+
+
+class HandMeshes:
+    """The hand's URDF drawn in viser as ``viser.extras.ViserUrdf`` draws it (a frame per joint,
+    nested by the kinematic tree under ``root``, and each link's visual mesh under its link's
+    frame), but with simple meshes in :data:`HAND_MATERIAL` in each mesh's URDF colour;
+    :meth:`update_cfg` poses the joint frames at a configuration as ViserUrdf does."""
+
+    def __init__(self, server: viser.ViserServer, urdf: Any, root: str) -> None:
+        self._urdf = urdf
+        parent_of = {j.child: j.parent for j in urdf.joint_map.values()}
+
+        def path(link: str) -> str:  # the scene name of a link's frame
+            names = [link]
+            while names[-1] in parent_of:
+                names.append(parent_of[names[-1]])
+            return "/".join([root, *reversed(names[:-1])])
+
+        self._joints = list(urdf.joint_map.values())
+        self._frames = [
+            server.scene.add_frame(path(j.child), show_axes=False) for j in self._joints
+        ]
+        scene = urdf.scene
+        self.meshes = []
+        """The mesh handles, one per visual mesh."""
+        for name, mesh in scene.geometry.items():
+            parent = scene.graph.transforms.parents[name]
+            mesh = mesh.copy()
+            mesh.apply_transform(urdf.get_transform(name, parent))
+            rgba = np.asarray(mesh.visual.material.baseColorFactor, dtype=np.float64)
+            self.meshes.append(
+                server.scene.add_mesh_simple(
+                    f"{path(parent)}/{name}",
+                    vertices=np.asarray(mesh.vertices, dtype=np.float32),
+                    faces=np.asarray(mesh.faces, dtype=np.uint32),
+                    color=(int(rgba[0]), int(rgba[1]), int(rgba[2])),
+                    material=HAND_MATERIAL,
+                    cast_shadow=False,
+                    receive_shadow=False,
+                )
+            )
+
+    def update_cfg(self, q: np.ndarray) -> None:
+        """Pose the joint frames at the joint configuration ``q`` (the URDF's actuated joints)."""
+        self._urdf.update_cfg(np.asarray(q, dtype=np.float64))
+        for joint, frame in zip(self._joints, self._frames, strict=True):
+            T = self._urdf.get_transform(joint.child, joint.parent)
+            frame.wxyz = wxyz_from_matrices(T[None, :3, :3])[0]
+            frame.position = T[:3, 3]
 
 
 def _default_urdf() -> Path:

@@ -9,8 +9,10 @@ the page with viser's ``window.__viserMutable.syncCanvasSize`` followed by a 1-p
 of ``--frames`` such frames on the first screen; per layer, the median over ``--pairs`` of the
 difference between a frame with it and one without it (hidden from Python through the scene's
 handles; in pairs, so that a change of the machine's load cancels); the frame with every layer
-hidden. Chromium's CPU time is the sum of utime + stime of the processes started with the run's
-own profile directory (``/proc`` via psutil), idle and while a grasp is chosen.
+hidden; the GPU process's CPU time per frame of the first screen (SwiftShader's work, steadier
+than the wall time on a shared machine). Chromium's CPU time is the sum of utime + stime of
+the processes started with the run's own profile directory (``/proc`` via psutil), idle and
+while a grasp is chosen.
 
     .venv/bin/python benchmarks/bench_frames.py [--points 5000] [--frames 5] [--idle 10]
         [--animate-hz HZ] [--shot first_screen.png]
@@ -94,10 +96,38 @@ def set_visible(app, hs, visible: bool) -> None:
             h.visible = visible
 
 
+def gpu_processes(profile: str) -> list[psutil.Process]:
+    """Chromium's GPU process(es) of this profile (where SwiftShader draws the WebGL frames)."""
+    out = []
+    for p in psutil.process_iter(["cmdline"]):
+        try:
+            cmd = p.info["cmdline"] or []
+            if any("--type=gpu-process" in a for a in cmd) and _parent_has(p, profile):
+                out.append(p)
+        except (psutil.NoSuchProcess, psutil.AccessDenied):
+            continue
+    return out
+
+
 def frame_ms(page, n: int) -> float:
     page.wait_for_timeout(1000)  # the visibility messages arrive and are applied
     ms = [page.evaluate(FRAME_JS)[0] for _ in range(n)]
     return statistics.median(ms)
+
+
+def frame_gpu_cpu_ms(page, gpu: list[psutil.Process], n: int) -> float:
+    """CPU milliseconds of the GPU process per frame, over ``n`` frames drawn back to back:
+    the frame's work, which other jobs on a busy machine change far less than its wall time
+    (docs/benchmarks.md, "Session 8: viewer")."""
+
+    def cpu() -> float:
+        return sum(t.user + t.system for t in (p.cpu_times() for p in gpu))
+
+    page.wait_for_timeout(1000)
+    c0 = cpu()
+    for _ in range(n):
+        page.evaluate(FRAME_JS)
+    return (cpu() - c0) / n * 1000.0
 
 
 def main() -> None:
@@ -142,6 +172,11 @@ def main() -> None:
             if args.shot is not None:
                 page.screenshot(path=str(args.shot))
             print(f"{'first screen':<24} {full:8.0f} ms")
+            gpu = gpu_processes(profile)
+            if gpu:
+                cpus = [frame_gpu_cpu_ms(page, gpu, 2 * args.frames) for _ in range(3)]
+                print(f"{'first screen, GPU CPU':<24} {statistics.median(cpus):8.0f} ms a frame "
+                      f"(runs {', '.join(f'{c:.0f}' for c in cpus)})")  # fmt: skip
             for layer in LAYERS:
                 hs = handles(app, layer)
                 if not hs:

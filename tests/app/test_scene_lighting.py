@@ -58,3 +58,74 @@ def test_the_drawn_hand_is_non_metallic_in_its_urdf_colours():
     # one mesh per visual, each in its link's colour (to the 8-bit step: 0.32 -> 81 or 82)
     assert len(got) == len(want) and np.abs(np.array(got) - np.array(want)).max() <= 1
     assert all(m.visual.material.metallicFactor == 0.0 for m in meshes)
+
+
+def _world_pose(server, name: str) -> np.ndarray:
+    """4x4 pose of scene node ``name`` in the world: its own pose composed with its parents'
+    (viser nests nodes by their ``/``-separated names)."""
+    import viser.transforms as vtf
+
+    T = np.eye(4)
+    parts = name.strip("/").split("/")
+    for k in range(1, len(parts) + 1):
+        h = server.scene.get_handle_by_name("/" + "/".join(parts[:k]))
+        if h is None:
+            continue
+        step = np.eye(4)
+        step[:3, :3] = vtf.SO3(np.asarray(h.wxyz, dtype=np.float64)).as_matrix()
+        step[:3, 3] = np.asarray(h.position, dtype=np.float64)
+        T = T @ step
+    return T
+
+
+def test_the_drawn_hand_is_posed_as_the_urdf_forward_kinematics():
+    """``scene.HandMeshes`` (the hand as simple meshes in the cheaper material): at a random
+    joint configuration, under a hand frame at a random pose, each drawn mesh's vertices,
+    carried to the world through the scene's nested frames, are the link's visual mesh placed
+    by yourdfpy's own forward kinematics (reference: ``URDF.get_transform`` to the base link);
+    each mesh has its URDF colour."""
+    from functools import partial
+
+    import viser
+    import yourdfpy
+
+    from app.scene import NAMES, HandMeshes, display_urdf
+    from app.scene_data import wxyz_from_matrices
+    from pregrasp_core.paths import HAND_URDF
+
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        frame = server.scene.add_frame(NAMES["hand"], show_axes=False)
+        rng = np.random.default_rng(3)
+        A = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        A *= np.sign(np.linalg.det(A))
+        T_world_hand = np.eye(4)
+        T_world_hand[:3, :3], T_world_hand[:3, 3] = A, rng.normal(size=3) * 0.1
+        frame.wxyz = wxyz_from_matrices(A[None])[0]
+        frame.position = T_world_hand[:3, 3]
+        drawn = HandMeshes(server, display_urdf(HAND_URDF), NAMES["hand"])
+        ref = yourdfpy.URDF.load(
+            HAND_URDF,
+            build_scene_graph=True,
+            load_meshes=True,
+            filename_handler=partial(yourdfpy.filename_handler_magic, dir=HAND_URDF.parent),
+        )
+        lo = np.array([j.limit.lower for j in ref.actuated_joints])
+        hi = np.array([j.limit.upper for j in ref.actuated_joints])
+        q = lo + rng.random(len(lo)) * (hi - lo)
+        drawn.update_cfg(q)
+        ref.update_cfg(q)
+        assert len(drawn.meshes) == len(ref.scene.geometry) > 0
+        base = ref.base_link
+        for h in drawn.meshes:
+            geom = h.name.rsplit("/", 1)[1]
+            mesh = ref.scene.geometry[geom]
+            want = (T_world_hand @ ref.get_transform(geom, base))[:3] @ np.c_[
+                mesh.vertices, np.ones(len(mesh.vertices))
+            ].T
+            got = _world_pose(server, h.name)[:3] @ np.c_[h.vertices, np.ones(len(h.vertices))].T
+            assert np.abs(got - want).max() < 1e-5, geom
+            rgba = np.asarray(mesh.visual.face_colors, dtype=np.uint8)[0]
+            assert tuple(h.color) == tuple(int(c) for c in rgba[:3])
+    finally:
+        server.stop()
