@@ -401,6 +401,7 @@ class Gui:
                 run = self._runs.setdefault(key, _EditRun(target))
                 run.active = True
                 run.rest += 1  # a value to be sent after a rest is sent after this edit
+            run.clients.add(getattr(event, "client_id", id(client)))
         self._end_edit(event)  # the edit is now held by its run (sync skips those controls)
         if start:
             self._run_edits(key, job)
@@ -435,14 +436,27 @@ class Gui:
                 self._runs.pop(key, None)
             raise
 
+    def _shows_value_in_use(self, handle: Any) -> bool:
+        """Whether ``handle`` holds its value in use. viser holds the last browser edit and has
+        sent it on to the other browsers in order, so when one browser made the edits and the
+        last one is in use, every browser shows it already: nothing is sent (a send would reach
+        the box being typed in, however long the page lags behind its keystrokes)."""
+        with self._values_lock:
+            found, v = self._value_in_use(handle)
+        return not found or bool(handle.value == v)
+
     def _rested(self, key: Any, token: int) -> None:
-        """No edit of control ``key`` has come since its last run ended: send the value in use
-        to every browser, the editing ones included (:meth:`repush`)."""
+        """No edit of control ``key`` has come for :data:`REPUSH_REST_S` since its last run
+        ended: send the value in use to every browser, the editing ones included
+        (:meth:`repush`), when several browsers edited it or the value in use is not the last
+        edit."""
         with self._runs_lock:
             run = self._runs.get(key)
             if run is None or run.active or run.rest != token:
                 return  # a newer edit runs or came: it sends the value when it ends
             del self._runs[key]
+            if len(run.clients) == 1 and self._shows_value_in_use(run.target):
+                return  # one browser edited it and its last edit is in use: all show it
         self.repush(run.target)
 
     def settled(self) -> bool:
@@ -537,17 +551,23 @@ class Gui:
         if handle is None:
             return
         with self._values_lock:
-            s = self.controller.state
-            for key, h, v in self._input_values(s):
-                if h is handle:
-                    if key.startswith("param."):
-                        sec, name = key.split(".")[1:]
-                        v = getattr(getattr(self.controller.pending("params"), sec), name)
-                        v = v.value if isinstance(v, enum.Enum) else v
-                    elif key in ("n_points", "seed"):
-                        v = self.controller.pending(key)
-                    push_value(h, v)
-                    return
+            found, v = self._value_in_use(handle)
+            if found:
+                push_value(handle, v)
+
+    def _value_in_use(self, handle: Any) -> tuple[bool, Any]:
+        """(whether ``handle`` is an input control, the value it shows in use): the state's, or
+        the pending one while a newer request is being computed."""
+        for key, h, v in self._input_values(self.controller.state):
+            if h is handle:
+                if key.startswith("param."):
+                    sec, name = key.split(".")[1:]
+                    v = getattr(getattr(self.controller.pending("params"), sec), name)
+                    v = v.value if isinstance(v, enum.Enum) else v
+                elif key in ("n_points", "seed"):
+                    v = self.controller.pending(key)
+                return True, v
+        return False, None
 
     def sync(self, state: AppState) -> None:
         """Mirror ``state`` into the GUI (values set here do not trigger actions).
@@ -688,15 +708,19 @@ class _EditRun:
     """Counts the chains of edits started: a send after a rest is for the latest one only."""
     timer: threading.Timer | None = None
     """The timer of the send after the last chain's rest."""
+    clients: set[Any] = dataclasses.field(default_factory=set)
+    """The browsers whose edits of the control ran or waited since the last send."""
 
 
 REPUSH_REST_S = 0.5
 """Once no edit of a pipeline control has come for this long (seconds) after its last run, the
-value in use is sent to every browser (:meth:`Gui._rested`). Applying an edit never waits for
-this; sending at once put an older value into the box still being typed in (typing 3000 into
-``points`` ended as 300: the value 30 came back while 300 was typed)."""
+value in use is sent to every browser when several browsers edited it since the last send or
+the value in use is not the last edit (refused, or changed meanwhile) (:meth:`Gui._rested`);
+when one browser edited it and its last edit is in use, nothing is sent. Applying an edit
+never waits for this. Sending at each run's end put an older value into the box still being typed in
+(typing 3000 into ``points`` ended as 300 in Chromium: 30 came back while 300 was typed)."""
 
-REFUSAL_REST_S = 0.5
+REFUSAL_REST_S = 1.0
 """A value the update guard refuses is answered (a notice, the value in use sent back) once no
 newer edit of that control has come for this long (seconds): a number typed key by key passes
 through refused values (typing 3000 into ``points``, whose minimum is 10, sends 3 first; 0.55
