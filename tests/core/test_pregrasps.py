@@ -264,13 +264,20 @@ def test_grip_width_per_type():
 # ----------------------------------------------------------------------------- the pool
 
 
+def _random_hand_poses(rng, n: int, random_state: int) -> np.ndarray:
+    """``n`` hand poses: random rotations, positions within 0.25 m of the origin on each axis
+    (around the random clouds of the collision tests)."""
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, :3, :3] = Rotation.random(n, random_state=random_state).as_matrix()
+    T[:, :3, 3] = rng.uniform(-0.25, 0.25, (n, 3))
+    return T
+
+
 def test_batched_hand_collision_matches_the_hand_model(hand):
     rng = np.random.default_rng(0)
     pts = rng.uniform(-0.1, 0.1, (2000, 3))
     G = 200
-    T = np.tile(np.eye(4), (G, 1, 1))
-    T[:, :3, :3] = Rotation.random(G, random_state=1).as_matrix()
-    T[:, :3, 3] = rng.uniform(-0.25, 0.25, (G, 3))
+    T = _random_hand_poses(rng, G, random_state=1)
     for gt in TYPES:
         q = np.tile(hand.preshape(gt), (G, 1))
         for margin in (0.0, 0.004):
@@ -714,9 +721,7 @@ def test_collision_of_many_preshapes_in_one_batch_gives_the_hand_models_answer(
     rng = np.random.default_rng(11)
     pts = rng.uniform(-0.1, 0.1, (3000, 3))
     G = 120
-    T = np.tile(np.eye(4), (G, 1, 1))
-    T[:, :3, :3] = Rotation.random(G, random_state=12).as_matrix()
-    T[:, :3, 3] = rng.uniform(-0.25, 0.25, (G, 3))
+    T = _random_hand_poses(rng, G, random_state=12)
     base = np.stack([hand.preshape(g) for g in TYPES])
     shapes = base[rng.integers(0, 4, 15)] + rng.uniform(-0.2, 0.2, (15, base.shape[1]))
     shapes = np.stack([hand.clamp(s) for s in shapes])
