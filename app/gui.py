@@ -166,6 +166,9 @@ class Gui:
         self._edit_seq: dict[int, int] = {}  # id(handle) -> browser edits arrived (both locks)
         c, gui = controller, server.gui
         gui.configure_theme(control_width="large", dark_mode=False, show_logo=False)
+        # docked, not floating: the panel no longer covers the scene, and the canvas beside it
+        # is the part a frame must draw (software WebGL's cost is per pixel: docs/app.md)
+        gui.main_panel.dock_right()
 
         with gui.add_folder("Object"):
             names = [p.stem for p in demo_choices()]
