@@ -360,6 +360,39 @@ def test_bad_values_over_the_protocol_end_in_a_notice(app):
         b.close()
 
 
+def test_a_flood_of_refused_values_costs_no_thread_per_message(app):
+    """A page flooding one control with refused values: the server answers it once (one
+    notice, the value in use sent back), holds at most one timer for that control, and another
+    browser's edit still applies (3,848 timer threads were alive at once before)."""
+    c = app.controller
+    b, other = Browser(app.server.get_port()), Browser(app.server.get_port())
+    h = app.gui.params[("decomposition", "min_points")]
+    try:
+        _wait(lambda: b.messages and other.messages, 10, "connected")
+        base = peak = threading.active_count()
+        for i in range(5000):
+            b.set_value(h, "abc" if i % 2 else 1e300)
+            if i % 100 == 0:
+                peak = max(peak, threading.active_count())
+        other.set_value(app.gui.seed, c.state.seed + 1)
+        want = c.state.seed + 1
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 3 * REFUSAL_REST_S or not b.notifications():
+            peak = max(peak, threading.active_count())
+            assert time.monotonic() - t0 < 60, "timed out waiting for the notice"
+            time.sleep(0.02)
+        _wait(lambda: c.state.seed == want and app.gui.settled() and c.idle(), 60, "applied")
+        time.sleep(2 * REFUSAL_REST_S)
+        # one timer for the refusals; the other browser's edit runs on a thread of its own
+        assert peak <= base + 4, (base, peak)
+        assert len(b.notifications()) == 1, b.notifications()
+        assert "min points" in b.notifications()[0]
+        assert h.value == c.state.params.decomposition.min_points
+    finally:
+        b.close()
+        other.close()
+
+
 def test_a_number_typed_through_refused_keystrokes_ends_applied(app):
     """Typing 2000 into points (minimum 10) sends 2, 20, 200, 2000: the refused 2 is not
     answered (no notice, the old value is not put back into the box being typed in), the rest
