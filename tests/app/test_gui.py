@@ -303,6 +303,43 @@ def test_a_burst_of_browser_edits_ends_with_the_last_value_and_runs_the_pipeline
     assert sorted(s.tree.leaves()) == sorted(want_leaves) == app.scene.box_ids
 
 
+def test_view_edits_arriving_while_one_runs_merge_into_the_last(app, monkeypatch):
+    """The level slider: 0 runs and is held; 1, 0, 1 ... (50 edits) arrive meanwhile and return
+    at once; when 0 ends, only the last of them runs. The level shown is the last edit's, in
+    the state and the widget."""
+    import threading
+
+    c = app.controller
+    n = c.state.tree.n_splits
+    assert n >= 1
+    real, levels = c.set_level, []
+    gate, held = threading.Event(), threading.Event()
+
+    def set_level(level):
+        levels.append(level)
+        if not held.is_set():
+            held.set()
+            assert gate.wait(60), "the test never released the held edit"
+        return real(level)
+
+    monkeypatch.setattr(c, "set_level", set_level)
+    h = app.gui.level
+    first = threading.Thread(target=_browser_edit, args=(h, 0))
+    first.start()
+    assert held.wait(30), "the first edit did not start at once"
+    for i in range(50):
+        t0 = time.monotonic()
+        _browser_edit(h, (i + 1) % 2)
+        assert time.monotonic() - t0 < 1.0  # merged: its callback returned without running
+    gate.set()
+    first.join(timeout=60)
+    _settle(app)
+    assert levels == [0, 0], levels  # the 50th edit sent 0: it ran, the other 49 never did
+    s = c.state
+    assert s.view.level == 0 and s.error == ""
+    assert h.value == 0
+
+
 def test_a_refused_edit_after_a_cancelled_one_leaves_the_earlier_edit_applied(app, monkeypatch):
     """60 runs and is cancelled by a newer edit, 2, which the parameters refuse (min points
     >= 4; a browser past the guard): the refusal is shown and 60, whose run was cancelled, is
