@@ -21,11 +21,17 @@ Targets (issue 13): force closure on >= 80 % of the views, penetration <= 2 mm, 
 Usage: .venv/bin/python scripts/make_views.py /tmp/pregrasp_views   (once)
        PYTHONPATH=. .venv/bin/python benchmarks/bench_partial_grasps.py [VIEWS] [--all]
                                                [--clearance D] [--no-smooth]
+                                               [--occluded completed occupied]
+
+``--occluded`` with several settings plans each view with each of them in turn (interleaved, one
+run) and prints one table per setting; ``kept`` is the number of kept grasps, ``cpu s`` the
+CPU seconds of the view (this process and the planner's forked copies: ``os.times``).
 """
 
 from __future__ import annotations
 
 import os
+import sys
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -45,6 +51,7 @@ from pregrasp_core.hand import Hand  # noqa: E402
 from pregrasp_core.io import load_point_cloud  # noqa: E402
 from pregrasp_core.pipeline import PipelineParams, run_pipeline  # noqa: E402
 from pregrasp_core.sensor import view as sensor_view  # noqa: E402
+from pregrasp_core.sensor.occluded import OCCLUDED_MODES  # noqa: E402
 from pregrasp_core.sensor.truth import MeshDistance, check_grasp  # noqa: E402
 
 DEFAULT_OBJECTS = ("mug", "can_soda", "box_cereal", "bottle", "ramekin")
@@ -64,6 +71,9 @@ class Row:
     pen: float = np.inf
     cont: float = np.inf
     copy: float = np.nan
+    kept: int = 0
+    cpu: float = 0.0
+    mode: str = "completed"
 
 
 def main() -> int:
@@ -75,6 +85,10 @@ def main() -> int:
                         help="PlannerParams.assumed_clearance (default: its default)")  # fmt: skip
     parser.add_argument("--no-smooth", action="store_true", help="no smoothing of noisy views")
     parser.add_argument("--no-parts", action="store_true", help="skip the parts count")
+    parser.add_argument(
+        "--occluded", nargs="+", default=["completed"], choices=OCCLUDED_MODES,
+        help="PipelineParams.occluded settings, each view planned with each",
+    )  # fmt: skip
     args = parser.parse_args()
     manifest = views_manifest(args.views)
     if manifest is None:
@@ -92,20 +106,24 @@ def main() -> int:
     print(f"# {platform.node()} {platform.processor() or platform.machine()}, "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {len(manifest)} views, "
           f"one BLAS thread, assumed_clearance {params.planner.assumed_clearance * 1e3:.1f} mm, "
-          f"smoothing {'off' if args.no_smooth else 'on'}")  # fmt: skip
+          f"smoothing {'off' if args.no_smooth else 'on'}, "
+          f"occluded {' / '.join(args.occluded)}, load "
+          f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}; {' '.join(sys.argv[1:])}")  # fmt: skip
     print(
-        f"{'object':<12} {'cam':>3} {'noise':>5} {'kept':>4} {'fc':>4} {'eps':>6} "
+        f"{'object':<12} {'cam':>3} {'noise':>5} {'occluded':<9} {'kept':>4} {'fc':>4} {'eps':>6} "
         f"{'pen mm':>6} {'link':<13} {'cont mm':>7} {'assumed':>7} {'parts':>7} {'copy mm':>7} "
-        f"{'s':>5}"
+        f"{'s':>5} {'cpu s':>5}"
     )
     truths: dict[str, MeshDistance] = {}
     full_parts: dict[str, int] = {}
     rows: list[Row] = []
-    for e in manifest:
-        t0 = time.perf_counter()
+    runs = [(e, mode) for e in manifest for mode in args.occluded]
+    for e, mode in runs:
+        t0, c0 = time.perf_counter(), os.times()
         cloud = load_point_cloud(args.views / e["pcd"])
-        res = run_pipeline(cloud, params, hand, until="grasps")
-        dt = time.perf_counter() - t0
+        res = run_pipeline(cloud, dataclasses.replace(params, occluded=mode), hand, until="grasps")
+        dt, c1 = time.perf_counter() - t0, os.times()
+        cpu = sum(c1[:4]) - sum(c0[:4])
         gs = res.grasps
         assert gs is not None and res.tree is not None
         name = e["object"]
@@ -117,10 +135,12 @@ def main() -> int:
                 full_parts[name] = len(decompose(full).leaves())
         parts = len(res.tree.leaves())
         row = Row(name, float(e["noise_m"]), parts, full_parts.get(name, -1))
+        row.kept, row.cpu, row.mode = len(gs.ranking), cpu, mode
         best = gs.best
         if best is None and len(gs.ranking):
             best = int(gs.ranking[0])
-        line = f"{name:<12} {e['camera']:>3} {e['noise_m'] * 1000:>4.0f}m {len(gs.ranking):>4} "
+        line = f"{name:<12} {e['camera']:>3} {e['noise_m'] * 1000:>4.0f}m {mode:<9} "
+        line += f"{len(gs.ranking):>4} "
         line += f"{gs.n_force_closure:>4} "
         if best is None:
             line += f"{'-':>6} {'-':>6} {'-':<13} {'-':>7} {'-':>7}"
@@ -138,6 +158,7 @@ def main() -> int:
                 np.median(truths[name].signed(cloud.points[done.assumed & ~done.filled]))
             )
         line += f" {parts:>3}/{full_parts.get(name, -1):<3} {row.copy * 1e3:>+7.1f} {dt:>5.1f}"
+        line += f" {cpu:>5.1f}"
         rows.append(row)
         print(line, flush=True)
 
@@ -158,22 +179,30 @@ def main() -> int:
         cp = np.array([r.copy for r in rs if np.isfinite(r.copy)]) * 1e3
         lean = (f"{np.median(cp):+.1f} / {np.median(np.abs(cp)):.1f} / {np.abs(cp).max():.1f}"
                 if len(cp) else "-")  # fmt: skip
+        kept = np.array([r.kept for r in rs])
+        cpu = np.array([r.cpu for r in rs])
         return (f"| {label} | {fc}/{n} | {med(pm)} | {pen}/{n} | {med(cm)} | {cont}/{n} | "
-                f"{both}/{n} | {parts}/{n} | {lean} |")  # fmt: skip
+                f"{both}/{n} | {parts}/{n} | {lean} | {int(np.median(kept))} / {kept.sum()} | "
+                f"{np.median(cpu):.2f} / {cpu.max():.2f} |")  # fmt: skip
 
-    print()
-    print(
-        "| views | best grasp force closure | penetration median / worst (mm) | "
-        "penetration <= 2 mm | contact median / worst (mm) | contacts within 3 mm | "
-        "all three | parts within 1 | copies' median signed distance: median / median abs / "
-        "worst abs (mm) |"
-    )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
-    for name in sorted({r.object for r in rows}):
-        print(summary(name, [r for r in rows if r.object == name]))
-    for noise in sorted({r.noise for r in rows}):
-        print(summary(f"noise {noise * 1000:.0f} mm", [r for r in rows if r.noise == noise]))
-    print(summary("all", rows))
+    for mode in args.occluded:
+        mine = [r for r in rows if r.mode == mode]
+        print()
+        print(f"occluded = {mode}:")
+        print(
+            "| views | best grasp force closure | penetration median / worst (mm) | "
+            "penetration <= 2 mm | contact median / worst (mm) | contacts within 3 mm | "
+            "all three | parts within 1 | copies' median signed distance: median / median abs "
+            "/ worst abs (mm) | grasps kept median / sum | CPU s per view median / worst |"
+        )
+        print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+        for name in sorted({r.object for r in mine}):
+            print(summary(name, [r for r in mine if r.object == name]))
+        for noise in sorted({r.noise for r in mine}):
+            print(summary(f"noise {noise * 1000:.0f} mm", [r for r in mine if r.noise == noise]))
+        print(summary("all", mine))
+    print(f"# load at the end {' '.join(f'{x:.2f}' for x in os.getloadavg())}, "
+          f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")  # fmt: skip
     return 0
 
 

@@ -44,10 +44,12 @@ from .io import PointCloud
 from .limits import WorkLimits
 from .normals import NormalParams, estimate_normals
 from .planner import GraspSet, PlannerParams, cloud_normals, grasps_sections, plan_grasps
+from .planner.assumed import without_occupied
 from .planner.serialize import SimulatedRanking
 from .pregrasps import PreGraspPool, SamplingParams, Traversal, build_pool, traverse
 from .result import JsonDocument
 from .result import result_document as _result_document
+from .sensor.occluded import OCCLUDED_MODES, OccupiedSpace, occupied_space
 from .shape import NodeShape, ShapeParams, classify_tree
 
 if TYPE_CHECKING:  # the hand (python-fcl, URDF) is loaded only when the pool stage runs
@@ -77,6 +79,14 @@ class PipelineParams:
     """Traversal policy and pre-grasp sampling."""
     planner: PlannerParams = field(default_factory=PlannerParams)
     """Slicing contact planner, quality measure and cloud normals."""
+    occluded: str = "completed"
+    """A single view's unseen space: ``completed`` = free but for the completion's assumed
+    points; ``occupied`` = an obstacle for the pool and the planner (the hand stays out of it;
+    contacts only on real points; docs/partial-views.md). No effect on complete clouds."""
+
+    def __post_init__(self) -> None:
+        if self.occluded not in OCCLUDED_MODES:
+            raise ValueError(f"occluded must be one of {OCCLUDED_MODES}, got {self.occluded!r}")
 
     def as_dict(self) -> dict[str, object]:
         """Section name -> parameters dataclass (for the result file's ``parameters``)."""
@@ -218,6 +228,8 @@ def _run_stages(
     result of the same cloud or None); the normals from ``background`` when it computes them."""
     points = np.asarray(cloud.points, dtype=np.float64)
     pp = prev.params if prev is not None else None
+    occ = occupied_of(cloud, params) if last >= 3 else None  # the hidden space, or None
+    obstacles = points if occ is None else np.concatenate([points, occ.points])
     timings: dict[str, float] = {}
     reused: list[str] = []
     out: dict[str, Any] = {}
@@ -281,7 +293,7 @@ def _run_stages(
         def _pool() -> dict[str, Any]:
             trav = traverse(out["tree"], out["shapes"], run_hand, params.sampling, params.shape)
             pool = build_pool(
-                points,
+                obstacles,
                 out["tree"],
                 out["shapes"],
                 out["masks"],
@@ -299,6 +311,7 @@ def _run_stages(
             and prev is not None
             and pp is not None
             and pp.sampling == params.sampling
+            and pp.occluded == params.occluded
             and prev.hand is hand,
             ("traversal", "pool"),
             _pool,
@@ -328,16 +341,25 @@ def _run_stages(
         def _grasps() -> dict[str, Any]:
             assert hand is not None  # loaded by the pool stage above
             masks = out["masks"]
+            normals, assumed = out["normals"], cloud.assumed
+            if occ is not None:  # the obstacle points after the cloud's (planner/assumed.py)
+                normals = np.concatenate([normals, occ.normals])
+                assumed = np.concatenate([assumed, np.zeros(len(occ.points), dtype=bool)])
             gs = plan_grasps(
-                points,
-                out["normals"],
+                obstacles,
+                normals,
                 out["pool"],
                 run_hand,
                 params.planner,
                 support=None if masks is None else masks.support,
                 progress=_plan_progress,
-                assumed=cloud.assumed,
+                assumed=assumed,
             )
+            if occ is not None:
+                gs = without_occupied(
+                    gs, points, out["normals"], cloud.assumed, run_hand, params.planner,
+                    len(out["pool"]),
+                )  # fmt: skip
             return {"grasps": gs}
 
         stage(
@@ -355,6 +377,15 @@ def _run_stages(
         hand=hand if last >= 3 else (prev.hand if prev is not None else None),
         **out,
     )
+
+
+def occupied_of(cloud: PointCloud, params: PipelineParams) -> OccupiedSpace | None:
+    """The hidden space of a single view as obstacle points (``sensor/occluded.py``) when
+    ``params.occluded`` is ``occupied`` and ``cloud`` is a view, else None."""
+    sv = cloud.sensor
+    if params.occluded != "occupied" or sv is None:
+        return None
+    return occupied_space(sv.points[~sv.assumed], sv.points, sv.viewpoint, sv.plane)
 
 
 def with_cloud(params: PipelineParams, cloud: PointCloud) -> PipelineParams:
@@ -434,7 +465,9 @@ def result_document(
         if result.hand is None:
             raise ValueError("the result has grasps but no hand: it was not made by run_pipeline")
         extra.update(grasps_sections(result.grasps, result.hand, params.planner, simulation))
-    sections = params.as_dict()
+    sections: dict[str, object] = dict(params.as_dict())
+    if params.occluded != "completed":  # written only when not the default (docs/result-schema)
+        sections["occluded"] = params.occluded
     if simulation is not None:
         sections["simulation"] = simulation.params
     return _result_document(

@@ -32,6 +32,7 @@ from pregrasp_core.pipeline import PipelineParams
 from pregrasp_core.planner import PlannerParams
 from pregrasp_core.pregrasps import SamplingParams
 from pregrasp_core.quality import TORQUE_ORIGINS, QualityParams
+from pregrasp_core.sensor.occluded import OCCLUDED_MODES
 from pregrasp_core.shape import ShapeParams
 
 from .options import Flag, OptionError, Options
@@ -271,5 +272,10 @@ ALL_STAGES: tuple[str, ...] = (*POOL_STAGES, "planner")
 def pipeline_options(stages: tuple[str, ...]) -> Options[PipelineParams]:
     """The options of ``PipelineParams`` for ``stages`` (the others keep their defaults)."""
     return Options(
-        PipelineParams, None, "pipeline", fields=(), nested={s: STAGE_OPTIONS[s] for s in stages}
+        PipelineParams,
+        "single views (depth camera)",
+        "pipeline",
+        flags={"occluded": Flag(choices=OCCLUDED_MODES)},
+        fields=("occluded",) if "planner" in stages else (),  # plan and view
+        nested={s: STAGE_OPTIONS[s] for s in stages},
     )

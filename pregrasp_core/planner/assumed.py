@@ -21,11 +21,20 @@ contacts changed the true-mesh figures by one or two views either way (measured,
 
 from __future__ import annotations
 
+import dataclasses
+from typing import TYPE_CHECKING
+
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..limits import MAX_ASSUMED_CLEARANCE
+from .boxes import box_signed_distance
 
-__all__ = ["MAX_ASSUMED_CLEARANCE", "assumed_mask", "obstacle_points"]
+if TYPE_CHECKING:
+    from ..hand import Hand
+    from .types import GraspSet, PlannerParams
+
+__all__ = ["MAX_ASSUMED_CLEARANCE", "assumed_mask", "obstacle_points", "without_occupied"]
 
 
 def assumed_mask(assumed: np.ndarray | None, n_points: int) -> np.ndarray | None:
@@ -52,3 +61,77 @@ def obstacle_points(
     out = points.copy()
     out[assumed] += clearance * normals[assumed]
     return out
+
+
+def without_occupied(
+    gs: GraspSet,
+    points: np.ndarray,
+    normals: np.ndarray,
+    assumed: np.ndarray | None,
+    hand: Hand,
+    params: PlannerParams,
+    n_pool: int,
+) -> GraspSet:
+    """``gs``, planned on the cloud ``points`` (N, 3) followed by obstacle points (a single
+    view's hidden space, ``sensor/occluded.py``), with contacts only on the cloud's points: a
+    link whose contact is an obstacle point (index >= N) takes the cloud point nearest its box
+    within ``contact_distance`` instead (as the planner picks contacts; none: the contact is
+    dropped); a grasp left without contacts is rejected as ``no_contact``; every kept grasp is
+    rescored (torques about the cloud's own frame, not the obstacles') and ranked again."""
+    from .plan import rank_grasps
+    from .rank import first_level, quality_frame, score_grasp, settle_exact
+    from .types import Contact, Grasp, GraspSet
+
+    n = len(points)
+    am = assumed_mask(assumed, n)
+    geom = obstacle_points(points, normals, am, params.assumed_clearance)
+    tree = cKDTree(geom)
+    half = np.asarray(hand.link_box_half, dtype=np.float64)
+    names = tuple(hand.link_names)
+    reach = float(np.max(np.linalg.norm(half, axis=1))) + params.contact_distance
+    frame = quality_frame(params.quality, points)
+    level = first_level(params.quality, n_pool)
+    out: list[Grasp] = []
+    for g in gs.grasps:  # loop over the pool's grasps
+        if not g.kept:
+            out.append(g)
+            continue
+        contacts = list(g.contacts)
+        if any(c.point_index >= n for c in contacts):
+            Tb = g.T_world_hand @ hand.box_poses(g.q)  # (L, 4, 4) link boxes, world
+            kept = []
+            for c in contacts:  # loop over <= L contacts
+                if c.point_index < n:
+                    kept.append(c)
+                    continue
+                j = names.index(c.link)
+                near = np.asarray(tree.query_ball_point(Tb[j, :3, 3], reach), dtype=np.int64)
+                if not len(near):
+                    continue
+                d = box_signed_distance(geom[near], Tb[j][None], half[j][None])[:, 0]
+                k = int(np.argmin(d))
+                if d[k] > params.contact_distance:
+                    continue
+                p = int(near[k])
+                kept.append(Contact(
+                    points[p].copy(), -normals[p], c.link, p, float(d[k]), Tb[j, :3, 1].copy(),
+                    bool(am[p]) if am is not None else False,
+                ))  # fmt: skip
+            if not kept:
+                out.append(Grasp.from_rejection(
+                    g.pregrasp, g.grasp_type, g.T_world_hand, g.q, "no_contact",
+                    "every contact on the occupied (unseen) space", g.approach_distance,
+                    g.approach_stop, g.fingers,
+                ))  # fmt: skip
+                continue
+            g = dataclasses.replace(g, contacts=tuple(kept))
+        out.append(score_grasp(params.quality, frame, level, g))
+    out, _ = settle_exact(out, params.quality, frame)
+    order = rank_grasps(out)
+    for r, k in enumerate(order.tolist()):
+        out[k] = dataclasses.replace(out[k], rank=r)
+    rejected = {key: 0 for key in gs.rejected}
+    for g in out:
+        if g.rejection is not None:
+            rejected[g.rejection] = rejected.get(g.rejection, 0) + 1
+    return GraspSet(tuple(out), order, gs.joint_names, rejected, dict(gs.phase_seconds))

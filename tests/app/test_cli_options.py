@@ -66,6 +66,7 @@ FLAGS: dict[str, tuple[list[str], str, object]] = {
     "--contact-distance": (["0.004"], "params.planner.contact_distance", 0.004),
     "--penetration-tol": (["0.003"], "params.planner.penetration_tol", 0.003),
     "--assumed-clearance": (["0.003"], "params.planner.assumed_clearance", 0.003),
+    "--occluded": (["occupied"], "params.occluded", "occupied"),
     "--threads": (["1"], "params.planner.threads", 1),
     "--mu": (["0.8"], "params.planner.quality.mu", 0.8),
     "--cone-edges": (["6"], "params.planner.quality.n_edges", 6),
@@ -164,13 +165,14 @@ def test_every_flag_reaches_its_field(name):
 
 
 def test_commands_take_the_flags_of_their_stages():
-    """decompose: decomposition and shapes; pregrasps: + face masks, sampling; plan: + planner;
-    view: every pipeline flag of plan, plus --host and --port (not the output options)."""
+    """decompose: decomposition and shapes; pregrasps: + face masks, sampling; plan: + planner
+    and ``--occluded`` (PipelineParams.occluded); view: every pipeline flag of plan, plus
+    --host and --port (not the output options)."""
     stage = {f: place.split(".")[1] for f, (_, place, _) in FLAGS.items() if "params." in place}
     by_cmd = {n: {stage[f] for f in _flags_of(n) if f in stage} for n in COMMANDS}
     assert by_cmd["decompose"] == {"decomposition", "shape"}
     assert by_cmd["pregrasps"] == {"decomposition", "shape", "facemask", "sampling"}
-    assert by_cmd["plan"] == by_cmd["view"] == {*by_cmd["pregrasps"], "planner"}
+    assert by_cmd["plan"] == by_cmd["view"] == {*by_cmd["pregrasps"], "planner", "occluded"}
     plan_pipeline = {f for f in _flags_of("plan") if f in stage}
     assert plan_pipeline == set(PIPELINE_FLAGS)
     assert _flags_of("view") == plan_pipeline | {"--points", "--seed", "--scale", "--pick",

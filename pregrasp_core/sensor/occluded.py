@@ -1,0 +1,162 @@
+"""The space a single view cannot see, as an obstacle: ``--occluded occupied`` (issue 13).
+
+A camera sees the object's front. Everything behind the seen surface along the camera's rays,
+down to the support plane, may hold object (the mug's handle hidden behind the cup); the
+completion (:mod:`.completion`) guesses a back inside it but cannot invent what no symmetry
+explains. With ``occluded="occupied"`` the pipeline counts that hidden space as occupied for
+collisions: the pool's collision filter and the planner's approach and closing see it as
+obstacle points (:func:`occupied_points`), the hand must stay out of it, while the contacts come
+only from the real points (seen or completed): a contact the planner found on an occupied point
+is dropped and the grasp rescored (``pregrasp_core.planner.assumed.without_occupied``).
+
+Representation: a voxel grid of ``OccludedParams.voxel`` in the support plane's frame over the
+completed object's extent grown by ``OccludedParams.margin`` (up from the plane). A voxel is
+hidden when its centre lies behind the seen surface of the view's range image
+(:class:`~.completion.RangeImage`: the visible points triangulated in a virtual image; a
+direction where the camera saw the table or nothing is free). Hidden voxels closer than
+``OccludedParams.carve`` to a real point are left out (the hand touches the real points there,
+not the obstacle). The obstacle is the hidden region's boundary voxels (every one) and its
+interior on a coarser lattice (every ``interior_step``-th voxel along each axis): the planner
+and the pool test points in link boxes, so a surface the fingers cannot slip through and an
+interior no link box (20 mm wide at the least) fits between is enough; a full grid would cost
+several times the points. Points are cheaper than a new occupancy test in the planner: its
+collision, closing and penetration checks all take points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+from scipy.spatial import cKDTree
+
+from ..facemask import SupportPlane
+from .completion import RangeImage
+
+OCCLUDED_MODES: tuple[str, ...] = ("completed", "occupied")
+"""Values of ``PipelineParams.occluded``: ``completed`` = the unseen space is free but for the
+completion's assumed points (the default); ``occupied`` = it is an obstacle."""
+
+
+@dataclass(frozen=True)
+class OccludedParams:
+    """How the hidden space of a view is sampled as obstacle points."""
+
+    voxel: float = 0.003
+    """Metres: the grid's cell (the obstacle's surface spacing)."""
+    margin: float = 0.02
+    """Metres: the region is the completed object's extent (in the plane's frame) grown by this
+    (up from the support plane)."""
+    carve: float = 0.003
+    """Metres: hidden voxels this close to a real (seen or completed) point are left out."""
+    interior_step: int = 3
+    edge_factor: float = 6.0
+    """The interior (voxels whose 6 neighbours are all hidden) is kept every this many voxels
+    along each axis (9 mm at 3 mm voxels: less than a link box's 20 mm)."""
+
+
+def plane_frame(plane: SupportPlane, toward: np.ndarray) -> np.ndarray:
+    """(3, 3) columns e1, e2, n: ``n`` the plane's normal, ``e1`` the horizontal part of
+    ``toward`` (any horizontal direction when it has none)."""
+    n = plane.normal / np.linalg.norm(plane.normal)
+    e1 = toward - (toward @ n) * n
+    if np.linalg.norm(e1) < 1e-9:
+        e1 = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
+    e1 = e1 / np.linalg.norm(e1)
+    return np.stack([e1, np.cross(n, e1), n], axis=1)
+
+
+def hidden(vis: RangeImage, q: np.ndarray) -> np.ndarray:
+    """(...,) bool: the points ``q`` (..., 3) lie behind the surface the camera saw (in a seen
+    direction, farther than the interpolated seen range) and above the support plane."""
+    qc = (q - vis.viewpoint) @ vis.R
+    z = qc[..., 2]
+    uv = qc[..., :2] / np.maximum(z, 1e-9)[..., None]
+    rng = np.linalg.norm(qc, axis=-1)
+    ij = np.floor((uv - vis.lo) / vis.cell).astype(np.int64)
+    inside = np.all((ij >= 0) & (ij < np.array(vis.shape)), axis=-1) & (z > 0.0)
+    ijc = np.where(inside[..., None], ij, 0)
+    i, j = ijc[..., 0], ijc[..., 1]
+    c = vis.coef[i, j]
+    D = c[..., 0] + c[..., 1] * uv[..., 0] + c[..., 2] * uv[..., 1]
+    above = vis.plane.signed_distance(q.reshape(-1, 3)).reshape(q.shape[:-1]) > 0.0
+    return inside & vis.seen[i, j] & (rng > D) & above
+
+
+@dataclass(frozen=True, eq=False)
+class OccupiedSpace:
+    """The hidden space of a view sampled as obstacle points."""
+
+    points: np.ndarray
+    """(K, 3) the obstacle points (the hidden region's boundary voxels and its interior on a
+    coarser lattice), the scene's frame."""
+    normals: np.ndarray
+    """(K, 3) unit: toward the camera (only for the planner's arrays; no contact keeps them)."""
+    grid: np.ndarray
+    """(A, B, C) bool: every hidden voxel (before the sampling), axes e1, e2, n of ``frame``."""
+    origin: np.ndarray
+    """(3,) the centre of voxel (0, 0, 0)."""
+    frame: np.ndarray
+    """(3, 3) columns e1, e2, n (the plane's normal)."""
+    voxel: float
+    """Metres: the cell."""
+
+    @property
+    def volume(self) -> float:
+        """Cubic metres of hidden voxels."""
+        return float(np.count_nonzero(self.grid)) * self.voxel**3
+
+    def contains(self, q: np.ndarray) -> np.ndarray:
+        """(...,) bool: the points ``q`` (..., 3) fall in a hidden voxel."""
+        g = (np.asarray(q, dtype=np.float64) - self.origin) @ self.frame / self.voxel
+        ijk = np.floor(g + 0.5).astype(np.int64)
+        ok = np.all((ijk >= 0) & (ijk < np.array(self.grid.shape)), axis=-1)
+        ijk = np.where(ok[..., None], ijk, 0)
+        return ok & self.grid[ijk[..., 0], ijk[..., 1], ijk[..., 2]]
+
+
+def occupied_space(
+    visible: np.ndarray,
+    real: np.ndarray,
+    viewpoint: np.ndarray,
+    plane: SupportPlane,
+    params: OccludedParams | None = None,
+) -> OccupiedSpace:
+    """The space hidden behind the ``visible`` points (N, 3) seen from ``viewpoint`` (3,),
+    standing on ``plane``, within the extent of the ``real`` points (M, 3; seen and completed)
+    grown by ``params.margin``, as obstacle points (see the module)."""
+    prm = OccludedParams() if params is None else params
+    vp = np.asarray(viewpoint, dtype=np.float64)
+    vis = RangeImage(np.asarray(visible, dtype=np.float64), vp, plane, edge_factor=prm.edge_factor)
+    F = plane_frame(plane, np.asarray(real, dtype=np.float64).mean(axis=0) - vp)
+    n = F[:, 2]
+    local = real @ F  # (M, 3) e1, e2, n coordinates (n: the plane's offset included)
+    p0 = real[0] - float(plane.signed_distance(real[:1])[0]) * n  # a point of the plane
+    h0 = float(p0 @ n)  # the plane's n-coordinate
+    lo = local.min(axis=0) - prm.margin
+    hi = local.max(axis=0) + prm.margin
+    lo[2] = h0 + 0.5 * prm.voxel
+    v = prm.voxel
+    shape = np.maximum(np.ceil((hi - lo) / v).astype(np.int64) + 1, 1)
+    axes = [lo[k] + v * np.arange(shape[k]) for k in range(3)]
+    G = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)  # (A, B, C, 3) local coordinates
+    Q = G @ F.T  # world
+    grid = hidden(vis, Q)
+    if prm.carve > 0.0 and np.any(grid):
+        idx = np.flatnonzero(grid.ravel())
+        d, _ = cKDTree(real).query(Q.reshape(-1, 3)[idx], distance_upper_bound=prm.carve)
+        flat = grid.ravel()
+        flat[idx[np.isfinite(d)]] = False
+        grid = flat.reshape(grid.shape)
+    inner = ndimage.binary_erosion(grid, border_value=0)
+    s = max(int(prm.interior_step), 1)
+    ii, jj, kk = np.meshgrid(*(np.arange(k) for k in shape), indexing="ij")
+    lattice = (ii % s == 0) & (jj % s == 0) & (kk % s == 0)
+    keep = (grid & ~inner) | (inner & lattice)
+    pts = np.ascontiguousarray(Q[keep])
+    to_cam = vp - pts
+    nrm = to_cam / np.maximum(np.linalg.norm(to_cam, axis=1, keepdims=True), 1e-12)
+    for a in (pts, nrm, grid):
+        a.setflags(write=False)
+    return OccupiedSpace(pts, nrm, grid, lo @ F.T, F, v)
