@@ -31,12 +31,19 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
+from ..errors import WorkLimitError
 from ..facemask import SupportPlane
 from .completion import RangeImage
 
 OCCLUDED_MODES: tuple[str, ...] = ("completed", "occupied")
 """Values of ``PipelineParams.occluded``: ``completed`` = the unseen space is free but for the
 completion's assumed points (the default); ``occupied`` = it is an obstacle."""
+
+MAX_OCCLUDED_VOXELS: int = 2_000_000
+"""Most voxels of the grid :func:`occupied_space` builds (it takes about 200 bytes per voxel at
+its peak, measured 171-202 on the demo views: about 400 MB here; the thermos, the largest demo
+view, needs 0.70 million voxels of 3 mm). Past it a ``WorkLimitError`` is raised before the
+grid is allocated: the object spans more than about 0.37 m in every direction."""
 
 
 @dataclass(frozen=True)
@@ -139,6 +146,15 @@ def occupied_space(
     lo[2] = h0 + 0.5 * prm.voxel
     v = prm.voxel
     shape = np.maximum(np.ceil((hi - lo) / v).astype(np.int64) + 1, 1)
+    n_voxels = int(np.prod(shape))
+    if n_voxels > MAX_OCCLUDED_VOXELS:
+        span = " x ".join(f"{x:.2f}" for x in hi - lo)
+        raise WorkLimitError(
+            f"--occluded occupied: the hidden space of this view ({span} m with the margin) "
+            f"would take {n_voxels:,} voxels of {v * 1000:.1f} mm, more than "
+            f"{MAX_OCCLUDED_VOXELS:,} (about {MAX_OCCLUDED_VOXELS * 200 // 2**20} MiB); plan "
+            "it with --occluded completed, or pick a smaller object (--pick X Y Z)"
+        )
     axes = [lo[k] + v * np.arange(shape[k]) for k in range(3)]
     G = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)  # (A, B, C, 3) local coordinates
     Q = G @ F.T  # world

@@ -20,11 +20,13 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from app.cli import main
+from pregrasp_core.errors import WorkLimitError
+from pregrasp_core.facemask import SupportPlane
 from pregrasp_core.io import load_point_cloud
 from pregrasp_core.paths import OBJECTS_DIR
 from pregrasp_core.pipeline import PipelineParams, run_pipeline
 from pregrasp_core.sensor import prepare_view
-from pregrasp_core.sensor.occluded import OccludedParams, occupied_space
+from pregrasp_core.sensor.occluded import MAX_OCCLUDED_VOXELS, OccludedParams, occupied_space
 from pregrasp_core.sensor.synthetic import LABEL_OBJECT, orbit_camera, render_view
 from pregrasp_core.sensor.truth import MeshDistance, check_grasp
 
@@ -137,3 +139,19 @@ def test_no_finger_enters_the_hidden_handle_with_occupied(make_views, tmp_path: 
 def test_occluded_must_be_a_known_setting() -> None:
     with pytest.raises(ValueError, match="occluded"):
         PipelineParams(occluded="free")
+
+
+def test_a_hidden_space_too_large_is_refused_before_its_grid() -> None:
+    """A 1.2 m crate seen from one side would need (1.24 / 0.003)**3 = 70 million voxels
+    (about 14 GB at the measured 200 bytes per voxel): refused with the way out in the message,
+    not allocated."""
+    rng = np.random.default_rng(0)
+    front = np.column_stack(
+        [np.full(2000, -0.6), rng.uniform(-0.6, 0.6, 2000), rng.uniform(0.0, 1.2, 2000)]
+    )
+    plane = SupportPlane(np.array([0.0, 0.0, 1.0]), 0.0)
+    back = front + [1.2, 0.0, 0.0]
+    n = (1.24 / 0.003) ** 3
+    assert n > MAX_OCCLUDED_VOXELS
+    with pytest.raises(WorkLimitError, match="--occluded completed"):
+        occupied_space(front, np.vstack([front, back]), np.array([-2.0, 0.0, 1.0]), plane)
