@@ -160,8 +160,8 @@ class Gui:
         self._demo_opts: tuple[Any, tuple[str, ...]] = (None, ())  # source -> chooser options
         self._runs: dict[Any, _EditRun] = {}  # control key -> its browser edits in progress
         self._runs_lock = threading.Lock()
-        # id(control) -> the edit waiting for that view control's run in progress (or None)
-        self._view_runs: dict[int, tuple[Any, Callable[..., Any], tuple[Any, ...]] | None] = {}
+        # id(control) -> the browser edit waiting for that control's run in progress (or None)
+        self._merged: dict[int, tuple[Any, Callable[..., Any], tuple[Any, ...]] | None] = {}
         self._values_lock = threading.RLock()  # a re-send and a sync of the values never mix
         self._edits: dict[int, list[float]] = {}  # id(handle) -> arrival of edits not yet read
         self._edits_lock = threading.Lock()
@@ -176,6 +176,7 @@ class Gui:
         with gui.add_folder("Object"):
             names = [p.stem for p in demo_choices()]
             self.demo = gui.add_dropdown("demo object", names or ["(none)"])
+            self._supersede = {id(self.demo)}  # merged edits cancel the stale load (_do)
             self.demo.on_update(lambda e: self._do(e, c.load_demo, e.target.value))
             self.upload = gui.add_upload_button(
                 "upload cloud / mesh / depth PNG / JSON",
@@ -183,7 +184,7 @@ class Gui:
                 hint="a point cloud, a mesh, a depth image (16-bit PNG in millimetres), its "
                 "camera file (NAME.json: fx, fy, cx, cy, ...) or a pregrasp/1 result file",
             )
-            self.upload.on_upload(lambda e: self._do(e, self._upload, e.target))
+            self.upload.on_upload(lambda e: self._apply(e, self._upload, e.target))
             self.intrinsics = gui.add_text(
                 "intrinsics (fx fy cx cy)",
                 "",
@@ -196,7 +197,7 @@ class Gui:
             )
             self.camera_info = gui.add_markdown("")
             self.compare = gui.add_upload_button("compare with result (JSON)", icon=None)
-            self.compare.on_upload(lambda e: self._do(e, self._compare, e.target))
+            self.compare.on_upload(lambda e: self._apply(e, self._compare, e.target))
             self.stop_compare = gui.add_button("stop comparing", visible=False)
             self.stop_compare.on_click(lambda e: self._do(e, c.clear_compare))
             self.n_points = gui.add_number(
@@ -227,7 +228,7 @@ class Gui:
             for spec in DECOMPOSITION_CONTROLS:
                 self._add_param(*spec)
             self.level = gui.add_slider("level (splits)", min=0, max=1, step=1, initial_value=1)
-            self.level.on_update(lambda e: self._view(e, c.set_level, e.target.value))
+            self.level.on_update(lambda e: self._do(e, c.set_level, e.target.value))
             self.boxes = gui.add_markdown("boxes: 0")
             self.node_info = gui.add_markdown("Click a box to see its node.")
 
@@ -236,16 +237,14 @@ class Gui:
                 self._add_param(*spec)
             self.show_masks = gui.add_checkbox("face masks", c.state.view.show_face_masks)
             self.show_masks.on_update(
-                lambda e: self._view(e, c.set_face_masks_visible, e.target.value)
+                lambda e: self._do(e, c.set_face_masks_visible, e.target.value)
             )
             self.show_ghosts = gui.add_checkbox("hand ghosts", c.state.view.show_ghosts)
-            self.show_ghosts.on_update(
-                lambda e: self._view(e, c.set_ghosts_visible, e.target.value)
-            )
+            self.show_ghosts.on_update(lambda e: self._do(e, c.set_ghosts_visible, e.target.value))
             self.ghost_type = gui.add_dropdown("grasp type", (ALL, *GRASP_TYPES))
-            self.ghost_type.on_update(lambda e: self._view(e, self._ghost_type, e.target.value))
+            self.ghost_type.on_update(lambda e: self._do(e, self._ghost_type, e.target.value))
             self.ghost_node = gui.add_dropdown("node", (ALL,))
-            self.ghost_node.on_update(lambda e: self._view(e, self._ghost_node, e.target.value))
+            self.ghost_node.on_update(lambda e: self._do(e, self._ghost_node, e.target.value))
             self.pool_info = gui.add_markdown("")
 
         with gui.add_folder("Planner"):
@@ -253,7 +252,7 @@ class Gui:
             self.plan.on_click(lambda e: self._do(e, c.plan))
             self.progress = gui.add_progress_bar(0.0, visible=False, animated=True)
             self.grasp = gui.add_dropdown("grasp", ("(plan first)",), disabled=True)
-            self.grasp.on_update(lambda e: self._view(e, self._grasp, e.target.value))
+            self.grasp.on_update(lambda e: self._do(e, self._grasp, e.target.value))
             self.play = gui.add_button("play")
             self.play.on_click(lambda e: self._do(e, c.play))
             self.pause = gui.add_button("pause")
@@ -261,9 +260,9 @@ class Gui:
             self.speed = gui.add_slider(
                 "speed", min=SPEED_RANGE[0], max=SPEED_RANGE[1], step=0.1, initial_value=1.0
             )
-            self.speed.on_update(lambda e: self._view(e, c.set_speed, e.target.value))
+            self.speed.on_update(lambda e: self._do(e, c.set_speed, e.target.value))
             self.phase = gui.add_slider("phase", min=0.0, max=1.0, step=0.01, initial_value=1.0)
-            self.phase.on_update(lambda e: self._view(e, c.set_anim_t, e.target.value))
+            self.phase.on_update(lambda e: self._do(e, c.set_anim_t, e.target.value))
             self.simulate = gui.add_button("simulate lift", disabled=True)
             self.simulate.on_click(lambda e: self._do(e, c.simulate, e.client))
             self.lift_info = gui.add_markdown("")
@@ -311,7 +310,7 @@ class Gui:
                     del self._edits[key]
             return set(self._edits)
 
-    def _do(self, event: Any, fn: Callable[..., Any], *args: Any) -> Any:
+    def _apply(self, event: Any, fn: Callable[..., Any], *args: Any) -> Any:
         """Run a controller action for a GUI event, unless :meth:`sync` is setting the value;
         then send the control's value in use to every browser (see :meth:`repush`)."""
         if getattr(self._local, "syncing", False):
@@ -323,23 +322,28 @@ class Gui:
             if getattr(event, "client", None) is not None:
                 self.repush(getattr(event, "target", None))
 
-    def _view(self, event: Any, fn: Callable[..., Any], *args: Any) -> Any:
-        """Like :meth:`_do` for a control that only sets what is shown (level, masks, ghosts,
-        the grasp, the animation): edits arriving while one of that control runs are merged,
-        the latest wins and runs after it. Setting the latest value equals setting each in
-        turn, and a page flooding one control no longer queues its callbacks in front of every
-        other browser's (2,000 toggles of a checkbox held another browser's edit back 1.9 s;
-        ``tests/app/test_security.py``)."""
+    def _do(self, event: Any, fn: Callable[..., Any], *args: Any) -> Any:
+        """:meth:`_apply` for a browser's edit of a control, where edits of that control arriving
+        while one of them runs are merged: the latest wins and runs after it (a value set, a
+        button pressed again: the result equals running each in turn). A page flooding one
+        control no longer queues its callbacks in front of every other browser's on viser's
+        thread pool (2,000 toggles of a checkbox held another browser's edit back 1.9 s; 200
+        demo choices or plan presses 5.4-5.7 s; ``tests/app/test_security.py``). Uploads are
+        not merged (:meth:`_apply`: each file is its own); pipeline controls coalesce with
+        cancelling (:meth:`_coalesced`); a newer choice of the demo object cancels the load
+        of the one it replaces (the load it runs next would supersede it anyway)."""
         if getattr(self._local, "syncing", False):
             return None
         if getattr(event, "client", None) is None:
-            return self._do(event, fn, *args)
+            return self._apply(event, fn, *args)
         key = id(getattr(event, "target", None))
         job: tuple[Any, Callable[..., Any], tuple[Any, ...]] | None = (event, fn, args)
         with self._runs_lock:
-            running = key in self._view_runs
-            replaced = self._view_runs.get(key) if running else None
-            self._view_runs[key] = job if running else None
+            running = key in self._merged
+            replaced = self._merged.get(key) if running else None
+            self._merged[key] = job if running else None
+            if running and key in self._supersede:
+                self.controller.cancel()  # the object being loaded is stale: stop it now
         if running:  # the run in progress takes this edit up after its own
             if replaced is not None:
                 self._end_edit(replaced[0])  # merged into this newer one: never runs
@@ -348,16 +352,16 @@ class Gui:
         try:
             while job is not None:
                 ev, f, a = job
-                out = self._do(ev, f, *a)
+                out = self._apply(ev, f, *a)
                 with self._runs_lock:
-                    job = self._view_runs[key]
+                    job = self._merged[key]
                     if job is None:
-                        del self._view_runs[key]
+                        del self._merged[key]
                     else:
-                        self._view_runs[key] = None
+                        self._merged[key] = None
         except BaseException:
             with self._runs_lock:
-                self._view_runs.pop(key, None)
+                self._merged.pop(key, None)
             raise
         return out
 
@@ -509,7 +513,7 @@ class Gui:
         """Whether no browser edit of a pipeline or view control runs or waits (tests and
         benchmarks wait for this and ``Controller.idle``)."""
         with self._runs_lock:
-            return not self._runs and not self._view_runs
+            return not self._runs and not self._merged
 
     def close(self) -> None:
         """Drop the browser edits still waiting (the ones running end by themselves) and the
