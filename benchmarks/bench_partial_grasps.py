@@ -50,6 +50,7 @@ from pregrasp_core.decomposition import decompose  # noqa: E402
 from pregrasp_core.hand import Hand  # noqa: E402
 from pregrasp_core.io import load_point_cloud  # noqa: E402
 from pregrasp_core.pipeline import PipelineParams, run_pipeline  # noqa: E402
+from pregrasp_core.sensor import occluded  # noqa: E402
 from pregrasp_core.sensor import view as sensor_view  # noqa: E402
 from pregrasp_core.sensor.occluded import OCCLUDED_MODES  # noqa: E402
 from pregrasp_core.sensor.truth import MeshDistance, check_grasp  # noqa: E402
@@ -89,7 +90,15 @@ def main() -> int:
         "--occluded", nargs="+", default=["completed"], choices=OCCLUDED_MODES,
         help="PipelineParams.occluded settings, each view planned with each",
     )  # fmt: skip
+    parser.add_argument(
+        "--occluded-margin", type=float, default=None, metavar="M",
+        help="OccludedParams.margin of the occupied setting (default: its default)",
+    )  # fmt: skip
     args = parser.parse_args()
+    if args.occluded_margin is not None:
+        occluded.DEFAULT_OCCLUDED = dataclasses.replace(
+            occluded.DEFAULT_OCCLUDED, margin=args.occluded_margin
+        )
     manifest = views_manifest(args.views)
     if manifest is None:
         return 1
@@ -107,7 +116,8 @@ def main() -> int:
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {len(manifest)} views, "
           f"one BLAS thread, assumed_clearance {params.planner.assumed_clearance * 1e3:.1f} mm, "
           f"smoothing {'off' if args.no_smooth else 'on'}, "
-          f"occluded {' / '.join(args.occluded)}, load "
+          f"occluded {' / '.join(args.occluded)} (margin "
+          f"{occluded.DEFAULT_OCCLUDED.margin * 1e3:.0f} mm), load "
           f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}; {' '.join(sys.argv[1:])}")  # fmt: skip
     print(
         f"{'object':<12} {'cam':>3} {'noise':>5} {'occluded':<9} {'kept':>4} {'fc':>4} {'eps':>6} "

@@ -63,6 +63,11 @@ class OccludedParams:
     along each axis (9 mm at 3 mm voxels: less than a link box's 20 mm)."""
 
 
+DEFAULT_OCCLUDED: OccludedParams = OccludedParams()
+"""The parameters :func:`occupied_space` uses when given none (the pipeline's; a benchmark may
+set others here, ``benchmarks/bench_partial_grasps.py --occluded-margin``)."""
+
+
 def plane_frame(plane: SupportPlane, toward: np.ndarray) -> np.ndarray:
     """(3, 3) columns e1, e2, n: ``n`` the plane's normal, ``e1`` the horizontal part of
     ``toward`` (any horizontal direction when it has none)."""
@@ -133,7 +138,7 @@ def occupied_space(
     """The space hidden behind the ``visible`` points (N, 3) seen from ``viewpoint`` (3,),
     standing on ``plane``, within the extent of the ``real`` points (M, 3; seen and completed)
     grown by ``params.margin``, as obstacle points (see the module)."""
-    prm = OccludedParams() if params is None else params
+    prm = DEFAULT_OCCLUDED if params is None else params
     vp = np.asarray(viewpoint, dtype=np.float64)
     vis = RangeImage(np.asarray(visible, dtype=np.float64), vp, plane, edge_factor=prm.edge_factor)
     F = plane_frame(plane, np.asarray(real, dtype=np.float64).mean(axis=0) - vp)
