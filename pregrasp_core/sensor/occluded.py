@@ -39,11 +39,21 @@ OCCLUDED_MODES: tuple[str, ...] = ("completed", "occupied")
 """Values of ``PipelineParams.occluded``: ``completed`` = the unseen space is free but for the
 completion's assumed points (the default); ``occupied`` = it is an obstacle."""
 
-MAX_OCCLUDED_VOXELS: int = 2_000_000
-"""Most voxels of the grid :func:`occupied_space` builds (it takes about 200 bytes per voxel at
-its peak, measured 171-202 on the demo views: about 400 MB here; the thermos, the largest demo
-view, needs 0.70 million voxels of 3 mm). Past it a ``WorkLimitError`` is raised before the
-grid is allocated: the object spans more than about 0.37 m in every direction."""
+SLAB_VOXELS: int = 65_536
+"""Voxels :func:`occupied_space` tests at once, a slab of its grid (their temporaries take
+about 170 bytes each: some 11 MiB)."""
+
+BYTES_PER_VOXEL: int = 20
+"""Peak bytes of :func:`occupied_space` per voxel of its grid beyond its slabs' ~11 MiB
+(tracemalloc: 17-20 on hidden spaces of 1.4-4.3 million voxels; 171-202 before the grid was
+built in slabs)."""
+
+MAX_OCCLUDED_VOXELS: int = 20_000_000
+"""Most voxels of the grid :func:`occupied_space` builds: about 400 MB at
+:data:`BYTES_PER_VOXEL` and some 10 s of one core (0.5 s per million voxels measured); the
+thermos, the largest demo view, needs 0.70 million voxels of 3 mm. Past it a
+``WorkLimitError`` is raised before the grid is allocated: the object and its margin span
+more than about 0.8 m in every direction."""
 
 
 @dataclass(frozen=True)
@@ -157,25 +167,39 @@ def occupied_space(
         raise WorkLimitError(
             f"--occluded occupied: the hidden space of this view ({span} m with the margin) "
             f"would take {n_voxels:,} voxels of {v * 1000:.1f} mm, more than "
-            f"{MAX_OCCLUDED_VOXELS:,} (about {MAX_OCCLUDED_VOXELS * 200 // 2**20} MiB); plan "
-            "it with --occluded completed, or pick a smaller object (--pick X Y Z)"
+            f"{MAX_OCCLUDED_VOXELS:,} (about {MAX_OCCLUDED_VOXELS * BYTES_PER_VOXEL // 2**20} "
+            "MiB); plan it with --occluded completed, or pick a smaller object (--pick X Y Z)"
         )
     axes = [lo[k] + v * np.arange(shape[k]) for k in range(3)]
-    G = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)  # (A, B, C, 3) local coordinates
-    Q = G @ F.T  # world
-    grid = hidden(vis, Q)
+
+    def world(ijk: np.ndarray) -> np.ndarray:
+        """(K, 3) world centres of the voxels ``ijk`` (K, 3)."""
+        return np.stack([axes[k][ijk[:, k]] for k in range(3)], axis=1) @ F.T
+
+    # the grid in slabs along its first axis (a few MB of temporaries each, not ~200 bytes a
+    # voxel for the whole grid at once)
+    grid = np.zeros(tuple(int(x) for x in shape), dtype=bool)
+    plane_cells = int(shape[1] * shape[2])
+    step = max(1, SLAB_VOXELS // max(plane_cells, 1))
+    for a0 in range(0, int(shape[0]), step):  # loop over the slabs
+        a1 = min(a0 + step, int(shape[0]))
+        G = np.stack(np.meshgrid(axes[0][a0:a1], axes[1], axes[2], indexing="ij"), axis=-1)
+        grid[a0:a1] = hidden(vis, G @ F.T)
     if prm.carve > 0.0 and np.any(grid):
-        idx = np.flatnonzero(grid.ravel())
-        d, _ = cKDTree(real).query(Q.reshape(-1, 3)[idx], distance_upper_bound=prm.carve)
-        flat = grid.ravel()
-        flat[idx[np.isfinite(d)]] = False
-        grid = flat.reshape(grid.shape)
+        tree = cKDTree(real)
+        idx = np.flatnonzero(grid)
+        flat = grid.reshape(-1)
+        for c0 in range(0, len(idx), SLAB_VOXELS):  # loop over chunks of hidden voxels
+            part = idx[c0 : c0 + SLAB_VOXELS]
+            q = world(np.stack(np.unravel_index(part, grid.shape), axis=1))
+            d, _ = tree.query(q, distance_upper_bound=prm.carve)
+            flat[part[np.isfinite(d)]] = False
     inner = ndimage.binary_erosion(grid, border_value=0)
     s = max(int(prm.interior_step), 1)
-    ii, jj, kk = np.meshgrid(*(np.arange(k) for k in shape), indexing="ij")
-    lattice = (ii % s == 0) & (jj % s == 0) & (kk % s == 0)
+    on = [np.arange(k) % s == 0 for k in shape]
+    lattice = on[0][:, None, None] & on[1][None, :, None] & on[2][None, None, :]
     keep = (grid & ~inner) | (inner & lattice)
-    pts = np.ascontiguousarray(Q[keep])
+    pts = np.ascontiguousarray(world(np.argwhere(keep)))
     to_cam = vp - pts
     nrm = to_cam / np.maximum(np.linalg.norm(to_cam, axis=1, keepdims=True), 1e-12)
     for a in (pts, nrm, grid):

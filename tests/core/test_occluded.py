@@ -25,7 +25,7 @@ from pregrasp_core.facemask import SupportPlane
 from pregrasp_core.io import load_point_cloud
 from pregrasp_core.paths import OBJECTS_DIR
 from pregrasp_core.pipeline import PipelineParams, run_pipeline
-from pregrasp_core.sensor import prepare_view
+from pregrasp_core.sensor import occluded, prepare_view
 from pregrasp_core.sensor.occluded import MAX_OCCLUDED_VOXELS, OccludedParams, occupied_space
 from pregrasp_core.sensor.synthetic import LABEL_OBJECT, orbit_camera, render_view
 from pregrasp_core.sensor.truth import MeshDistance, check_grasp
@@ -55,7 +55,7 @@ def segment_enters_box(cam: np.ndarray, q: np.ndarray, lo: np.ndarray, hi: np.nd
     return (tmin <= tmax) & (tmax >= 0.0) & (tmin <= 1.0)
 
 
-def test_occupied_region_of_a_box_seen_from_one_side_is_its_shadow(make_views) -> None:
+def test_occupied_region_of_a_box_seen_from_one_side_is_its_shadow(make_views, monkeypatch) -> None:
     mv = make_views
     size = np.array([0.08, 0.05, 0.12])
     mesh = trimesh.creation.box(size)
@@ -97,6 +97,10 @@ def test_occupied_region_of_a_box_seen_from_one_side_is_its_shadow(make_views) -
     d, _ = cKDTree(occ.points).query(centres[got])
     assert d.max() <= np.sqrt(3) * occ.voxel + 1e-9
     assert len(occ.points) < 0.5 * got.sum()  # the interior is thinned
+    # built in slabs of any size: the same grid and points (a slab of 997 voxels cuts rows)
+    monkeypatch.setattr(occluded, "SLAB_VOXELS", 997)
+    small = occupied_space(sv.points[~sv.assumed], sv.points, vp, sv.plane, prm)
+    assert np.array_equal(small.grid, occ.grid) and np.array_equal(small.points, occ.points)
 
 
 def test_no_finger_enters_the_hidden_handle_with_occupied(make_views, tmp_path: Path) -> None:
@@ -143,7 +147,7 @@ def test_occluded_must_be_a_known_setting() -> None:
 
 def test_a_hidden_space_too_large_is_refused_before_its_grid() -> None:
     """A 1.2 m crate seen from one side would need (1.24 / 0.003)**3 = 70 million voxels
-    (about 14 GB at the measured 200 bytes per voxel): refused with the way out in the message,
+    (about 1.4 GB at the measured 20 bytes per voxel): refused with the way out in the message,
     not allocated."""
     rng = np.random.default_rng(0)
     front = np.column_stack(
