@@ -84,6 +84,39 @@ def test_view_takes_the_sensor_flags_of_plan(monkeypatch, tmp_path: Path) -> Non
     assert config.scale == 0.5 and config.input == DEMO
 
 
+def test_view_plans_with_the_occluded_space_occupied(monkeypatch) -> None:
+    """`pregrasp view --occluded occupied` hands the setting to the viewer (the same option as
+    `pregrasp plan`), and the app plans the depth demo with it: the grasps are those of
+    ``run_pipeline`` with that setting, their contacts on the cloud's own points."""
+    import viser
+
+    import app.server
+    from app.server import ViewerConfig, run
+    from pregrasp_core.pipeline import PipelineParams, run_pipeline
+
+    seen: list[app.server.ViewerConfig] = []
+    monkeypatch.setattr(app.server, "serve", seen.append)
+    assert main(["view", str(DEMO), "--port", "0", "--occluded", "occupied"]) == 0
+    (config,) = seen
+    assert config.params.occluded == "occupied"
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    viewer = run(ViewerConfig(input=DEMO, params=config.params, plan_on_start=True), server)
+    try:
+        _wait_idle(viewer.controller)
+        s = viewer.controller.state
+        assert s.error == "" and s.planned
+        res = s.result
+        assert res.params.occluded == "occupied"
+        ref = run_pipeline(res.cloud, PipelineParams(occluded="occupied"), until="grasps")
+        assert ref.grasps is not None and res.grasps is not None
+        assert [g.pregrasp for g in res.grasps.ranked] == [g.pregrasp for g in ref.grasps.ranked]
+        n = len(res.cloud.points)
+        assert all(c.point_index < n for g in res.grasps.ranked for c in g.contacts)
+    finally:
+        viewer.close()
+        server.stop()
+
+
 def test_view_bad_sensor_flag_is_a_clean_error(capsys) -> None:
     assert main(["view", str(DEMO), "--intrinsics", "420", "420", "239.5"]) != 0
     assert "--intrinsics: give four numbers" in capsys.readouterr().err
