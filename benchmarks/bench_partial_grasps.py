@@ -94,11 +94,17 @@ def main() -> int:
         "--occluded-margin", type=float, default=None, metavar="M",
         help="OccludedParams.margin of the occupied setting (default: its default)",
     )  # fmt: skip
+    parser.add_argument(
+        "--occluded-carve", type=float, default=None, metavar="D",
+        help="OccludedParams.carve of the occupied setting (default: its default)",
+    )  # fmt: skip
     args = parser.parse_args()
-    if args.occluded_margin is not None:
-        occluded.DEFAULT_OCCLUDED = dataclasses.replace(
-            occluded.DEFAULT_OCCLUDED, margin=args.occluded_margin
-        )
+    for name in ("margin", "carve"):
+        value = getattr(args, f"occluded_{name}")
+        if value is not None:
+            occluded.DEFAULT_OCCLUDED = dataclasses.replace(
+                occluded.DEFAULT_OCCLUDED, **{name: value}
+            )
     manifest = views_manifest(args.views)
     if manifest is None:
         return 1
@@ -117,7 +123,8 @@ def main() -> int:
           f"one BLAS thread, assumed_clearance {params.planner.assumed_clearance * 1e3:.1f} mm, "
           f"smoothing {'off' if args.no_smooth else 'on'}, "
           f"occluded {' / '.join(args.occluded)} (margin "
-          f"{occluded.DEFAULT_OCCLUDED.margin * 1e3:.0f} mm), load "
+          f"{occluded.DEFAULT_OCCLUDED.margin * 1e3:.0f} mm, carve "
+          f"{occluded.DEFAULT_OCCLUDED.carve * 1e3:.0f} mm), load "
           f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}; {' '.join(sys.argv[1:])}")  # fmt: skip
     print(
         f"{'object':<12} {'cam':>3} {'noise':>5} {'occluded':<9} {'kept':>4} {'fc':>4} {'eps':>6} "

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 import trimesh
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from app.cli import main
 from pregrasp_core.errors import WorkLimitError
@@ -101,6 +102,30 @@ def test_occupied_region_of_a_box_seen_from_one_side_is_its_shadow(make_views, m
     monkeypatch.setattr(occluded, "SLAB_VOXELS", 997)
     small = occupied_space(sv.points[~sv.assumed], sv.points, vp, sv.plane, prm)
     assert np.array_equal(small.grid, occ.grid) and np.array_equal(small.points, occ.points)
+
+
+def test_occupied_region_moves_with_the_scene(make_views) -> None:
+    """A rigid motion of a view (its points, camera and table) moves the hidden region with
+    it: the same voxels (the grid's frame is the table's and the view's), the obstacle points
+    moved by the motion."""
+    mv = make_views
+    mesh = trimesh.load(OBJECTS_DIR / "mug.obj", force="mesh")
+    view = mv.make_view(mesh, mv.AZIMUTHS_DEG[2], 0.0, mv.view_seed("mug", 2, 0.0))
+    pts, _ = view.points_world()
+    vp = view.T_world_camera[:3, 3]
+    R = Rotation.from_euler("xyz", [25.0, -40.0, 110.0], degrees=True).as_matrix()
+    t = np.array([0.3, -1.2, 0.7])
+    sv = prepare_view(pts, vp)
+    seen, real = sv.points[~sv.assumed], sv.points
+    a = occupied_space(seen, real, vp, sv.plane)
+    n = R @ sv.plane.normal
+    plane = SupportPlane(n, float(sv.plane.height + n @ t))
+    b = occupied_space(seen @ R.T + t, real @ R.T + t, R @ vp + t, plane)
+    assert a.grid.shape == b.grid.shape
+    assert np.mean(a.grid != b.grid) < 1e-3  # a few voxels on the boundary by rounding
+    moved = a.points @ R.T + t
+    d, _ = cKDTree(b.points).query(moved)
+    assert np.mean(d < 1e-6) > 0.99
 
 
 def test_no_finger_enters_the_hidden_handle_with_occupied(make_views, tmp_path: Path) -> None:
