@@ -24,8 +24,9 @@ Usage: .venv/bin/python scripts/make_views.py /tmp/pregrasp_views   (once)
                                                [--occluded completed occupied]
 
 ``--occluded`` with several settings plans each view with each of them in turn (interleaved, one
-run) and prints one table per setting; ``kept`` is the number of kept grasps, ``cpu s`` the
-CPU seconds of the view (this process and the planner's forked copies: ``os.times``).
+run) and prints one table per setting; ``kept`` is the number of kept grasps (the tables add
+the pre-grasps left in the pool by its collision filter), ``cpu s`` the CPU seconds of the
+view (this process and the planner's forked copies: ``os.times``).
 """
 
 from __future__ import annotations
@@ -73,6 +74,7 @@ class Row:
     cont: float = np.inf
     copy: float = np.nan
     kept: int = 0
+    pool: int = 0
     cpu: float = 0.0
     mode: str = "completed"
 
@@ -153,6 +155,7 @@ def main() -> int:
         parts = len(res.tree.leaves())
         row = Row(name, float(e["noise_m"]), parts, full_parts.get(name, -1))
         row.kept, row.cpu, row.mode = len(gs.ranking), cpu, mode
+        row.pool = len(res.pool) if res.pool is not None else 0
         best = gs.best
         if best is None and len(gs.ranking):
             best = int(gs.ranking[0])
@@ -197,9 +200,11 @@ def main() -> int:
         lean = (f"{np.median(cp):+.1f} / {np.median(np.abs(cp)):.1f} / {np.abs(cp).max():.1f}"
                 if len(cp) else "-")  # fmt: skip
         kept = np.array([r.kept for r in rs])
+        pool = np.array([r.pool for r in rs])
         cpu = np.array([r.cpu for r in rs])
         return (f"| {label} | {fc}/{n} | {med(pm)} | {pen}/{n} | {med(cm)} | {cont}/{n} | "
-                f"{both}/{n} | {parts}/{n} | {lean} | {int(np.median(kept))} / {kept.sum()} | "
+                f"{both}/{n} | {parts}/{n} | {lean} | {pool.sum()} | "
+                f"{int(np.median(kept))} / {kept.sum()} | "
                 f"{np.median(cpu):.2f} / {cpu.max():.2f} |")  # fmt: skip
 
     for mode in args.occluded:
@@ -210,9 +215,10 @@ def main() -> int:
             "| views | best grasp force closure | penetration median / worst (mm) | "
             "penetration <= 2 mm | contact median / worst (mm) | contacts within 3 mm | "
             "all three | parts within 1 | copies' median signed distance: median / median abs "
-            "/ worst abs (mm) | grasps kept median / sum | CPU s per view median / worst |"
+            "/ worst abs (mm) | pre-grasps in the pool (sum) | grasps kept median / sum | "
+            "CPU s per view median / worst |"
         )
-        print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+        print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
         for name in sorted({r.object for r in mine}):
             print(summary(name, [r for r in mine if r.object == name]))
         for noise in sorted({r.noise for r in mine}):
