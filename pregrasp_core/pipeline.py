@@ -228,8 +228,15 @@ def _run_stages(
     result of the same cloud or None); the normals from ``background`` when it computes them."""
     points = np.asarray(cloud.points, dtype=np.float64)
     pp = prev.params if prev is not None else None
-    occ = occupied_of(cloud, params) if last >= 3 else None  # the hidden space, or None
-    obstacles = points if occ is None else np.concatenate([points, occ.points])
+    hidden: list[OccupiedSpace | None] = []  # the view's hidden space (once, when needed)
+
+    def obstacles() -> tuple[np.ndarray, OccupiedSpace | None]:
+        """The points the pool and the planner must clear, and the hidden space or None."""
+        if not hidden:
+            hidden.append(occupied_of(cloud, params))
+        occ = hidden[0]
+        return (points if occ is None else np.concatenate([points, occ.points])), occ
+
     timings: dict[str, float] = {}
     reused: list[str] = []
     out: dict[str, Any] = {}
@@ -293,7 +300,7 @@ def _run_stages(
         def _pool() -> dict[str, Any]:
             trav = traverse(out["tree"], out["shapes"], run_hand, params.sampling, params.shape)
             pool = build_pool(
-                obstacles,
+                obstacles()[0],
                 out["tree"],
                 out["shapes"],
                 out["masks"],
@@ -342,11 +349,12 @@ def _run_stages(
             assert hand is not None  # loaded by the pool stage above
             masks = out["masks"]
             normals, assumed = out["normals"], cloud.assumed
+            geom, occ = obstacles()
             if occ is not None:  # the obstacle points after the cloud's (planner/assumed.py)
                 normals = np.concatenate([normals, occ.normals])
                 assumed = np.concatenate([assumed, np.zeros(len(occ.points), dtype=bool)])
             gs = plan_grasps(
-                obstacles,
+                geom,
                 normals,
                 out["pool"],
                 run_hand,

@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from app.cli import main
+from pregrasp_core import pipeline
 from pregrasp_core.errors import WorkLimitError
 from pregrasp_core.facemask import SupportPlane
 from pregrasp_core.io import load_point_cloud
@@ -128,7 +129,9 @@ def test_occupied_region_moves_with_the_scene(make_views) -> None:
     assert np.mean(d < 1e-6) > 0.99
 
 
-def test_no_finger_enters_the_hidden_handle_with_occupied(make_views, tmp_path: Path) -> None:
+def test_no_finger_enters_the_hidden_handle_with_occupied(
+    make_views, tmp_path: Path, monkeypatch
+) -> None:
     """The plain mug from camera 2 (its handle behind the cup) at 1 mm of noise: the completion
     makes a cup without a handle and, with ``completed``, the best grasp wraps the back and put
     a finger 3.4 mm into the handle (measured, docs/partial-views.md). With ``occupied`` none
@@ -156,6 +159,20 @@ def test_no_finger_enters_the_hidden_handle_with_occupied(make_views, tmp_path: 
             assert c.point_index < n
             assert np.array_equal(c.point, cloud.points[c.point_index])
             assert c.assumed == bool(cloud.assumed[c.point_index])
+    # a run that reuses the pool and the grasps does not build the hidden space again; a run
+    # with the other setting plans again, without it
+    calls: list[int] = []
+    real_occupied = pipeline.occupied_space
+    monkeypatch.setattr(
+        pipeline, "occupied_space", lambda *a, **k: calls.append(1) or real_occupied(*a, **k)
+    )
+    again = run_pipeline(cloud, res.params, res.hand, until="grasps", previous=res)
+    assert "grasps" in again.reused and again.grasps is res.grasps and not calls
+    other = run_pipeline(cloud, PipelineParams(), res.hand, until="grasps", previous=res)
+    assert "pool" not in other.reused and not calls
+    back = run_pipeline(cloud, res.params, res.hand, until="grasps", previous=other)
+    assert calls == [1]
+    assert [g.pregrasp for g in back.grasps.ranked] == [g.pregrasp for g in gs.ranked]
     # the result file says which setting ran, and the command line takes the option
     out = tmp_path / "mug.json"
     assert main(["plan", str(path), "--occluded", "occupied", "-o", str(out)]) == 0
