@@ -661,8 +661,15 @@ def _button_click(handle):
 def test_a_browser_edit_is_not_lost_to_a_state_committed_meanwhile(app):
     """viser stores a browser's value and runs the control's callback later on its thread pool;
     states committed in between (progress reports of a plan, another browser's actions) must not
-    put the old value back before the callback reads it. Here another thread commits states
-    without pause while a browser toggles the face masks 20 times: every toggle lands."""
+    put the old value back before the callback reads it. Here another thread commits a state
+    every millisecond (30 times the animation's rate; each commit renders and mirrors the
+    state, 3-4 ms) while a browser toggles the face masks 40 times: every toggle lands. With
+    the guard off (``Gui._editing`` empty) 4 of 4 runs lost a toggle (2026-12-03).
+
+    The storm pauses 1 ms between commits: a thread that re-takes the controller's lock and
+    the GIL at once starves the callback thread on an idle 2-core machine (toggles took up to
+    6.2 s to land, 20 toggles 23-45 s; with a busy second core 0.02 s each), which tested
+    CPython's lock and GIL hand-over, not the guard (it failed CI once at 5 s)."""
     import dataclasses
     import threading
 
@@ -677,13 +684,14 @@ def test_a_browser_edit_is_not_lost_to_a_state_committed_meanwhile(app):
         while not stop.is_set():
             k += 1
             c.update(lambda s, k=k: dataclasses.replace(s, message=f"progress {k}"))
+            time.sleep(0.001)
 
     t = threading.Thread(target=storm, daemon=True)
     b = Browser(app.server.get_port())
     t.start()
     try:
         _wait(lambda: b.messages, 10, "connected")
-        for _ in range(20):
+        for _ in range(40):
             want = not c.state.view.show_face_masks
             b.set_value(masks, want)
             _wait(lambda w=want: c.state.view.show_face_masks == w, 5, "the toggle to land")
