@@ -6,7 +6,25 @@ allows, which says nothing about the code under test. The check is turned off fo
 every other health check, and every example count, stays as each test sets it.
 """
 
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
 from hypothesis import HealthCheck, settings
 
 settings.register_profile("pregrasp", suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("pregrasp")
+
+
+@pytest.fixture(scope="session")
+def make_views() -> ModuleType:
+    """``scripts/make_views.py`` (the generator of the single-view test data) as a module."""
+    path = Path(__file__).resolve().parents[1] / "scripts" / "make_views.py"
+    spec = importlib.util.spec_from_file_location("make_views", path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["make_views"] = mod
+    spec.loader.exec_module(mod)
+    return mod

@@ -8,11 +8,8 @@ completed view's best grasp put a finger 3.4 mm into the handle, ``docs/partial-
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 import pytest
@@ -31,18 +28,6 @@ from pregrasp_core.sensor import occluded, prepare_view
 from pregrasp_core.sensor.occluded import MAX_OCCLUDED_VOXELS, OccludedParams, occupied_space
 from pregrasp_core.sensor.synthetic import LABEL_OBJECT, orbit_camera, render_view
 from pregrasp_core.sensor.truth import MeshDistance, check_grasp
-
-REPO = Path(__file__).resolve().parents[2]
-
-
-@pytest.fixture(scope="module")
-def make_views() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("make_views", REPO / "scripts" / "make_views.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["make_views"] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def segment_enters_box(cam: np.ndarray, q: np.ndarray, lo: np.ndarray, hi: np.ndarray):

@@ -12,8 +12,6 @@ assumed-point clearance and the smoothing of noisy views (up to 16 mm inside the
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -30,18 +28,6 @@ from pregrasp_core.sensor import segment_table
 from pregrasp_core.sensor.smooth import smooth_view
 from pregrasp_core.sensor.synthetic import LABEL_OBJECT, orbit_camera, render_view
 from pregrasp_core.sensor.truth import MeshDistance, check_grasp
-
-REPO = Path(__file__).resolve().parents[2]
-
-
-@pytest.fixture(scope="module")
-def make_views() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("make_views", REPO / "scripts" / "make_views.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["make_views"] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def view_of(mv: ModuleType, name: str, cam: int, noise: float):
