@@ -827,6 +827,10 @@ class Controller:
         """Show or hide the pre-grasp ghosts."""
         return self._set_view(show_ghosts=bool(visible))
 
+    def set_hidden_space_visible(self, visible: bool) -> AppState:
+        """Show or hide the hidden space of an ``--occluded occupied`` view (no re-plan)."""
+        return self._set_view(show_hidden_space=bool(visible))
+
     def set_ghost_filter(self, grasp_type: str | None = None, node: Any = "keep") -> AppState:
         """Filter the ghosts by grasp type (:data:`ALL` for all) and/or node (``None`` = all)."""
         changes: dict[str, Any] = {}

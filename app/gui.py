@@ -241,6 +241,12 @@ class Gui:
             )
             self.show_ghosts = gui.add_checkbox("hand ghosts", c.state.view.show_ghosts)
             self.show_ghosts.on_update(lambda e: self._do(e, c.set_ghosts_visible, e.target.value))
+            self.show_hidden = gui.add_checkbox(
+                "hidden space", c.state.view.show_hidden_space, disabled=True
+            )
+            self.show_hidden.on_update(
+                lambda e: self._do(e, c.set_hidden_space_visible, e.target.value)
+            )
             self.ghost_type = gui.add_dropdown("grasp type", (ALL, *GRASP_TYPES))
             self.ghost_type.on_update(lambda e: self._do(e, self._ghost_type, e.target.value))
             self.ghost_node = gui.add_dropdown("node", (ALL,))
@@ -597,6 +603,7 @@ class Gui:
         out += [
             ("show_masks", self.show_masks, s.view.show_face_masks),
             ("show_ghosts", self.show_ghosts, s.view.show_ghosts),
+            ("show_hidden", self.show_hidden, s.view.show_hidden_space),
             ("ghost_type", self.ghost_type, s.view.ghost_type),
             ("phase", self.phase, round(float(min(s.view.anim_t, 1.0)), 2)),
             ("speed", self.speed, float(s.view.speed)),
@@ -679,6 +686,8 @@ class Gui:
             self._set("units_fix.label", self.units_fix, "label", fix[1])
         scene = getattr(s.cloud, "sensor", None) is not None
         self._set("pick_mode.disabled", self.pick_mode, "disabled", not scene)
+        hidden = getattr(s.result, "occupied", None) is not None  # --occluded occupied views
+        self._set("show_hidden.disabled", self.show_hidden, "disabled", not hidden)
         if s.loaded is not None:  # a result file: nothing to plan or export again
             self._set("plan.disabled", self.plan, "disabled", True)
             self._set("export.disabled", self.export, "disabled", True)
@@ -743,13 +752,17 @@ class Gui:
         kept = int(ghost_selection(pool, s.view.ghost_type, s.view.ghost_node).sum())
         dropped = getattr(pool, "dropped", {}) or {}
         drops = ", ".join(f"{md_text(k)}: {md_text(v)}" for k, v in dropped.items()) or "none"
-        self._set(
-            "pool_info",
-            self.pool_info,
-            "content",
+        text = (
             f"pool: {len(pool)} pre-grasps, {kept} pass the filters, "
-            f"{self.scene.n_ghosts_shown} ghosts drawn; dropped: {drops}",
+            f"{self.scene.n_ghosts_shown} ghosts drawn; dropped: {drops}"
         )
+        occ = getattr(s.result, "occupied", None)
+        if occ is not None:  # the hidden space the pool and the planner kept the hand out of
+            text += (
+                f"\n\nhidden space (occupied): {occ.volume * 1e6:.0f} cm^3, "
+                f"{len(occ.points)} obstacle points, {self.scene.n_hidden_points_shown} drawn"
+            )
+        self._set("pool_info", self.pool_info, "content", text)
 
     def _sync_grasp_options(self, s: AppState) -> None:
         ranked = ranked_grasps(s.result) if s.planned else []
@@ -946,6 +959,11 @@ LEGEND = (
     ("yellow dots", "contacts of the chosen grasp"),
     ("yellow cones", "their friction cones, as scored (half-angle atan mu)"),
     ("dark slate points", "the unseen back of a single depth view, assumed by symmetry"),
+    (
+        "pale blue points",
+        "the space hidden behind a single depth view, kept free of the hand (--occluded "
+        "occupied; the boundary of its 3 mm voxels; tick 'hidden space' to show or hide it)",
+    ),
     ("orange dots and cones", "contacts on assumed (dark) points: the grasp rests on a guess"),
     ("light grey points", "the table of a depth-camera scene (removed from the object)"),
     ("brown points", "other objects of the scene: tick 'click picks the object', click one"),

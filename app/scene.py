@@ -20,6 +20,8 @@ import viser
 
 from .scene_data import (
     GHOST_THICKNESS,
+    HIDDEN_POINTS,
+    HIDDEN_RGB,
     animation_pose,
     assumed_contacts,
     attr_or_none,
@@ -35,6 +37,7 @@ from .scene_data import (
     ghost_segments,
     ghost_selection,
     hand_ghost_segments,
+    hidden_space_points,
     node_color,
     node_colors,
     pool_types,
@@ -51,6 +54,7 @@ logger = logging.getLogger(__name__)
 NAMES = {
     "cloud": "/object/cloud",
     "scene": "/object/scene",
+    "hidden": "/object/hidden",
     "boxes": "/boxes",
     "box_edges": "/box_edges",
     "faces_free": "/facemasks/free",
@@ -65,7 +69,8 @@ NAMES = {
 """Fixed scene names of everything the renderer draws."""
 
 LIFT_HIDDEN = (
-    "box_edges", "selected_edges", "faces_free", "faces_blocked", "subfaces", "contacts", "cones"
+    "box_edges", "selected_edges", "faces_free", "faces_blocked", "subfaces", "contacts", "cones",
+    "hidden",
 )  # fmt: skip
 """Layers hidden (with the boxes and ghosts) while a simulated lift is shown: they are drawn
 where the object rested, not where the simulation moves it."""
@@ -93,6 +98,10 @@ viewer")."""
 CLOUD_SHADING: Literal["flat"] = "flat"
 """Shading of the cloud's points: one even colour per point (viser's default "gradient" shades
 each point like a ball, which costs a square root per pixel and carries no information)."""
+HIDDEN_POINT_SIZE = 0.4
+"""Size of the hidden space's points, in voxels (3 mm voxels: 1.2 mm points 3 mm apart). viser's
+point clouds have no opacity: the gaps between the points let the object and the hand show
+through the layer instead."""
 TABLE_EXTENT = 1.5
 """Side of the table grid, in object diagonals (it shows the support plane; every pixel of it
 is shaded in each frame)."""
@@ -135,6 +144,9 @@ class SceneRenderer:
         """Of those, the contacts on assumed points (drawn in :data:`ASSUMED_CONTACT_RGB`)."""
         self.n_scene_points_shown = 0
         """Points of the depth-camera scene (table, other objects) drawn behind the object."""
+        self.n_hidden_points_shown = 0
+        """Points of the hidden-space layer drawn (the boundary of ``PipelineResult.occupied``,
+        at most :data:`~app.scene_data.HIDDEN_POINTS`)."""
         self.n_faces_shown = (0, 0)
         """(free, blocked) face quads currently in the scene."""
         server.scene.set_up_direction("+z")
@@ -183,6 +195,7 @@ class SceneRenderer:
         self._draw_cloud(state)
         self._draw_boxes(state)
         self._draw_faces(state)
+        self._draw_hidden(state)
         self._draw_ghosts(state)
         self._draw_grasp(state)
         self._pose_hand(state)
@@ -202,6 +215,11 @@ class SceneRenderer:
         masks_changed = attr_or_none(lres, "masks") is not attr_or_none(res, "masks")
         if level_changed or masks_changed or lv.show_face_masks != v.show_face_masks:
             self._draw_faces(state)
+        if (
+            attr_or_none(lres, "occupied") is not attr_or_none(res, "occupied")
+            or lv.show_hidden_space != v.show_hidden_space
+        ):
+            self._draw_hidden(state)
         if (
             attr_or_none(lres, "pool") is not attr_or_none(res, "pool")
             or lv.show_ghosts != v.show_ghosts
@@ -387,6 +405,26 @@ class SceneRenderer:
             )
         else:
             self._remove("subfaces")
+
+    def _draw_hidden(self, state: AppState) -> None:
+        """The space hidden behind a single depth view that the pool and the planner kept the
+        hand out of (``--occluded occupied``): its boundary voxels as one pale point cloud, or
+        nothing (a complete cloud, ``completed``, the layer switched off)."""
+        occ = attr_or_none(state.result, "occupied")
+        pts = hidden_space_points(occ if state.view.show_hidden_space else None, HIDDEN_POINTS)
+        self.n_hidden_points_shown = len(pts)
+        if not len(pts):
+            self._remove("hidden")
+            return
+        self._handles["hidden"] = self.server.scene.add_point_cloud(
+            NAMES["hidden"],
+            points=pts.astype(np.float32),
+            colors=HIDDEN_RGB,
+            point_size=HIDDEN_POINT_SIZE * float(occ.voxel),
+            precision="float32",
+            point_shape="rounded",
+            point_shading=CLOUD_SHADING,
+        )
 
     def _draw_ghosts(self, state: AppState) -> None:
         """The filtered pool (at most ``max_ghosts``, an even subsample) as line outlines: each

@@ -48,6 +48,9 @@ class ViewState:
     show_ghosts: bool = False
     """Draw (a capped subset of) the pre-grasp pool as translucent hand ghosts; off at start, so
     the first screen shows the object, its boxes and the best grasp."""
+    show_hidden_space: bool = True
+    """Draw the space hidden behind a single depth view when it was planned with ``--occluded
+    occupied`` (``PipelineResult.occupied``; nothing to draw otherwise)."""
     ghost_type: str = ALL
     """Grasp-type filter of the ghosts (a ``GraspType`` value or :data:`ALL`)."""
     ghost_node: int | None = None
@@ -74,6 +77,7 @@ class ViewState:
         return ViewState(
             show_face_masks=self.show_face_masks,
             show_ghosts=self.show_ghosts,
+            show_hidden_space=self.show_hidden_space,
             speed=self.speed,
             **changes,
         )

@@ -127,6 +127,11 @@ class PipelineResult:
     """Stages taken unchanged from the ``previous`` result."""
     hand: Hand | None = None
     """The hand the pool was built for, or ``None``."""
+    occupied: OccupiedSpace | None = None
+    """The hidden space of a single view that the pool and the planner kept the hand out of
+    (``params.occluded == "occupied"``; ``sensor/occluded.py``), the very object they used (the
+    viewer draws it, nothing computes it again); ``None`` for a complete cloud, for
+    ``completed`` and for a run that stops before the pool. Not in the result file."""
 
 
 def _same_cloud(a: PointCloud, b: PointCloud) -> bool:
@@ -229,6 +234,9 @@ def _run_stages(
     points = np.asarray(cloud.points, dtype=np.float64)
     pp = prev.params if prev is not None else None
     hidden: list[OccupiedSpace | None] = []  # the view's hidden space (once, when needed)
+    if prev is not None and prev.occupied is not None and pp is not None:
+        if pp.occluded == params.occluded:  # the same cloud and setting: the same space
+            hidden.append(prev.occupied)
 
     def obstacles() -> tuple[np.ndarray, OccupiedSpace | None]:
         """The points the pool and the planner must clear, and the hidden space or None."""
@@ -383,6 +391,7 @@ def _run_stages(
         timings=timings,
         reused=tuple(reused),
         hand=hand if last >= 3 else (prev.hand if prev is not None else None),
+        occupied=hidden[0] if hidden and last >= 3 else None,
         **out,
     )
 
