@@ -11,9 +11,7 @@ shows and hides it without running the pipeline.
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
-import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,17 +30,7 @@ from pregrasp_core.paths import OBJECTS_DIR
 from pregrasp_core.pipeline import PipelineParams
 from pregrasp_core.sensor.synthetic import LABEL_OBJECT
 
-REPO = Path(__file__).resolve().parents[2]
 OCCUPIED = PipelineParams(occluded="occupied")
-
-
-def _make_views() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("make_views", REPO / "scripts" / "make_views.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["make_views"] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
 @dataclass(frozen=True)
@@ -58,8 +46,8 @@ class CanView:
 
 
 @pytest.fixture(scope="module")
-def can_view(tmp_path_factory) -> CanView:
-    mv = _make_views()
+def can_view(make_views: ModuleType, tmp_path_factory) -> CanView:
+    mv = make_views
     mesh = trimesh.load(OBJECTS_DIR / "can_soda.obj", force="mesh")
     view = mv.make_view(mesh, mv.AZIMUTHS_DEG[0], 0.0, mv.view_seed("can_soda", 0, 0.0))
     pts, lab = view.points_world()
