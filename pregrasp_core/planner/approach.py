@@ -9,7 +9,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..geometry import box_corners, to_frame
 from ..tolerances import GEOM_EPS
 from .context import Context, View
 from .kernels import kernels
@@ -23,10 +22,13 @@ APPROACH_WINDOW: float = 0.03
 """First approach window (metres): pairs are first gathered for this much travel only."""
 
 
-def _approach(ctx: Context, T0: np.ndarray, q: np.ndarray, c0: np.ndarray) -> tuple[float, str]:
+def _approach(
+    ctx: Context, T0: np.ndarray, q: np.ndarray, cm: np.ndarray, cp: np.ndarray
+) -> tuple[float, str]:
     """Travel along hand +z until a box is ``approach_clearance`` from the cloud/support.
 
-    ``c0`` (C, 3): the cloud's cell centres in the frame of the hand at the pre-grasp pose. The
+    ``cm``, ``cp`` (C, 3): the bounds of the cloud's cells' balls in the frame of the hand at
+    the pre-grasp pose (``kernels.cells_in_frame``). The
     candidate (point, link) pairs are the points in each link's swept window: the hand-frame
     AABB of its box grown by the clearance and stretched ahead by the travel window. The cells
     whose balls meet a window give the candidates; the exact window test and the exact slab
@@ -38,15 +40,13 @@ def _approach(ctx: Context, T0: np.ndarray, q: np.ndarray, c0: np.ndarray) -> tu
     s_sup = np.inf
     if ctx.support is not None:
         n = np.asarray(ctx.support.normal, dtype=np.float64)
-        corners = box_corners(Tb, ctx.half) @ T0[:3, :3].T + T0[:3, 3]  # (8L, 3) world
+        corners = ctx.corners(q) @ T0[:3, :3].T + T0[:3, 3]  # (8L, 3) world
         heights = corners @ n - (ctx.support.height + c)
         rate = float(n @ T0[:3, 2])  # height change per metre of approach
         s_sup = max(float(heights.min()), 0.0) / -rate if rate < -GEOM_EPS else np.inf
     s_obj = np.inf
     S_eff = min(S, s_sup)  # the hand cannot travel past the support plane
     wlo, whi = lo - c, hi + c  # (L, 3) each link's window across the approach
-    rad = ctx.cells.radius[:, None]
-    cm, cp = c0 - rad, c0 + rad  # (C, 3) the cells' balls' bounds
     # two passes: a short first window (most approaches end within a few centimetres); a hit
     # beyond it may hide an earlier one by a point it did not gather, so then the full window
     cells, half = ctx.cells, ctx.half + c
@@ -100,8 +100,9 @@ def prepare(ctx: Context, pool: PreGraspPool, i: int) -> Prepared | Grasp:
     spread = float(pool.spread[i])
 
     # 1. approach, with the cloud (its cells) in the frame of the hand at the pre-grasp pose
-    c0 = to_frame(ctx.cells.centre, T0)  # (C, 3)
-    s, stop = _approach(ctx, T0, q0, c0)
+    # (the cell centres as geometry.to_frame gives them, and their balls' bounds)
+    c0, cm, cp = kernels().cells_in_frame(ctx.cells.centre, ctx.cells.radius, T0)  # (C, 3)
+    s, stop = _approach(ctx, T0, q0, cm, cp)
     limit = float(pool.approach_limit[i]) if pool.approach_limit is not None else np.inf
     if s > limit:  # a pinch across a thin part: the fingertips stay on it
         s, stop = max(limit, 0.0), "limit"

@@ -115,6 +115,7 @@ class Context:
         self.slice_planes: dict[tuple[str, float], PlaneArrays] = {}
         self._boxes: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._pairs: dict[bytes, list[tuple[str, str]]] = {}
+        self._corners: dict[bytes, np.ndarray] = {}
         self._lock = threading.Lock()
         # reach: half side of a cube about the palm origin that holds every link box at any
         # configuration (palm half diagonal, or first joint + middle + distal at any flexion)
@@ -163,6 +164,17 @@ class Context:
         if hit is None:
             hit = self.hand.self_collisions(q, self.boxes(q)[0])
             self._store(self._pairs, key, hit)
+        return hit
+
+    def corners(self, q: np.ndarray) -> np.ndarray:
+        """(8 L, 3) ``geometry.box_corners`` of the link boxes at ``q`` in the hand frame
+        (cached: the approach asks for them at every pre-grasp, with a few preshapes)."""
+        key = q.tobytes()
+        hit = self._corners.get(key)
+        if hit is None:
+            hit = box_corners(self.boxes(q)[0], self.half)
+            hit.flags.writeable = False  # (shared by the threads)
+            self._store(self._corners, key, hit)
         return hit
 
     def boxes(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -5,6 +5,7 @@ closing model."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -66,9 +67,10 @@ def finger_slices(
         np.array(view.dz, dtype=np.float64), nrm, shift, band, T_planes, half_width, reach2,
         prm.slice_resolution,
     )  # fmt: skip
+    support = _support_in_hand(ctx, T)  # (the same for every finger of the pose)
     for j, (f, plane) in enumerate(zip(fingers, planes, strict=True)):  # <= 3 fingers
         p_slice = uv[first[j] : first[j + 1]]
-        table = _support_line_2d(ctx, T, plane, 0.5 * f.width, r_all[j])
+        table = _support_line_2d(ctx, support, plane, 0.5 * f.width, r_all[j])
         out.append(
             Slice(
                 f,
@@ -114,29 +116,47 @@ def _plane_arrays(ctx: Context, gt: str, spread: float) -> PlaneArrays:
     return ctx.slice_planes.setdefault(key, hit)
 
 
+def _support_in_hand(ctx: Context, T: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The support plane in the frame of the hand at pose ``T``: ``(normal (3,), height)``, None
+    without a support plane (:func:`_support_line_2d`'s per-pose part)."""
+    if ctx.support is None:
+        return None
+    n_h = T[:3, :3].T @ np.asarray(ctx.support.normal, dtype=np.float64)  # hand frame
+    h_h = float(ctx.support.height) - float(np.asarray(ctx.support.normal) @ T[:3, 3])
+    return n_h, h_h
+
+
+_NO_TRACE: np.ndarray = np.zeros((0, 2))
+_NO_TRACE.flags.writeable = False
+
+
 def _support_line_2d(
-    ctx: Context, T: np.ndarray, plane: FlexionPlane, half_width: float, reach: float
+    ctx: Context,
+    support: tuple[np.ndarray, float] | None,
+    plane: FlexionPlane,
+    half_width: float,
+    reach: float,
 ) -> np.ndarray:
     """(S, 2) points along the support plane's trace in a finger's flexion plane, spaced by
     ``closing_margin`` within ``reach`` of the finger's first joint (the 2D origin; the moving
     links never get farther), so that the closing model stops a link on the
     table as on the object. The trace is raised by ``half_width |n . plane normal|``: the link
     box is that much lower at its side edges when the plane is tilted. Empty without a support
-    plane or when the flexion plane is parallel to it."""
-    if ctx.support is None:
-        return np.zeros((0, 2))
-    n_h = T[:3, :3].T @ np.asarray(ctx.support.normal, dtype=np.float64)  # hand frame
-    h_h = float(ctx.support.height) - float(np.asarray(ctx.support.normal) @ T[:3, 3])
+    plane (``support``: :func:`_support_in_hand` of the hand's pose) or when the flexion plane
+    is parallel to it."""
+    if support is None:
+        return _NO_TRACE
+    n_h, h_h = support
     a, b = float(n_h @ plane.u), float(n_h @ plane.v)
     ab = np.hypot(a, b)
     if ab < 1e-6:
-        return np.zeros((0, 2))
+        return _NO_TRACE
     target = h_h + half_width * abs(float(n_h @ plane.normal)) - float(n_h @ plane.origin)
     foot = target * np.array([a, b]) / ab**2  # nearest point of the line to the 2D origin
-    along = np.array([-b, a]) / ab
-    d_foot = float(np.linalg.norm(foot))
+    d_foot = math.sqrt(float(foot.dot(foot)))  # (= np.linalg.norm(foot): sqrt(x . x))
     if d_foot > reach:
-        return np.zeros((0, 2))
+        return _NO_TRACE
+    along = np.array([-b, a]) / ab
     half_len = np.sqrt(reach**2 - d_foot**2)  # the chord of the line inside the reach
     step = max(ctx.params.closing_margin, 1e-4)
     t = np.arange(-half_len, half_len + step, step)

@@ -270,6 +270,12 @@ def test_kernels_equal_the_numpy_searches_on_every_pregrasp(mug_plan):
     for i in range(len(pool)):  # loop over the pre-grasps
         T0, q0 = pool.T_world_hand[i], pool.q[i]
         c0 = to_frame(ctx.cells.centre, T0)
+        # the compiled frame change of the cells (prepare's) gives these bits, and the balls'
+        # bounds c0 -/+ radius
+        rad = ctx.cells.radius[:, None]
+        c_k, lo_k, hi_k = ctx_kernels().cells_in_frame(ctx.cells.centre, ctx.cells.radius, T0)
+        assert c_k.tobytes() == c0.tobytes()
+        assert lo_k.tobytes() == (c0 - rad).tobytes() and hi_k.tobytes() == (c0 + rad).tobytes()
         for window in (0.01, 0.03, 0.15):
             s_ref = _ref_approach_sweep(ctx, T0, q0, c0, window)
             Tb, lo, hi = ctx.boxes(q0)
