@@ -61,10 +61,11 @@ def _coarse_sweep(
     t_flat = t.reshape(-1)
     inv_step = np.divide(1.0, step, out=np.full(R, np.inf), where=step > 0)
     names = ("d1x", "d1y", "d2x", "d2y", "cs", "cr", "hm", "top0", "top1", "sp0", "sp1")
+    every = len(pts) == len(B.x)  # every point of the batch, in order (points_of)
     best, free = sweep_kernel()(
         np.stack([flat[f] for f in names]), np.ascontiguousarray(t_flat), inv_step,
-        n_t.astype(np.int64), best.astype(np.int64), np.ascontiguousarray(B.x[pts]),
-        np.ascontiguousarray(B.y[pts]), rows.astype(np.int64), C1, float(B.margin),
+        n_t.astype(np.int64), best.astype(np.int64), B.x if every else B.x[pts],
+        B.y if every else B.y[pts], rows.astype(np.int64, copy=False), C1, float(B.margin),
         bool(links[0]), bool(links[1]),
     )  # fmt: skip
     k_first = np.where(best < n_t, best, -1)
@@ -101,13 +102,14 @@ def batch_first_events(
     t_end: np.ndarray,
     n_steps: int,
     links: tuple[bool, bool],
-    may_touch: np.ndarray | None = None,
+    candidates: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> BatchEvents:
     """The first event of a closing phase (as ``closing``'s single-slice version) for the
     slices ``sl`` (R,) (distinct, increasing) with paths ``min(qb + A t, upper)`` (qb (R, 2))
     and parameter ranges ``t_end`` (R,), level by level for all slices together.
-    ``may_touch`` (N,) bool: only these points can touch a link along the paths (an exact
-    superset; None: all points)."""
+    ``candidates``: ``(pts, rows)`` as :func:`~pregrasp_core.hand.batch_hits.points_of` gives
+    them for ``sl``, less the points that cannot touch a link along the paths (an exact
+    superset of those that can); None: every point of the slices."""
     R = len(sl)
     upper = B.upper[sl]
     m = B.margin
@@ -117,10 +119,7 @@ def batch_first_events(
     t = np.arange(n_steps + 1, dtype=np.float64)[None, :] * step[:, None]
     t += 0.0
     t[:, -1] = np.where(t_end > 0, t_end, 0.0)
-    pts_all, rows_all = points_of(B, sl)
-    if may_touch is not None:
-        sel = may_touch[pts_all]
-        pts_all, rows_all = pts_all[sel], rows_all[sel]
+    pts_all, rows_all = points_of(B, sl) if candidates is None else candidates
     k, free = _coarse_sweep(B, sl, qb, A, upper, t, n_t, step, pts_all, rows_all, links)
     has = k >= 0
     lo = np.zeros(R)

@@ -40,8 +40,6 @@ class SliceBatch:
     """(N,) int64 slice of each point (non-decreasing)."""
     start: np.ndarray
     """(S + 1,) int64: the points of slice ``s`` are ``P[start[s]:start[s + 1]]``."""
-    source: np.ndarray
-    """(N,) int64 index of each point in its slice's ``points_2d``."""
     margin: float
     """Contact margin (metres)."""
     palm: bool
@@ -164,6 +162,8 @@ def any_hit_ragged(
 def points_of(B: SliceBatch, sl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The points of the slices ``sl`` (R,) (distinct, increasing) and the row of each in
     ``sl``: ``(pts (Np,), rows (Np,))``."""
+    if len(sl) == len(B.start) - 1:  # every slice (sl = 0, 1, ...): every point, in order
+        return np.arange(len(B.seg)), B.seg
     row_of = np.full(len(B.start) - 1, -1, dtype=np.int64)
     row_of[sl] = np.arange(len(sl))
     pts = np.flatnonzero(row_of[B.seg] >= 0)

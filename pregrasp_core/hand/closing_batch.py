@@ -10,7 +10,7 @@ import numpy as np
 
 from ..tolerances import HAND_CLOSING_ANGLE_TOL
 from .batch_events import BatchEvents, batch_first_events
-from .batch_hits import SliceBatch, paths
+from .batch_hits import SliceBatch, paths, points_of
 from .model import (
     DEFAULT_CLOSING_STEPS,
     DEFAULT_COUPLING,
@@ -80,12 +80,12 @@ def close_fingers(
     sizes = np.array([len(P) for P in pts], dtype=np.int64)
     P_all = np.concatenate(pts) if sizes.sum() else np.zeros((0, 2))
     seg_all = np.repeat(np.arange(S), sizes)
-    src_all = np.arange(len(P_all)) - np.repeat(np.cumsum(sizes) - sizes, sizes)
     reach = geom[:, 1] + np.hypot(geom[:, 2], geom[:, 3]) + 2.0 * abs(margin)
     keep = np.einsum("ij,ij->i", P_all, P_all) <= (reach * reach)[seg_all]
+    kept = None  # the rows of P_all kept (None: all)
     if not keep.all():  # (integer indices: much faster than a boolean mask on (N, 2))
         kept = np.flatnonzero(keep)
-        P_all, seg_all, src_all = P_all[kept], seg_all[kept], src_all[kept]
+        P_all, seg_all = P_all[kept], seg_all[kept]
     seg = seg_all
     B = SliceBatch(
         fingers=tuple(fingers),
@@ -99,7 +99,6 @@ def close_fingers(
         y=np.ascontiguousarray(P_all[:, 1]),
         seg=seg,
         start=np.concatenate([[0], np.cumsum(np.bincount(seg, minlength=S))]),
-        source=src_all,
         margin=float(margin),
         palm=bool(palm),
     )
@@ -123,10 +122,12 @@ def close_fingers(
         # circumradius (grown by the margin) of it can be touched
         o2x, o2y = B.Lm * np.cos(q_free[:, 0]), B.Lm * np.sin(q_free[:, 0])  # (S,)
         r2 = np.hypot(B.Ld + abs(margin), B.h + abs(margin)) + 1e-9  # (S,)
-        dx, dy = B.x - o2x[B.seg], B.y - o2y[B.seg]
-        near2 = dx * dx + dy * dy <= (r2 * r2)[B.seg]
+        pts2, rows2 = points_of(B, two)  # (tested on the points of these slices only)
+        seg2 = B.seg[pts2]
+        dx, dy = B.x[pts2] - o2x[seg2], B.y[pts2] - o2y[seg2]
+        near2 = dx * dx + dy * dy <= (r2 * r2)[seg2]
         ev2 = batch_first_events(
-            B, two, q_free[two], A2, t_end2, n_steps, (False, True), may_touch=near2
+            B, two, q_free[two], A2, t_end2, n_steps, (False, True), (pts2[near2], rows2[near2])
         )
         Q2 = paths(q_free[two], A2, upper[two], ev2.t)
         q_stop = paths(q_free[two], A2, upper[two], ev2.t_free[:, None])[:, 0]
@@ -165,7 +166,11 @@ def close_fingers(
     q_out = np.where(found1[:, None], np.clip(q_end, lower, upper), q_end)
     c_idx = np.stack([mid1, dis1, dis2])  # (3, S) the contacts' points in B.P, -1 for none
     P_c = B.P[np.maximum(c_idx, 0)] if len(B.P) else np.zeros((3, S, 2))  # (3, S, 2)
-    src = B.source[np.maximum(c_idx, 0)] if len(B.P) else np.zeros((3, S), dtype=np.int64)
+    # the contacts' indices in their slices' own points_2d
+    src = np.zeros((3, S), dtype=np.int64)
+    if len(B.P):
+        ci = np.maximum(c_idx, 0)
+        src = (ci if kept is None else kept[ci]) - (np.cumsum(sizes) - sizes)[B.seg[ci]]
 
     out: list[FingerClosing] = []
     for s in range(S):  # loop over slices: the small result objects

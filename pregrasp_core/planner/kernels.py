@@ -17,6 +17,11 @@ import numpy as np
 
 from ..jit import Lazy, inline_helpers, njit
 
+LINK_CELL_MARGIN: float = 1e-6
+"""Metres added to the reach of :func:`link_distances`' test of a cell's ball against a link
+box: far above the rounding of the box-frame coordinates (about 1e-16 m), so the test only
+prunes cells without a point within reach."""
+
 
 def kernels() -> SimpleNamespace:
     """The compiled kernels (``slices``, ...); the first call imports numba and compiles them
@@ -335,7 +340,9 @@ def link_distances(
     (``centres`` (C, 3) in the frame of T0, radii ``rad``, moved by ``dz_sum``) meet it and the
     keep box. Returns
     ``(ids (K,), d (K,), first (L + 1,))``: link l's points ``ids[first[l]:first[l + 1]]`` in
-    ascending cloud order."""
+    ascending cloud order. A cell whose ball meets the AABB is searched only when the ball
+    also comes within ``reach`` of the box itself (the distance from its centre to the box
+    in the box's frame)."""
     L = Tb.shape[0]
     cap = 1024
     ids = np.empty(cap, dtype=np.int64)
@@ -346,11 +353,13 @@ def link_distances(
     ok = np.zeros(C, dtype=np.bool_)
     cm = np.empty((C, 3))
     cp = np.empty((C, 3))
+    cc = np.empty((C, 3))
     for c in range(C):  # the cells whose balls meet the keep box; their bounds, moved
         rc = rad[c]
         cx, cy, cz = centres[c, 0], centres[c, 1], centres[c, 2]
         ok[c] = _ball_meets_keep(cx, cy, cz, rc, r, z_lo, z_hi)
         cz = cz + dz_sum
+        cc[c, 0], cc[c, 1], cc[c, 2] = cx, cy, cz
         cm[c, 0], cm[c, 1], cm[c, 2] = cx - rc, cy - rc, cz - rc
         cp[c, 0], cp[c, 1], cp[c, 2] = cx + rc, cy + rc, cz + rc
     for il in range(L):
@@ -366,6 +375,16 @@ def link_distances(
                 and cp[c, 2] >= blo[il, 2]
                 and cm[c, 2] <= bhi[il, 2]
             ):
+                continue
+            # and the ball within reach of the box itself, not only of its bounding box: the
+            # distance from the ball's centre to the box at most reach + its radius (a point
+            # within reach of the box lies in such a ball; LINK_CELL_MARGIN covers rounding)
+            w0, w1, w2 = cc[c, 0] - R[0, 3], cc[c, 1] - R[1, 3], cc[c, 2] - R[2, 3]
+            e0 = max(abs(w0 * R[0, 0] + w1 * R[1, 0] + w2 * R[2, 0]) - half[il, 0], 0.0)
+            e1 = max(abs(w0 * R[0, 1] + w1 * R[1, 1] + w2 * R[2, 1]) - half[il, 1], 0.0)
+            e2 = max(abs(w0 * R[0, 2] + w1 * R[1, 2] + w2 * R[2, 2]) - half[il, 2], 0.0)
+            lim = reach + rad[c] + LINK_CELL_MARGIN
+            if e0 * e0 + e1 * e1 + e2 * e2 > lim * lim:
                 continue
             for k in range(start[c], start[c] + count[c]):
                 i = order[k]

@@ -407,7 +407,7 @@ def test_compiled_ragged_hits_equal_the_numpy_pairs(hand, seed):
                 fingers=fingers, Lk=geom[:, 0], Lm=geom[:, 1], Ld=geom[:, 2], h=geom[:, 3],
                 upper=np.array([f.upper for f in fingers]), P=P,
                 x=np.ascontiguousarray(P[:, 0]), y=np.ascontiguousarray(P[:, 1]), seg=seg,
-                start=np.concatenate([[0], np.cumsum(sizes)]), source=np.arange(len(P)),
+                start=np.concatenate([[0], np.cumsum(sizes)]),
                 margin=margin, palm=palm,
             )  # fmt: skip
             rows_sl = np.sort(rng.choice(S, size=8, replace=False))
