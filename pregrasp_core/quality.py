@@ -287,7 +287,7 @@ def contact_wrenches(
         c = p.mean(axis=0)
     else:
         c = np.asarray(center, dtype=np.float64)
-        if c.shape != (3,) or not np.all(np.isfinite(c)):
+        if c.shape != (3,) or not np.isfinite(c).all():
             raise ValueError(f"center must be 3 finite numbers, got {center!r}")
     r = p - c  # (K, 3)
     rho = params.torque_scale
@@ -318,16 +318,23 @@ def _exact_hull(w: np.ndarray) -> ConvexHull | None:
 
 def _wrench_check(w: np.ndarray) -> str:
     """'' when the wrenches ``w`` (M, D) span D dimensions (a hull exists), else why not."""
+    return _centred_check(w)[0]
+
+
+def _centred_check(w: np.ndarray) -> tuple[str, np.ndarray | None]:
+    """:func:`_wrench_check` of ``w`` (M, D) and the centred wrenches ``w - mean`` it measured
+    the rank of (None when it did not get that far), for :func:`box_volume_bound`."""
     m, d = w.shape
     if m < d + 1:
-        return f"{m} wrenches < {d + 1}"
-    if not np.all(np.isfinite(w)):
-        return "non-finite wrench"
-    sv = np.linalg.svd(w - w.mean(axis=0), compute_uv=False)
+        return f"{m} wrenches < {d + 1}", None
+    if not np.isfinite(w).all():
+        return "non-finite wrench", None
+    c = w - w.mean(axis=0)
+    sv = np.linalg.svd(c, compute_uv=False)
     rank = int(np.sum(sv > QUALITY_RANK_TOL * max(sv[0], GEOM_EPS)))
     if rank < d:
-        return f"rank {rank} < {d}"
-    return ""
+        return f"rank {rank} < {d}", c
+    return "", c
 
 
 def _hull_scores(w: np.ndarray) -> tuple[float, float, str]:
@@ -411,13 +418,18 @@ def wrench_frame(wrenches: np.ndarray, n_edges: int) -> np.ndarray:
     f = np.asarray(wrenches, dtype=np.float64)[:n_edges, :3]
     n = f.mean(axis=0)
     a = f[0] - n
-    na, nn = float(np.linalg.norm(a)), float(np.linalg.norm(n))
+    # (the norms as np.linalg.norm computes a vector's: the square root of its dot product)
+    na, nn = math.sqrt(float(a.dot(a))), math.sqrt(float(n.dot(n)))
     if not (na > 1e-9 * max(nn, 1.0) and nn > GEOM_EPS):
         return np.eye(3)
     a, n = a / na, n / nn
     a = a - (a @ n) * n
-    a /= np.linalg.norm(a)
-    return np.stack([a, cross3(n, a), n], axis=1)
+    a /= math.sqrt(float(a.dot(a)))
+    (a0, a1, a2), (n0, n1, n2) = a.tolist(), n.tolist()
+    # columns a, n x a (cross3's products and differences, on the same doubles), n
+    return np.array(
+        [[a0, n1 * a2 - n2 * a1, n0], [a1, n2 * a0 - n0 * a2, n1], [a2, n0 * a1 - n1 * a0, n2]]
+    )
 
 
 def direction_bound(wrenches: np.ndarray, frame: np.ndarray | None = None) -> float:
@@ -435,11 +447,12 @@ def direction_bound(wrenches: np.ndarray, frame: np.ndarray | None = None) -> fl
     return float((w @ u).max(axis=0).min())
 
 
-def box_volume_bound(wrenches: np.ndarray) -> float:
+def box_volume_bound(wrenches: np.ndarray, centred: np.ndarray | None = None) -> float:
     """An upper bound of the hull's volume: the volume of the box of the wrenches (M, D) in
-    their principal frame (the hull lies inside any box that holds its points)."""
+    their principal frame (the hull lies inside any box that holds its points). ``centred``:
+    ``wrenches - wrenches.mean(axis=0)`` when the caller has it."""
     w = np.asarray(wrenches, dtype=np.float64)
-    c = w - w.mean(axis=0)
+    c = w - w.mean(axis=0) if centred is None else centred
     vt = np.linalg.svd(c, full_matrices=False)[2]
     p = c @ vt.T
     return float(np.prod(p.max(axis=0) - p.min(axis=0)))
@@ -539,12 +552,12 @@ def wrench_quality(
     w = np.asarray(wrenches, dtype=np.float64)
     if w.ndim != 2:
         raise ValueError(f"wrenches must have shape (M, D), got {w.shape}")
-    reason = _wrench_check(w)
+    reason, centred = _centred_check(w)
     if reason:
         return GraspQuality(0.0, 0.0, n_contacts, False, reason)
     if level < LEVEL_EXACT and w.shape[1] == 6:
         upper = direction_bound(w, wrench_frame(w, n_edges))
-        vol = box_volume_bound(w)
+        vol = box_volume_bound(w, centred)
         closure, lower = (False, 0.0) if upper <= NOT_CLOSURE_BOUND else closure_certificate(w)
         half = None
         if level > LEVEL_CHEAPEST or closure is None:
@@ -597,7 +610,7 @@ def grasp_quality(
     if k == 0:
         return GraspQuality(0.0, 0.0, 0, False, "no contacts")
     norms = np.linalg.norm(n, axis=1)
-    if np.any(~np.isfinite(norms)) or np.any(norms < GEOM_EPS) or not np.all(np.isfinite(p)):
+    if not (np.isfinite(norms).all() and (norms >= GEOM_EPS).all() and np.isfinite(p).all()):
         return GraspQuality(0.0, 0.0, k, False, "invalid contact normal or point")
     w = contact_wrenches(
         p, n, params, tangents=tangents, torques=torques, center=center, radius=radius

@@ -17,6 +17,11 @@ import numpy as np
 
 from ..jit import Lazy, inline_helpers, njit
 
+APPROACH_CELL_MARGIN: float = 1e-6
+"""Metres added to a link box's half extents in :func:`approach_sweep`'s sweep of a cell's
+ball (its centre's slabs grown by its radius): far above the rounding of the coordinates, so
+that sweep only prunes cells none of whose points could meet the box earlier."""
+
 LINK_CELL_MARGIN: float = 1e-6
 """Metres added to the reach of :func:`link_distances`' test of a cell's ball against a link
 box: far above the rounding of the box-frame coordinates (about 1e-16 m), so the test only
@@ -266,7 +271,10 @@ def approach_sweep(
     frame at ``T0``: ``wlo <= p <= whi`` across, ``wlo z <= p z <= top``), inf if none (the loop
     form of the window test and :func:`~pregrasp_core.planner.boxes.sweep_pairs` in
     :func:`~pregrasp_core.planner.approach.prepare`). cm, cp (C, 3): the cells' balls' bounds in
-    that frame; xyz, order, start, count: the cloud and its cells."""
+    that frame; xyz, order, start, count: the cloud and its cells. A cell whose ball meets a
+    link's window is searched only when the ball itself, swept, can meet the box before the
+    least travel found so far (its centre's slab interval with the half extents grown by its
+    radius: a superset of every point's of the ball)."""
     best = np.inf
     L = Tb.shape[0]
     for c in range(cm.shape[0]):
@@ -281,6 +289,28 @@ def approach_sweep(
             ):
                 continue
             R = Tb[il]
+            # the ball's own sweep: the slabs of its centre, each grown by its radius (a point
+            # of the ball meets the box only within them); none ahead, or none before the
+            # least travel found so far: no point of the cell can lower it
+            rc = 0.5 * max(cp[c, 0] - cm[c, 0], cp[c, 1] - cm[c, 1], cp[c, 2] - cm[c, 2])
+            v0 = 0.5 * (cm[c, 0] + cp[c, 0]) - R[0, 3]
+            v1 = 0.5 * (cm[c, 1] + cp[c, 1]) - R[1, 3]
+            v2 = 0.5 * (cm[c, 2] + cp[c, 2]) - R[2, 3]
+            c_in, c_out = -np.inf, np.inf
+            for j in range(3):
+                a = v0 * R[0, j] + v1 * R[1, j] + v2 * R[2, j]
+                d = R[2, j]
+                h = half[il, j] + rc + APPROACH_CELL_MARGIN
+                if abs(d) < 1e-12:
+                    if abs(a) > h:
+                        c_in = np.inf
+                else:
+                    t1 = (a - h) / d
+                    t2 = (a + h) / d
+                    c_in = max(c_in, min(t1, t2))
+                    c_out = min(c_out, max(t1, t2))
+            if not (c_in <= c_out and c_out >= 0.0 and c_in <= best):
+                continue
             for k in range(start[c], start[c] + count[c]):
                 px, py, pz = _to_view(xyz, order[k], T0)
                 if not (

@@ -360,3 +360,44 @@ def test_cross3_equals_numpy_cross_to_the_bit():
         a = rng.normal(size=sa) * 10.0 ** rng.integers(-8, 8, size=sa)
         b = rng.normal(size=sb)
         assert np.array_equal(cross3(a, b), np.cross(a, b))
+
+
+def _wrench_frame_numpy(wrenches, n_edges):
+    """wrench_frame as written before session 10 (np.linalg.norm, np.stack and cross3)."""
+    from pregrasp_core.quality import cross3
+    from pregrasp_core.tolerances import GEOM_EPS
+
+    f = np.asarray(wrenches, dtype=np.float64)[:n_edges, :3]
+    n = f.mean(axis=0)
+    a = f[0] - n
+    na, nn = float(np.linalg.norm(a)), float(np.linalg.norm(n))
+    if not (na > 1e-9 * max(nn, 1.0) and nn > GEOM_EPS):
+        return np.eye(3)
+    a, n = a / na, n / nn
+    a = a - (a @ n) * n
+    a /= np.linalg.norm(a)
+    return np.stack([a, cross3(n, a), n], axis=1)
+
+
+def test_wrench_frame_and_bounds_equal_the_numpy_forms_to_the_bit():
+    """wrench_frame's scalar form gives the frame of the numpy form bit for bit, and the volume
+    bound from the rank check's centred wrenches equals the one from the wrenches (real
+    contact sets: random points, normals and tangents, several mu and cone sizes)."""
+    from pregrasp_core.quality import box_volume_bound
+
+    rng = np.random.default_rng(5)
+    for trial in range(400):
+        k = int(rng.integers(2, 7))
+        prm = QualityParams(
+            mu=float(rng.choice([0.0, 0.3, 0.5, 1.0])), n_edges=int(rng.integers(3, 10))
+        )
+        pts = rng.normal(size=(k, 3)) * 0.05
+        nrm = rng.normal(size=(k, 3))
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        w = contact_wrenches(
+            pts, nrm, prm, tangents=rng.normal(size=(k, 3)), center=np.zeros(3), radius=0.1
+        )
+        got, ref = wrench_frame(w, prm.n_edges), _wrench_frame_numpy(w, prm.n_edges)
+        assert got.tobytes() == ref.tobytes(), trial
+        c = w - w.mean(axis=0)
+        assert box_volume_bound(w, c) == box_volume_bound(w)
