@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import logging
 import re
 import threading
@@ -118,7 +119,9 @@ class Controller:
     server: the ``viser.ViserServer`` (only used for notifications and downloads);
     scene: the :class:`~app.scene.SceneRenderer` that draws each new state;
     hand: the ``pregrasp_core.hand.Hand`` the pipeline uses;
-    params: initial ``PipelineParams`` (defaults when ``None``); view: initial display options.
+    params: initial ``PipelineParams`` (defaults when ``None``); view: initial display options;
+    planner: the :class:`~app.planner_proc.PlannerProcess` that plans (on both cores) in place
+    of the in-process ``plan_grasps``, or ``None``.
     """
 
     def __init__(
@@ -131,8 +134,10 @@ class Controller:
         seed: int = 0,
         max_upload_bytes: int = DEFAULT_MAX_UPLOAD_BYTES,
         view: ViewState | None = None,
+        planner: Any = None,
     ) -> None:
         self.server = server
+        self.planner = planner
         self.scene = scene
         self.hand = hand
         self.max_upload_bytes = int(max_upload_bytes)
@@ -1028,7 +1033,13 @@ class Controller:
     ) -> Any:
         """One call into ``pregrasp_core.pipeline`` (the app has no pipeline of its own); it
         stops between stages (and between planner chunks) when request ``gen`` is superseded.
-        The core refuses work past its limits (``WorkLimitError``, ``docs/limits.md``)."""
+        The core refuses work past its limits (``WorkLimitError``, ``docs/limits.md``). With a
+        planner process, the grasps stage plans there (cancelled as soon as ``gen`` is stale)."""
+        planner = None
+        if plan and self.planner is not None:
+            planner = functools.partial(
+                self.planner.plan, check=functools.partial(self._check, gen)
+            )
         result = ppl.run_pipeline(
             cloud,
             params,
@@ -1036,6 +1047,7 @@ class Controller:
             until="grasps" if plan else "pool",
             previous=previous,
             progress=self._progress(gen, show),
+            planner=planner,
         )
         self._check(gen)
         return result

@@ -71,6 +71,11 @@ class ViewerConfig:
     compare: Path | None = None
     """A second ``pregrasp/1`` result file of the same object to compare with (its best grasps
     drawn beside the shown ones), or ``None``."""
+    planner_process: bool = True
+    """Plan in a worker process of one thread (``app/planner_proc.py``), which forks its copy
+    and plans on two cores as ``pregrasp plan`` does, instead of on the server's threads that
+    Python's global lock serialises; started with the app, warmed up in the background (plans
+    before it is ready, and after it fails, run in the server's process)."""
 
     def __post_init__(self) -> None:
         if not 0 <= int(self.port) <= 65535:
@@ -129,6 +134,8 @@ class App:
         self._stop.set()
         self.gui.close()
         self._thread.join(timeout=2.0)
+        if self.controller.planner is not None:  # no worker outlives the app
+            self.controller.planner.close()
 
 
 def protect(server: Any, host: str) -> None:
@@ -150,7 +157,28 @@ def run(config: ViewerConfig, server: Any) -> App:
 
     protect(server, config.host)
 
-    hand = Hand.load()
+    planner = None
+    notices: list[Controller] = []  # the controller, once made: the worker's failure notices
+    if config.planner_process:  # first: the worker's start-up runs beside the load below
+        from .planner_proc import PlannerProcess
+
+        def notice(text: str) -> None:
+            for c in notices:
+                c.notify(None, "Planner process", text, color="yellow")
+
+        planner = PlannerProcess(notice=notice)
+    try:
+        return _build(config, server, Hand.load(), planner, notices)
+    except BaseException:
+        if planner is not None:
+            planner.close()
+        raise
+
+
+def _build(
+    config: ViewerConfig, server: Any, hand: Any, planner: Any, notices: list[Controller]
+) -> App:
+    """:func:`run` once the defences are in place and the planner process started."""
     scene = SceneRenderer(server, hand=hand, max_ghosts=config.max_ghosts)
     controller = Controller(
         server,
@@ -161,7 +189,9 @@ def run(config: ViewerConfig, server: Any) -> App:
         seed=config.seed,
         max_upload_bytes=config.max_upload_bytes,
         view=ViewState(show_ghosts=config.show_ghosts, show_face_masks=config.show_face_masks),
+        planner=planner,
     )
+    notices.append(controller)
     scene.on_box_click = lambda node, client: controller.act(client, controller.select_node, node)
     gui = Gui(server, controller, scene)
     uploads = viser_hooks.install_upload_guard(server, lambda: controller.max_upload_bytes)

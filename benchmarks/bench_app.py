@@ -22,6 +22,13 @@ use: every broadcast is serialised and sent to each, which is what several tabs 
 server; headless Chromium pages would add their own rendering (software WebGL) to the
 machine's load and measure that instead.
 
+``--planner-process off on`` runs each row of the clients table with the viewer's planner
+process off (the planner on the server's threads, as before session 10) and on (a worker
+process that forks its copy, ``app/planner_proc.py``; the default of ``pregrasp view``),
+alternating, ``--rounds`` times; the worker's start and warm-up are waited for before the
+first edit. "CPU" = processor time per edit of the viewer's process and of the worker with its
+forked copies (``/proc/PID/stat``), which the machine's load disturbs less than wall time.
+
 Rows: a volume-ratio change (re-runs the decomposition and everything downstream) and a level
 slider change (no pipeline stage: boxes, colours and face masks redrawn). Columns: pipeline =
 the pipeline stages the change re-ran (from the result's timings, reused stages excluded);
@@ -31,6 +38,7 @@ are wall-clock on one machine; under load they are noisy, so compare rows of one
 
     .venv/bin/python benchmarks/bench_app.py [--points 20000 200000] [--trials 7]
         [--clients 1 4] [--client-points 20000 5000] [--client-trials 5]
+        [--planner-process off on] [--rounds 2]
 """
 
 from __future__ import annotations
@@ -178,9 +186,17 @@ def _trials(app, listener, handle, values, trials: int) -> dict:
     }
 
 
+def _cpu(pid: int | None) -> float:
+    """Seconds of processor time of process ``pid`` and its reaped children (0 for None)."""
+    if pid is None:
+        return 0.0
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return sum(int(f) for f in fields[11:15]) / os.sysconf("SC_CLK_TCK")
+
+
 def bench(n_points: int, trials: int) -> list[dict]:
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    app = run(ViewerConfig(n_points=n_points), server)
+    app = run(ViewerConfig(n_points=n_points, planner_process=False), server)
     listener = Listener(server.get_port())
     try:
         time.sleep(1.0)  # let the client receive the initial scene
@@ -203,24 +219,30 @@ def bench(n_points: int, trials: int) -> list[dict]:
         server.stop()
 
 
-def bench_clients(n_points: int, n_clients: int, trials: int) -> dict:
+def bench_clients(n_points: int, n_clients: int, trials: int, process: bool = True) -> dict:
     """After planning, a browser's volume-ratio edit until every one of ``n_clients`` clients
-    has the new scene and the new best grasp (medians over ``trials``, after one warm-up)."""
+    has the new scene and the new best grasp (medians over ``trials``, after one warm-up);
+    ``process``: the viewer's planner process on (else the planner runs on its threads)."""
     from viser import _messages
 
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    app = run(ViewerConfig(n_points=n_points), server)
+    app = run(ViewerConfig(n_points=n_points, planner_process=process), server)
     clients = [Listener(server.get_port()) for _ in range(n_clients)]
     c = app.controller
+    pp = c.planner
     try:
+        if pp is not None and not pp.wait_ready():
+            raise SystemExit("the planner process did not start")
         time.sleep(1.0)
         c.plan()
         h = app.gui.params[("decomposition", "volume_ratio")]
-        scene, best, plan_s, stages_s = [], [], [], []
+        scene, best, plan_s, stages_s, cpu_here, cpu_worker = [], [], [], [], [], []
         for k in range(trials + 1):
             value = (0.5, 0.9)[k % 2]
             while not (c.idle() and app.gui.settled()):
                 time.sleep(0.01)
+            pid = None if pp is None else pp.pid
+            c0, w0 = time.process_time(), _cpu(pid)
             t0 = time.perf_counter()
             clients[0].send(_messages.GuiUpdateMessage(h._impl.uuid, {"value": value}))
             deadline = time.perf_counter() + 600
@@ -232,13 +254,21 @@ def bench_clients(n_points: int, n_clients: int, trials: int) -> dict:
             label = f"boxes: {len(s.tree.leaves())}".encode()
             t_scene = max(cl.wait_for(label, after=t0) for cl in clients)
             t_best = max(cl.wait_for(b"fc", after=t_scene) for cl in clients)
+            c1, w1 = time.process_time(), _cpu(pid if pp is None or pp.pid == pid else None)
             if k == 0:
                 continue  # warm-up
+            cpu_here.append(c1 - c0)
+            cpu_worker.append(w1 - w0 if w1 else float("nan"))
             scene.append(t_scene - t0)
             best.append(t_best - t0)
             plan_s.append(s.result.timings.get("grasps", float("nan")))
             stages_s.append(sum(s.result.timings.get(st, 0.0) for st in SCENE_STAGES))
+        if pp is not None and pp.local_plans:
+            print(f"# {pp.local_plans} plan(s) ran in the viewer's process", flush=True)
         return {
+            "process": "on" if process else "off",
+            "cpu_here": statistics.median(cpu_here),
+            "cpu_worker": statistics.median(cpu_worker) if pp is not None else 0.0,
             "points": n_points,
             "clients": n_clients,
             "pool": len(c.state.result.pool),
@@ -273,6 +303,14 @@ def main() -> None:
     )
     ap.add_argument("--client-trials", type=int, default=5)
     ap.add_argument("--skip-single", action="store_true", help="only the clients table")
+    ap.add_argument(
+        "--planner-process",
+        nargs="+",
+        choices=("off", "on"),
+        default=["on"],
+        help="the viewer's planner process in the clients table; several: alternated per row",
+    )
+    ap.add_argument("--rounds", type=int, default=1, help="times each clients row is run")
     args = ap.parse_args()
     print(
         f"# {platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}, "
@@ -289,19 +327,25 @@ def main() -> None:
         f"{args.client_trials} changes per row after one warm-up, medians (max)"
     )
     print()
-    print("| points | clients | pool | new scene (ms) | max | new best grasp (ms) | max "
-          "| stages (ms) | planner (ms) | other (ms) |")  # fmt: skip
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for points in args.client_points:
-        for n in args.clients:
-            r = bench_clients(points, n, args.client_trials)
-            print(
-                f"| {r['points']:,} | {r['clients']} | {r['pool']} | {r['scene'] * 1e3:.0f} | "
-                f"{r['scene_max'] * 1e3:.0f} | {r['best'] * 1e3:.0f} | "
-                f"{r['best_max'] * 1e3:.0f} | {r['stages'] * 1e3:.0f} | "
-                f"{r['planner'] * 1e3:.0f} | {r['other'] * 1e3:.0f} |",
-                flush=True,
-            )
+    print("| points | clients | planner process | pool | new scene (ms) | max "
+          "| new best grasp (ms) | max | stages (ms) | planner (ms) | other (ms) "
+          "| CPU viewer / worker (ms) | load |")  # fmt: skip
+    print("|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|")
+    for _ in range(args.rounds):
+        for points in args.client_points:
+            for n in args.clients:
+                for mode in args.planner_process:
+                    load0 = os.getloadavg()[0]
+                    r = bench_clients(points, n, args.client_trials, mode == "on")
+                    print(
+                        f"| {r['points']:,} | {r['clients']} | {r['process']} | {r['pool']} | "
+                        f"{r['scene'] * 1e3:.0f} | {r['scene_max'] * 1e3:.0f} | "
+                        f"{r['best'] * 1e3:.0f} | {r['best_max'] * 1e3:.0f} | "
+                        f"{r['stages'] * 1e3:.0f} | {r['planner'] * 1e3:.0f} | "
+                        f"{r['other'] * 1e3:.0f} | {r['cpu_here'] * 1e3:.0f} / "
+                        f"{r['cpu_worker'] * 1e3:.0f} | {load0:.1f}-{os.getloadavg()[0]:.1f} |",
+                        flush=True,
+                    )
 
 
 def single_table(args) -> None:

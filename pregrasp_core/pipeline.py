@@ -155,6 +155,7 @@ def run_pipeline(
     previous: PipelineResult | None = None,
     progress: Callable[[float], None] | None = None,
     limits: WorkLimits | None = None,
+    planner: Callable[..., GraspSet] | None = None,
 ) -> PipelineResult:
     """Run the stages up to ``until`` (one of :data:`ALL_STAGES`), reusing those of ``previous``
     whose inputs are unchanged.
@@ -162,7 +163,9 @@ def run_pipeline(
     hand: the hand (loaded with ``Hand.load()`` when ``None`` and the
     ``pool`` stage runs). progress: called with the fraction of stages done (0..1). limits: the
     work limits of the stages (default ``WorkLimits()``; ``docs/limits.md``); a stage that would
-    pass one raises ``WorkLimitError`` before its large allocations.
+    pass one raises ``WorkLimitError`` before its large allocations. planner: called by the
+    grasps stage in place of ``plan_grasps``, with its arguments, for the same ``GraspSet``
+    (the viewer's planner process, ``app/planner_proc.py``); ``None`` = ``plan_grasps``.
     """
     params = with_cloud(PipelineParams() if params is None else params, cloud)
     last = _stage_index(until)
@@ -174,7 +177,9 @@ def run_pipeline(
     if last >= 4 and not _normals_reusable(prev, params):
         background = _Background(view_normals, cloud, params.planner.normals)
     try:
-        return _run_stages(cloud, params, hand, last, prev, progress, limits, background)
+        return _run_stages(
+            cloud, params, hand, last, prev, progress, limits, background, planner or plan_grasps
+        )
     finally:
         if background is not None:  # joined whatever happened: no thread outlives the run
             background.join()
@@ -228,9 +233,11 @@ def _run_stages(
     progress: Callable[[float], None] | None,
     limits: WorkLimits | None,
     background: _Background | None,
+    planner: Callable[..., GraspSet] = plan_grasps,
 ) -> PipelineResult:
     """The stages of :func:`run_pipeline` up to ``ALL_STAGES[last]`` (``prev``: the previous
-    result of the same cloud or None); the normals from ``background`` when it computes them."""
+    result of the same cloud or None); the normals from ``background`` when it computes them;
+    the grasps by ``planner`` (``plan_grasps`` or a stand-in with its arguments)."""
     points = np.asarray(cloud.points, dtype=np.float64)
     pp = prev.params if prev is not None else None
     hidden: list[OccupiedSpace | None] = []  # the view's hidden space (once, when needed)
@@ -361,7 +368,7 @@ def _run_stages(
             if occ is not None:  # the obstacle points after the cloud's (planner/assumed.py)
                 normals = np.concatenate([normals, occ.normals])
                 assumed = np.concatenate([assumed, np.zeros(len(occ.points), dtype=bool)])
-            gs = plan_grasps(
+            gs = planner(
                 geom,
                 normals,
                 out["pool"],

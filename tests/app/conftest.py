@@ -20,6 +20,9 @@ def make_app() -> Iterator:
 
     def factory(**kw) -> App:
         kw.setdefault("n_points", APP_POINTS)
+        # the planner process (on in `pregrasp view`) only where a test asks for it: its
+        # start-up and warm-up would cost every app test a second of CPU on a 2-core machine
+        kw.setdefault("planner_process", False)
         server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
         try:
             app = run(ViewerConfig(**kw), server)

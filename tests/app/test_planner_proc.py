@@ -1,0 +1,270 @@
+"""The viewer's planner process (``app/planner_proc.py``): the grasps of ``run_pipeline`` bit for
+bit, progress forwarded, a stale plan cancelled without killing the worker, a killed worker
+replaced while the plan goes on in the viewer's process, an error raised where the plan was
+asked, and no process left behind by the app's end or the viewer's death."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import signal
+import struct
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import viser
+
+from app.planner_proc import PlannerProcess
+from app.server import ViewerConfig, run
+from pregrasp_core import pipeline as ppl
+from tests.app.conftest import APP_POINTS
+
+READY_S = 120.0
+"""Longest wait for a worker's start (imports, hand, warm-up) on a loaded 2-core machine."""
+
+
+def bits(x: object) -> object:
+    """Every bit of a value as nested tuples (dataclasses field by field, arrays by dtype,
+    shape and bytes, floats by their 64 bits); the planner's phase clocks are left out."""
+    if dataclasses.is_dataclass(x) and not isinstance(x, type):
+        return (type(x).__name__,) + tuple(
+            (f.name, bits(getattr(x, f.name)))
+            for f in dataclasses.fields(x)
+            if f.name != "phase_seconds"
+        )
+    if isinstance(x, np.ndarray):
+        return ("nd", x.dtype.str, x.shape, x.tobytes())
+    if isinstance(x, (float, np.floating)):
+        return ("f", struct.pack("<d", float(x)))
+    if isinstance(x, (tuple, list)):
+        return (type(x).__name__, *(bits(v) for v in x))
+    if isinstance(x, dict):
+        return ("d", *((k, bits(v)) for k, v in x.items()))
+    return (type(x).__name__, x)
+
+
+def descendants(pid: int) -> set[int]:
+    """The live processes below ``pid`` (Linux's /proc children lists)."""
+    out: set[int] = set()
+    todo = [pid]
+    while todo:
+        p = todo.pop()
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            try:
+                kids = {int(k) for k in (task / "children").read_text().split()}
+            except OSError:
+                continue
+            todo.extend(kids - out)
+            out |= kids
+    return out
+
+
+def alive(pid: int) -> bool:
+    """Whether ``pid`` is a process that has not ended (a zombie has ended)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def wait_gone(pids: set[int], timeout: float = 10.0) -> set[int]:
+    """The ``pids`` still alive after at most ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    while (left := {p for p in pids if alive(p)}) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return left
+
+
+def reference(app) -> ppl.PipelineResult:
+    """``run_pipeline`` in this process on the app's cloud and parameters, up to the grasps."""
+    s = app.controller.state
+    return ppl.run_pipeline(s.result.cloud, s.params, app.controller.hand, until="grasps")
+
+
+def assert_same_grasps(app) -> None:
+    """The app's ranking and grasps are ``run_pipeline``'s, bit for bit."""
+    got, want = app.controller.state.result.grasps, reference(app).grasps
+    assert got is not None and want is not None
+    assert np.array_equal(got.ranking, want.ranking)
+    assert bits(got) == bits(want)
+
+
+def ready_app(make_app, **kw):
+    app = make_app(planner_process=True, **kw)
+    assert app.controller.planner.wait_ready(READY_S), "the planner process never started"
+    return app
+
+
+def test_the_viewer_plans_in_its_process_with_the_grasps_of_run_pipeline(make_app):
+    """Two objects planned by the worker (not here) give ``run_pipeline``'s grasps bit for
+    bit, with the worker's progress reports on the progress bar; a threshold change re-plans
+    there too; the worker plans with its forked copy (two processes)."""
+    app = ready_app(make_app)
+    c, pp = app.controller, app.controller.planner
+    shown: list[float] = []
+    c.subscribe(lambda s: shown.append(s.progress) if s.busy == "plan" else None)
+    copies: set[int] = set()
+
+    def watch() -> None:  # the worker's children while it plans
+        while not done.is_set():
+            copies.update(descendants(pp.pid))
+            time.sleep(0.005)
+
+    done = threading.Event()
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    c.plan()
+    done.set()
+    watcher.join()
+    s = c.state
+    assert s.planned and s.error == "", s.error
+    assert (pp.plans, pp.local_plans) == (1, 0)
+    assert_same_grasps(app)
+    # the pipeline's fraction: 4/5 at the planner's start, 1 at its end; chunks in between
+    planner_steps = sorted({p for p in shown if 0.8 < p < 1.0})
+    assert len(planner_steps) >= 2, shown
+    assert copies, "the worker planned without forking its copy"
+    app.gui.params[("decomposition", "volume_ratio")].value = 0.6  # re-plans after the edit
+    assert c.state.planned and c.state.error == "", c.state.error
+    assert (pp.plans, pp.local_plans) == (2, 0)
+    assert_same_grasps(app)
+    c.load_demo("can_soda")
+    c.plan()
+    assert c.state.planned and c.state.error == "", c.state.error
+    assert (pp.plans, pp.local_plans) == (3, 0)
+    assert len(c.state.result.grasps.ranking) > 0
+    assert_same_grasps(app)
+
+
+def test_a_stale_plan_is_cancelled_and_the_worker_plans_the_next_one(make_app):
+    """A cancel at the first progress report stops the worker's plan at its next chunk: the
+    plan ends without a result, the worker lives on (same process) and the next plan has
+    ``run_pipeline``'s grasps."""
+    app = ready_app(make_app)
+    c, pp = app.controller, app.controller.planner
+    pid = pp.pid
+    fired: list[float] = []
+
+    def cancel_once(s) -> None:
+        if s.busy == "plan" and 0.8 < s.progress < 1.0 and not fired:
+            fired.append(time.perf_counter())
+            c.cancel()
+
+    c.subscribe(cancel_once)
+    c.plan()
+    ended = time.perf_counter()
+    assert fired, "no progress report came from the worker"
+    s = c.state
+    assert not s.planned and s.result.grasps is None and s.error == ""
+    assert pp.plans == 0 and pp.local_plans == 0 and pp.pid == pid and alive(pid)
+    done, total = pp.last_cancel  # the worker stopped at its next chunk, not at the end
+    assert 0 < done < total, pp.last_cancel
+    assert ended - fired[0] < 5.0
+    fired.append(0.0)  # no more cancels
+    c.plan()
+    assert c.state.planned and pp.plans == 1 and pp.pid == pid
+    assert_same_grasps(app)
+
+
+def test_a_killed_worker_is_replaced_and_the_plan_goes_on_here(make_app):
+    """``os.kill`` of the worker mid-plan: the browsers get a notice, the plan ends here with
+    ``run_pipeline``'s grasps, the worker and its copy are gone, a new worker starts and plans
+    the next request."""
+    app = ready_app(make_app)
+    c, pp = app.controller, app.controller.planner
+    old = pp.pid
+    notices: list[str] = []
+    c.notify = lambda client, title, body, color="blue": notices.append(f"{title}: {body}")
+    killed: set[int] = set()
+
+    def kill_once(s) -> None:
+        if s.busy == "plan" and 0.8 < s.progress < 1.0 and not killed:
+            killed.add(old)
+            killed.update(descendants(old))
+            os.kill(old, signal.SIGKILL)
+
+    c.subscribe(kill_once)
+    c.plan()
+    assert len(killed) >= 2, "no progress report came from the worker while its copy planned"
+    s = c.state
+    assert s.planned and s.error == "" and pp.local_plans == 1 and pp.plans == 0
+    assert_same_grasps(app)
+    assert any("Planner process" in n and "ended during a plan" in n for n in notices), notices
+    assert not wait_gone(killed), "the killed worker or its copy is still running"
+    assert pp.pid is not None and pp.pid != old and pp.wait_ready(READY_S)
+    app.gui.params[("decomposition", "volume_ratio")].value = 0.6
+    assert c.state.planned and pp.plans == 1
+    assert_same_grasps(app)
+
+
+def test_an_error_in_the_worker_is_raised_here_and_the_worker_goes_on(hand_pool):
+    """A plan the planner refuses (one normal short) raises the planner's own ``ValueError``
+    in the caller; the same worker then plans the next job."""
+    hand, points, normals, pool, params, support = hand_pool
+    pp = PlannerProcess(warm=False)
+    try:
+        assert pp.wait_ready(READY_S)
+        pid = pp.pid
+        with pytest.raises(ValueError, match=r"must have shape \(3000, 3\) like points"):
+            pp.plan(points, normals[:-1], pool, hand, params, support)
+        gs = pp.plan(points, normals, pool, hand, params, support)
+        assert pp.pid == pid and pp.plans == 1 and pp.local_plans == 0
+        from pregrasp_core.planner import plan_grasps
+
+        assert bits(gs) == bits(plan_grasps(points, normals, pool, hand, params, support))
+    finally:
+        pp.close()
+    assert pp.pid is None and not alive(pid)
+
+
+@pytest.fixture
+def hand_pool():
+    from pregrasp_core import io as pio
+    from pregrasp_core.hand import Hand
+    from pregrasp_core.paths import DEFAULT_OBJECT
+
+    hand = Hand.load()
+    cloud = pio.load_point_cloud(DEFAULT_OBJECT, n_points=APP_POINTS)
+    r = ppl.run_pipeline(cloud, hand=hand, until="pool")
+    normals = ppl.view_normals(cloud, r.params.planner.normals)
+    pool = r.pool.select(np.arange(min(40, len(r.pool))))
+    return hand, cloud.points, normals, pool, r.params.planner, r.masks.support
+
+
+def test_no_process_outlives_the_app_or_the_viewer():
+    """``App.close()`` and ``server.stop()`` leave no child process (the worker is stopped and
+    reaped); a viewer process that dies without closing leaves no worker behind either (the
+    worker leaves when its pipe closes)."""
+    before = descendants(os.getpid())
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    app = run(ViewerConfig(n_points=APP_POINTS), server)  # the default: planner process on
+    pp = app.controller.planner
+    assert pp is not None and pp.wait_ready(READY_S)
+    app.controller.plan()
+    assert pp.plans == 1
+    ours = descendants(os.getpid()) - before
+    assert pp.pid in ours
+    app.close()
+    server.stop()
+    assert not wait_gone(ours), "a child process outlived the app"
+    assert descendants(os.getpid()) - before == set()
+    # a viewer killed without closing: its worker sees the pipe close and leaves
+    script = (
+        "import os, sys; from app.planner_proc import PlannerProcess; "
+        "pp = PlannerProcess(warm=False); assert pp.wait_ready(120); "
+        "print(pp.pid, flush=True); os._exit(0)"
+    )
+    root = str(Path(__file__).resolve().parents[2])
+    env = {**os.environ, "PYTHONPATH": root}
+    out = subprocess.run(
+        [sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=180
+    )
+    assert out.returncode == 0, out.stderr
+    worker = int(out.stdout.split()[0])
+    assert not wait_gone({worker}), "the worker outlived its viewer"
