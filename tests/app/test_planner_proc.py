@@ -22,6 +22,7 @@ import viser
 from app.planner_proc import PlannerProcess
 from app.server import ViewerConfig, run
 from pregrasp_core import pipeline as ppl
+from pregrasp_core.pregrasps import SamplingParams
 from tests.app.conftest import APP_POINTS
 
 READY_S = 120.0
@@ -103,33 +104,22 @@ def ready_app(make_app, **kw):
 
 def test_the_viewer_plans_in_its_process_with_the_grasps_of_run_pipeline(make_app):
     """Two objects planned by the worker (not here) give ``run_pipeline``'s grasps bit for
-    bit, with the worker's progress reports on the progress bar; a threshold change re-plans
-    there too; the worker plans with its forked copy (two processes)."""
+    bit, with the worker's progress on the progress bar; a threshold change re-plans there
+    too; the worker plans with its forked copy (two processes)."""
     app = ready_app(make_app)
     c, pp = app.controller, app.controller.planner
     shown: list[float] = []
     c.subscribe(lambda s: shown.append(s.progress) if s.busy == "plan" else None)
-    copies: set[int] = set()
-
-    def watch() -> None:  # the worker's children while it plans
-        while not done.is_set():
-            copies.update(descendants(pp.pid))
-            time.sleep(0.005)
-
-    done = threading.Event()
-    watcher = threading.Thread(target=watch, daemon=True)
-    watcher.start()
+    copies = watch_copies(pp)
     c.plan()
-    done.set()
-    watcher.join()
+    copies.stop()
     s = c.state
     assert s.planned and s.error == "", s.error
     assert (pp.plans, pp.local_plans) == (1, 0)
     assert_same_grasps(app)
-    # the pipeline's fraction: 4/5 at the planner's start, 1 at its end; chunks in between
-    planner_steps = sorted({p for p in shown if 0.8 < p < 1.0})
-    assert len(planner_steps) >= 2, shown
-    assert copies, "the worker planned without forking its copy"
+    # the pipeline's fraction: 4/5 when the planner starts, then the worker's reports up to 1
+    assert [p for p in shown if p > 0.8][-1:] == [1.0], shown
+    assert copies.seen, "the worker planned without forking its copy"
     app.gui.params[("decomposition", "volume_ratio")].value = 0.6  # re-plans after the edit
     assert c.state.planned and c.state.error == "", c.state.error
     assert (pp.plans, pp.local_plans) == (2, 0)
@@ -142,31 +132,59 @@ def test_the_viewer_plans_in_its_process_with_the_grasps_of_run_pipeline(make_ap
     assert_same_grasps(app)
 
 
+class watch_copies:  # noqa: N801 - used as a function
+    """Watch the worker's children from a thread; ``on_copy()`` runs once, when the first
+    appears (the worker has forked: it is in the middle of a plan)."""
+
+    def __init__(self, pp: PlannerProcess, on_copy=None) -> None:
+        self.seen: set[int] = set()
+        self._done = threading.Event()
+        self._pid = pp.pid
+        self._on_copy = on_copy
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._done.is_set():
+            kids = descendants(self._pid)
+            if kids and not self.seen and self._on_copy is not None:
+                self.seen |= kids
+                self._on_copy(kids)
+            self.seen |= kids
+            time.sleep(0.002)
+
+    def stop(self) -> None:
+        self._done.set()
+        self._thread.join()
+
+
 def test_a_stale_plan_is_cancelled_and_the_worker_plans_the_next_one(make_app):
-    """A cancel at the first progress report stops the worker's plan at its next chunk: the
-    plan ends without a result, the worker lives on (same process) and the next plan has
+    """A cancel while the worker plans (its copy forked) stops it at its next chunk: the plan
+    ends without a result, the worker lives on (same process) and the next plan has
     ``run_pipeline``'s grasps."""
-    app = ready_app(make_app)
+    # a pool about four times the default's (sampling every 1 cm): a plan long enough to cancel
+    dense = ppl.PipelineParams(sampling=SamplingParams(interval=0.01))
+    app = ready_app(make_app, params=dense)
     c, pp = app.controller, app.controller.planner
+    assert len(c.state.result.pool) > 200
     pid = pp.pid
     fired: list[float] = []
 
-    def cancel_once(s) -> None:
-        if s.busy == "plan" and 0.8 < s.progress < 1.0 and not fired:
-            fired.append(time.perf_counter())
-            c.cancel()
+    def cancel(kids) -> None:
+        fired.append(time.perf_counter())
+        c.cancel()
 
-    c.subscribe(cancel_once)
+    watch = watch_copies(pp, cancel)
     c.plan()
     ended = time.perf_counter()
-    assert fired, "no progress report came from the worker"
+    watch.stop()
+    assert fired, "the worker never forked its copy"
     s = c.state
     assert not s.planned and s.result.grasps is None and s.error == ""
     assert pp.plans == 0 and pp.local_plans == 0 and pp.pid == pid and alive(pid)
     done, total = pp.last_cancel  # the worker stopped at its next chunk, not at the end
     assert 0 < done < total, pp.last_cancel
     assert ended - fired[0] < 5.0
-    fired.append(0.0)  # no more cancels
     c.plan()
     assert c.state.planned and pp.plans == 1 and pp.pid == pid
     assert_same_grasps(app)
@@ -183,15 +201,14 @@ def test_a_killed_worker_is_replaced_and_the_plan_goes_on_here(make_app):
     c.notify = lambda client, title, body, color="blue": notices.append(f"{title}: {body}")
     killed: set[int] = set()
 
-    def kill_once(s) -> None:
-        if s.busy == "plan" and 0.8 < s.progress < 1.0 and not killed:
-            killed.add(old)
-            killed.update(descendants(old))
-            os.kill(old, signal.SIGKILL)
+    def kill(kids) -> None:  # the worker and its copy are planning
+        killed.update({old, *kids})
+        os.kill(old, signal.SIGKILL)
 
-    c.subscribe(kill_once)
+    watch = watch_copies(pp, kill)
     c.plan()
-    assert len(killed) >= 2, "no progress report came from the worker while its copy planned"
+    watch.stop()
+    assert len(killed) >= 2, "the worker never forked its copy"
     s = c.state
     assert s.planned and s.error == "" and pp.local_plans == 1 and pp.plans == 0
     assert_same_grasps(app)
@@ -205,7 +222,8 @@ def test_a_killed_worker_is_replaced_and_the_plan_goes_on_here(make_app):
 
 def test_an_error_in_the_worker_is_raised_here_and_the_worker_goes_on(hand_pool):
     """A plan the planner refuses (one normal short) raises the planner's own ``ValueError``
-    in the caller; the same worker then plans the next job."""
+    in the caller; the same worker then plans the next job, its progress reports forwarded as
+    the planner in this process makes them."""
     hand, points, normals, pool, params, support = hand_pool
     pp = PlannerProcess(warm=False)
     try:
@@ -213,11 +231,19 @@ def test_an_error_in_the_worker_is_raised_here_and_the_worker_goes_on(hand_pool)
         pid = pp.pid
         with pytest.raises(ValueError, match=r"must have shape \(3000, 3\) like points"):
             pp.plan(points, normals[:-1], pool, hand, params, support)
-        gs = pp.plan(points, normals, pool, hand, params, support)
+        # one process (threads=1): chunks of 64, each reported as the planner here reports it
+        one = dataclasses.replace(params, threads=1)
+        got: list[tuple[int, int]] = []
+        gs = pp.plan(points, normals, pool, hand, one, support, lambda d, t: got.append((d, t)))
         assert pp.pid == pid and pp.plans == 1 and pp.local_plans == 0
         from pregrasp_core.planner import plan_grasps
 
-        assert bits(gs) == bits(plan_grasps(points, normals, pool, hand, params, support))
+        want: list[tuple[int, int]] = []
+        ref = plan_grasps(
+            points, normals, pool, hand, one, support, lambda d, t: want.append((d, t))
+        )
+        assert bits(gs) == bits(ref)
+        assert got == want and len(want) >= 2 and want[-1] == (len(pool), len(pool))
     finally:
         pp.close()
     assert pp.pid is None and not alive(pid)
@@ -233,7 +259,7 @@ def hand_pool():
     cloud = pio.load_point_cloud(DEFAULT_OBJECT, n_points=APP_POINTS)
     r = ppl.run_pipeline(cloud, hand=hand, until="pool")
     normals = ppl.view_normals(cloud, r.params.planner.normals)
-    pool = r.pool.select(np.arange(min(40, len(r.pool))))
+    pool = r.pool
     return hand, cloud.points, normals, pool, r.params.planner, r.masks.support
 
 
