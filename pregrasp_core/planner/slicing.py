@@ -152,6 +152,8 @@ def _support_line_2d(
     if ab < 1e-6:
         return _NO_TRACE
     target = h_h + half_width * abs(float(n_h @ plane.normal)) - float(n_h @ plane.origin)
+    if abs(target) > reach * ab * (1.0 + 1e-9):  # |foot| = |target| / ab > reach, far beyond
+        return _NO_TRACE  # any rounding: the test below would say so too
     foot = target * np.array([a, b]) / ab**2  # nearest point of the line to the 2D origin
     d_foot = math.sqrt(float(foot.dot(foot)))  # (= np.linalg.norm(foot): sqrt(x . x))
     if d_foot > reach:
