@@ -29,6 +29,7 @@ planner), so the pipeline's grasps stage calls it in place of ``plan_grasps``
 
 from __future__ import annotations
 
+import dataclasses
 import gc
 import logging
 import os
@@ -58,6 +59,12 @@ START_S: float = 120.0
 MAX_RESTARTS: int = 3
 """Workers started again after a failure; after that, every plan runs in this process."""
 
+FORK_MIN: int = 128
+"""Smallest pool the worker plans on two processes (``PlannerParams.threads`` as asked); a
+smaller one is planned in the worker alone (``threads=1``; the grasps never depend on it): the
+fork and its copy cost 0.12-0.18 s of CPU per plan, more than the second core saves on the 76
+pre-grasps of the mug at 5,000 points (docs/benchmarks.md, "Session 10")."""
+
 WARM_POINTS: int = 1000
 """Points of the warm-up plan (the default object's) that loads the compiled kernels."""
 
@@ -81,6 +88,12 @@ def _planner() -> Callable[..., Any]:
     from pregrasp_core.planner import plan_grasps
 
     return plan_grasps
+
+
+def _planner_params() -> Any:
+    from pregrasp_core.planner import PlannerParams
+
+    return PlannerParams()
 
 
 class PlannerProcess:
@@ -308,6 +321,8 @@ class PlannerProcess:
         """Send job ``job`` and wait for its answer (lock held), forwarding its progress."""
         conn, proc = self._conn, self._proc
         assert conn is not None and proc is not None
+        if check is not None:
+            check()  # already stale: no job for the worker
         try:
             conn.send(("plan", job, kw))
         except (OSError, ValueError) as exc:
@@ -463,12 +478,15 @@ def worker_main(r_req: int, w_ans: int, urdf_path: str, warm: bool) -> None:
 
         reply: tuple[Any, ...]
         try:
+            params = kw["params"]
+            if len(kw["pool"]) < FORK_MIN:  # too small to pay for the fork (FORK_MIN)
+                params = dataclasses.replace(params or _planner_params(), threads=1)
             gs = plan_grasps(
                 kw["points"],
                 kw["normals"],
                 kw["pool"],
                 hand,
-                kw["params"],
+                params,
                 support=kw["support"],
                 progress=progress,
                 assumed=kw["assumed"],

