@@ -158,6 +158,12 @@ class PlannerProcess:
                 env=env,
                 stdin=subprocess.DEVNULL,
             )
+        except OSError as exc:  # no interpreter to start: every plan runs in this process
+            logger.warning("cannot start the planner process (%s); planning in the viewer", exc)
+            self._proc = None
+            os.close(r_ans)
+            os.close(w_req)
+            return
         finally:
             os.close(r_req)
             os.close(w_ans)

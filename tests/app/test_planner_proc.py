@@ -298,3 +298,19 @@ def test_no_process_outlives_the_app_or_the_viewer():
     assert out.returncode == 0, out.stderr
     worker = int(out.stdout.split()[0])
     assert not wait_gone({worker}), "the worker outlived its viewer"
+
+
+def test_a_worker_that_cannot_start_leaves_every_plan_here(hand_pool, monkeypatch):
+    """No interpreter to start (``sys.executable`` gone): the app's planner process plans in
+    the caller, with ``plan_grasps``'s grasps, and nothing is left to end."""
+    hand, points, normals, pool, params, support = hand_pool
+    monkeypatch.setattr(sys, "executable", "/nonexistent/python")
+    pp = PlannerProcess(warm=False)
+    assert pp.pid is None and not pp.ready() and not pp.wait_ready(1.0)
+    from pregrasp_core.planner import plan_grasps
+
+    one = dataclasses.replace(params, threads=1)
+    got = pp.plan(points, normals, pool, hand, one, support)
+    assert (pp.plans, pp.local_plans) == (0, 1)
+    assert bits(got) == bits(plan_grasps(points, normals, pool, hand, one, support))
+    pp.close()
