@@ -98,10 +98,11 @@ viewer")."""
 CLOUD_SHADING: Literal["flat"] = "flat"
 """Shading of the cloud's points: one even colour per point (viser's default "gradient" shades
 each point like a ball, which costs a square root per pixel and carries no information)."""
-HIDDEN_POINT_SIZE = 0.4
-"""Size of the hidden space's points, in voxels (3 mm voxels: 1.2 mm points 3 mm apart). viser's
-point clouds have no opacity: the gaps between the points let the object and the hand show
-through the layer instead."""
+HIDDEN_POINT_SIZE = 0.25
+"""Size of the hidden space's points, in voxels (3 mm voxels: 0.75 mm points 3 mm apart, a
+little smaller than the cloud's). viser's point clouds have no opacity: the gaps between the
+points let the object and the hand show through the layer instead (0.4 voxel cost no
+measurably more a frame: docs/benchmarks.md, "Session 10: the hidden-space layer")."""
 TABLE_EXTENT = 1.5
 """Side of the table grid, in object diagonals (it shows the support plane; every pixel of it
 is shaded in each frame)."""

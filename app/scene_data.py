@@ -376,10 +376,14 @@ HIDDEN_RGB = (185, 225, 255)
 """Colour of the space hidden behind a single depth view, drawn when it was planned with
 ``--occluded occupied`` (pale blue: paler than every part's colour, bluer than the table's
 grey)."""
-HIDDEN_POINTS = 6000
+HIDDEN_POINTS = 5_000
 """Most points of the hidden-space layer: the centres of the hidden region's boundary voxels,
-an even subsample past this (on the 45 generated views of docs/partial-views.md 2,700-10,200
-boundary voxels, median 4,800; the thermos more)."""
+an even subsample past this. The 45 generated views of docs/partial-views.md have 2,701-10,211
+boundary voxels (median 4,827), the depth demo 6,600, the thermos, frypan and teddy views
+9,604-46,233 (median 21,564). On the depth demo the layer costs software WebGL 55-70 ms a frame
+at 2,500-6,600 points (docs/benchmarks.md, "Session 10: the hidden-space layer"; the first
+screen about 600 ms): the count matters little up to there, the cap bounds the large views;
+a subsample still shows the region, its points a few millimetres further apart."""
 MIN_PICK_CLUSTER = 10
 """Clusters of fewer points (the table's noise tail, specks) are not offered to a click."""
 PICK_ANGLE = 0.02

@@ -14,8 +14,11 @@ than the wall time on a shared machine). Chromium's CPU time is the sum of utime
 the processes started with the run's own profile directory (``/proc`` via psutil), idle and
 while a grasp is chosen.
 
-    .venv/bin/python benchmarks/bench_frames.py [--points 5000] [--frames 5] [--idle 10]
-        [--animate-hz HZ] [--shot first_screen.png]
+    .venv/bin/python benchmarks/bench_frames.py [INPUT] [--occluded occupied] [--points 5000]
+        [--frames 5] [--idle 10] [--animate-hz HZ] [--shot first_screen.png]
+
+INPUT: the object to open (default: the mug); a depth view with ``--occluded occupied`` adds
+the ``hidden`` layer (the hidden space, ``app/scene.py``).
 """
 
 from __future__ import annotations
@@ -55,7 +58,7 @@ FRAME_JS = """() => {
 """One frame drawn synchronously and finished (ms), and the drawing buffer's size."""
 
 LAYERS = ("cloud", "boxes", "box_edges", "faces_free", "faces_blocked", "subfaces", "hand_frame",
-          "contacts", "cones", "table")  # fmt: skip
+          "contacts", "cones", "table", "scene", "hidden")  # fmt: skip
 """Scene layers toggled one by one (``boxes``: every box node)."""
 
 
@@ -132,10 +135,26 @@ def frame_gpu_cpu_ms(page, gpu: list[psutil.Process], n: int) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument(
+        "input",
+        nargs="?",
+        type=Path,
+        default=None,
+        help="object to open (default: the mug); e.g. assets/objects/mug_depth.png",
+    )
+    ap.add_argument(
+        "--occluded",
+        choices=("completed", "occupied"),
+        default="completed",
+        help="a single view's hidden space (occupied: drawn as the 'hidden' layer)",
+    )
     ap.add_argument("--points", type=int, default=5000)
     ap.add_argument("--frames", type=int, default=5)
     ap.add_argument("--pairs", type=int, default=3, help="with/without pairs per layer")
     ap.add_argument("--idle", type=float, default=10.0, help="seconds of idle CPU measured")
+    ap.add_argument("--gpu-layers", nargs="*", default=(), metavar="LAYER",
+                    help="layers whose cost is also measured as the GPU process's CPU per frame "
+                    "(e.g. hidden cloud)")  # fmt: skip
     ap.add_argument("--animate-hz", type=float, default=None, help="the animation clock's rate")
     ap.add_argument("--shot", type=Path, default=None, help="save the first screen as PNG")
     args = ap.parse_args()
@@ -146,7 +165,11 @@ def main() -> None:
           f"load {os.getloadavg()[0]:.1f}, {args.points} points")  # fmt: skip
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     extra = {} if args.animate_hz is None else {"animate_hz": args.animate_hz}
-    app = run(ViewerConfig(n_points=args.points, plan_on_start=True, **extra), server)
+    from pregrasp_core.pipeline import PipelineParams
+
+    params = PipelineParams(occluded=args.occluded)
+    app = run(ViewerConfig(input=args.input, n_points=args.points, params=params,
+                           plan_on_start=True, **extra), server)  # fmt: skip
     profile = tempfile.mkdtemp(prefix="pregrasp-frames-")
     try:
         for _ in range(1200):
@@ -166,8 +189,10 @@ def main() -> None:
                   f"chromium CPU {chromium_cpu(profile) - c0:.1f} s")  # fmt: skip
             size = page.evaluate(FRAME_JS)[1:]
             s = app.scene
+            n_cloud = len(app.controller.state.cloud.points)
             print(f"canvas {size[0]} x {size[1]}; boxes {s.n_boxes}, faces {s.n_faces_shown}, "
-                  f"points {len(app.controller.state.cloud.points)}")  # fmt: skip
+                  f"points {n_cloud}, scene points {s.n_scene_points_shown}, "
+                  f"hidden-space points {s.n_hidden_points_shown}")  # fmt: skip
             full = frame_ms(page, args.frames)
             if args.shot is not None:
                 page.screenshot(path=str(args.shot))
@@ -190,6 +215,15 @@ def main() -> None:
                     set_visible(app, hs, True)
                 print(f"{layer:<24} {statistics.median(diffs):+8.0f} ms  "
                       f"(pairs {', '.join(f'{d:+.0f}' for d in diffs)})")  # fmt: skip
+                if gpu and layer in args.gpu_layers:  # the GPU process's CPU, in pairs too
+                    cd = []
+                    for _ in range(args.pairs):
+                        with_it = frame_gpu_cpu_ms(page, gpu, 2 * args.frames)
+                        set_visible(app, hs, False)
+                        cd.append(with_it - frame_gpu_cpu_ms(page, gpu, 2 * args.frames))
+                        set_visible(app, hs, True)
+                    print(f"{layer + ', GPU CPU':<24} {statistics.median(cd):+8.0f} ms a frame "
+                          f"(pairs {', '.join(f'{d:+.0f}' for d in cd)})")  # fmt: skip
             every = [h for layer in LAYERS for h in handles(app, layer)]
             set_visible(app, every, False)
             print(f"{'every layer hidden':<24} {frame_ms(page, args.frames):8.0f} ms")

@@ -5,10 +5,12 @@ Chromium through Python playwright, sets up each view through the app's controll
 actions the GUI runs) and saves ``docs/screenshots/{decomposition,face_masks,pregrasps,
 grasp}.png``, then ``depth_demo.png``: the depth-camera demo (``assets/objects/mug_depth.png``
 opened as ``pregrasp view`` opens it, planned on start) with its best grasp closed
-(:func:`depth_demo_shot`; ``--depth`` takes only that one).
+(:func:`depth_demo_shot`; ``--depth`` takes only that one), and ``depth_hidden.png``: the same
+planned with ``--occluded occupied``, its hidden space drawn (``--hidden`` takes only that one).
 
     .venv/bin/python scripts/screenshots.py [INPUT] [--out docs/screenshots] [--points 20000]
     .venv/bin/python scripts/screenshots.py --depth
+    .venv/bin/python scripts/screenshots.py --hidden
 """
 
 from __future__ import annotations
@@ -93,24 +95,30 @@ def _view_behind_the_hand(server, state, elevation: float = 0.75) -> None:
         client.camera.look_at = center
 
 
-def depth_demo_shot(out: Path, chromium: str) -> int:
+def depth_demo_shot(out: Path, chromium: str, occluded: str = "completed") -> int:
     """``out/depth_demo.png``: the depth demo in the viewer as ``pregrasp view
     assets/objects/mug_depth.png`` starts it (the table found and removed, drawn grey behind the
     mug, the completed back in dark slate, the best grasp planned on start), the hand closed,
-    seen from the side away from the hand, the Object panel and the legend open."""
+    seen from the side away from the hand, the Object panel and the legend open.
+    ``occluded="occupied"``: ``out/depth_hidden.png``, the same planned with ``--occluded
+    occupied`` (the hidden space drawn pale blue)."""
     import viser
     from playwright.sync_api import sync_playwright
 
     from app.server import ViewerConfig, run
     from pregrasp_core.paths import OBJECTS_DIR
+    from pregrasp_core.pipeline import PipelineParams
 
+    name = "depth_demo.png" if occluded == "completed" else "depth_hidden.png"
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    app = run(ViewerConfig(input=OBJECTS_DIR / "mug_depth.png", plan_on_start=True), server)
+    params = PipelineParams(occluded=occluded)
+    config = ViewerConfig(input=OBJECTS_DIR / "mug_depth.png", params=params, plan_on_start=True)
+    app = run(config, server)
     c = app.controller
     try:
         _wait_idle(c)
         if c.state.view.selected_grasp is None:
-            print("no grasp was planned on the depth demo: depth_demo.png not written",
+            print(f"no grasp was planned on the depth demo: {name} not written",
                   file=sys.stderr)  # fmt: skip
             return 1
         c.set_face_masks_visible(False)
@@ -140,7 +148,7 @@ def depth_demo_shot(out: Path, chromium: str) -> int:
                 page.evaluate(
                     "() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))"
                 )
-            path = out / "depth_demo.png"
+            path = out / name
             page.screenshot(path=str(path), timeout=180_000)
             print(f"wrote {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}")
             ctx.close()
@@ -157,10 +165,13 @@ def main() -> int:
     ap.add_argument("--points", type=int, default=20000)
     ap.add_argument("--chromium", default=CHROMIUM)
     ap.add_argument("--depth", action="store_true", help="only the depth demo (depth_demo.png)")
+    hidden_help = "only the depth demo with --occluded occupied (depth_hidden.png)"
+    ap.add_argument("--hidden", action="store_true", help=hidden_help)
     args = ap.parse_args()
-    if args.depth:
+    if args.depth or args.hidden:
         args.out.mkdir(parents=True, exist_ok=True)
-        return depth_demo_shot(args.out, args.chromium)
+        rc = depth_demo_shot(args.out, args.chromium) if args.depth else 0
+        return rc or (depth_demo_shot(args.out, args.chromium, "occupied") if args.hidden else 0)
 
     import viser
     from playwright.sync_api import sync_playwright
@@ -221,7 +232,9 @@ def main() -> int:
     finally:
         app.close()
         server.stop()
-    return depth_demo_shot(args.out, args.chromium)
+    return depth_demo_shot(args.out, args.chromium) or depth_demo_shot(
+        args.out, args.chromium, "occupied"
+    )
 
 
 if __name__ == "__main__":

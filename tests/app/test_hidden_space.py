@@ -132,7 +132,8 @@ def test_the_layer_draws_the_hidden_space_behind_the_seen_can(hidden_app, can_vi
     assert h is not None
     pts = np.asarray(h.points, dtype=np.float64)
     assert len(pts) == app.scene.n_hidden_points_shown
-    assert 1000 < len(pts) <= HIDDEN_POINTS
+    assert 1000 < len(pts) <= HIDDEN_POINTS  # the can's 2,700 boundary voxels, all of them
+    assert len(pts) == len(hidden_space_points(occ, max_points=10**9))
     np.testing.assert_array_equal(np.asarray(h.colors).reshape(-1, 3)[0], HIDDEN_RGB)
     # in hidden voxels, and every drawn point is an obstacle point of the pool and the planner
     # (the boundary voxels are all obstacles)
