@@ -288,30 +288,29 @@ class PlannerProcess:
         plan is then cancelled and the exception raised here."""
         args = (points, normals, pool, hand, params, support, progress, assumed)
         with self._lock:
-            if self._closed or not self._same_hand(hand) or not self._check_ready():
-                self.local_plans += 1
-                return _planner()(*args)
-            self._job += 1
-            job = self._job
-            kw = {
-                "points": points,
-                "normals": normals,
-                "pool": pool,
-                "params": params,
-                "support": support,
-                "assumed": assumed,
-            }
-            try:
-                gs = self._remote(job, kw, progress, check)
-            except WorkerLost as lost:
-                self._fail(str(lost))
-                if self._closed:
-                    raise RuntimeError("the viewer closed during a plan") from None
-            else:
-                self.plans += 1
-                return gs
+            if not self._closed and self._same_hand(hand) and self._check_ready():
+                self._job += 1
+                kw = {
+                    "points": points,
+                    "normals": normals,
+                    "pool": pool,
+                    "params": params,
+                    "support": support,
+                    "assumed": assumed,
+                }
+                try:
+                    gs = self._remote(self._job, kw, progress, check)
+                except WorkerLost as lost:
+                    self._fail(str(lost))
+                    if self._closed:
+                        raise RuntimeError("the viewer closed during a plan") from None
+                else:
+                    self.plans += 1
+                    return gs
             self.local_plans += 1
-        return _planner()(*args)  # outside the lock: the new worker starts meanwhile
+        # here, outside the lock: closing, asking whether it is ready and a new worker's start
+        # do not wait for this plan
+        return _planner()(*args)
 
     def _same_hand(self, hand: Any) -> bool:
         path = getattr(hand, "urdf_path", None)
