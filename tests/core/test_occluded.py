@@ -186,3 +186,43 @@ def test_a_hidden_space_too_large_is_refused_before_its_grid() -> None:
     assert n > MAX_OCCLUDED_VOXELS
     with pytest.raises(WorkLimitError, match="--occluded completed"):
         occupied_space(front, np.vstack([front, back]), np.array([-2.0, 0.0, 1.0]), plane)
+
+
+def test_the_result_carries_the_hidden_space_it_used(make_views, tmp_path: Path, monkeypatch):
+    """``PipelineResult.occupied`` is the space the pool and the planner cleared (its points
+    are the obstacles after the cloud's), built once when a plan follows a run up to the pool
+    (the viewer's load, then its plan), and the grasps are those of one run straight through;
+    ``None`` with ``completed`` or before the pool."""
+    mv = make_views
+    mesh = trimesh.load(OBJECTS_DIR / "can_soda.obj", force="mesh")
+    view = mv.make_view(mesh, mv.AZIMUTHS_DEG[1], 0.001, mv.view_seed("can_soda", 1, 0.001))
+    pts, lab = view.points_world()
+    path = tmp_path / "can.pcd"
+    label = np.where(lab == LABEL_OBJECT, 2, 1).astype(np.uint8)
+    path.write_bytes(mv.pcd_bytes(pts, label, view.T_world_camera))
+    cloud = load_point_cloud(path, n_points=4000)
+    built: list = []
+    real = pipeline.occupied_space
+    monkeypatch.setattr(
+        pipeline, "occupied_space", lambda *a, **k: built.append(real(*a, **k)) or built[-1]
+    )
+    seen: list[np.ndarray] = []
+    real_pool = pipeline.build_pool
+    monkeypatch.setattr(
+        pipeline, "build_pool", lambda pts, *a, **k: seen.append(pts) or real_pool(pts, *a, **k)
+    )
+    params = PipelineParams(occluded="occupied")
+    assert run_pipeline(cloud, params, until="decompose").occupied is None and not built
+    pool = run_pipeline(cloud, params, until="pool")
+    assert len(built) == 1 and pool.occupied is built[0]
+    n = len(cloud.points)
+    np.testing.assert_array_equal(seen[-1][n:], pool.occupied.points)  # the pool's obstacles
+    planned = run_pipeline(cloud, params, pool.hand, until="grasps", previous=pool)
+    assert len(built) == 1 and planned.occupied is pool.occupied and "pool" in planned.reused
+    straight = run_pipeline(cloud, params, pool.hand, until="grasps")
+    assert len(built) == 2
+    a, b = planned.grasps, straight.grasps
+    assert a is not None and b is not None and len(a.ranked) > 0
+    key = [(g.pregrasp, g.epsilon, g.T_world_hand.tobytes()) for g in a.ranked]
+    assert key == [(g.pregrasp, g.epsilon, g.T_world_hand.tobytes()) for g in b.ranked]
+    assert run_pipeline(cloud, PipelineParams(), pool.hand, until="pool").occupied is None
