@@ -65,6 +65,42 @@ smaller one is planned in the worker alone (``threads=1``; the grasps never depe
 fork and its copy cost 0.12-0.18 s of CPU per plan, more than the second core saves on the 76
 pre-grasps of the mug at 5,000 points (docs/benchmarks.md, "Session 10")."""
 
+FORK_MODES: tuple[str, ...] = ("auto", "always", "never")
+"""When the worker forks its copy (``PlannerProcess.fork``): ``auto`` = a pool of at least
+:data:`FORK_MIN` pre-grasps and a free core (:func:`free_cores`); ``always`` = a pool of at
+least :data:`FORK_MIN`; ``never`` = one process."""
+
+
+def free_cores(samples: int = 5, every: float = 0.002) -> int:
+    """The usable CPUs that no other task is running on or waiting for, now: the CPUs less the
+    median over ``samples`` readings (``every`` s apart) of the running and runnable tasks
+    (``procs_running`` of ``/proc/stat``, which counts the caller too). Linux; elsewhere the
+    CPUs less one."""
+    n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    seen: list[int] = []
+    try:
+        for k in range(samples):
+            if k:
+                time.sleep(every)
+            with open("/proc/stat", encoding="ascii") as fh:
+                seen.extend(int(ln.split()[1]) for ln in fh if ln.startswith("procs_running"))
+    except OSError:
+        return n - 1
+    if not seen:
+        return n - 1
+    return n - int(sorted(seen)[len(seen) // 2])
+
+
+def fork_copy(n_pool: int, mode: str) -> bool:
+    """Whether the worker plans ``n_pool`` pre-grasps on two processes (``mode``: one of
+    :data:`FORK_MODES`). With both cores busy (other work on the machine), the forked plan's
+    two processes wait for each other and it was no faster than one (docs/benchmarks.md,
+    "Session 10")."""
+    if mode == "never" or n_pool < FORK_MIN:
+        return False
+    return mode == "always" or free_cores() >= 1
+
+
 WARM_POINTS: int = 1000
 """Points of the warm-up plan (the default object's) that loads the compiled kernels."""
 
@@ -130,6 +166,8 @@ class PlannerProcess:
         """Plans run in this process instead (worker not ready, failed or closed)."""
         self.last_cancel: tuple[int, int] | None = None
         """(pre-grasps planned, of) when the worker stopped its last cancelled plan."""
+        self.fork = "auto"
+        """When the worker forks its copy (:data:`FORK_MODES`); sent with each plan."""
         with self._lock:
             self._start()
 
@@ -297,6 +335,7 @@ class PlannerProcess:
                     "params": params,
                     "support": support,
                     "assumed": assumed,
+                    "fork": self.fork,
                 }
                 try:
                     gs = self._remote(self._job, kw, progress, check)
@@ -484,7 +523,7 @@ def worker_main(r_req: int, w_ans: int, urdf_path: str, warm: bool) -> None:
         reply: tuple[Any, ...]
         try:
             params = kw["params"]
-            if len(kw["pool"]) < FORK_MIN:  # too small to pay for the fork (FORK_MIN)
+            if not fork_copy(len(kw["pool"]), kw.get("fork", "auto")):  # one process
                 params = dataclasses.replace(params or _planner_params(), threads=1)
             gs = plan_grasps(
                 kw["points"],

@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 import viser
 
-from app.planner_proc import FORK_MIN, PlannerProcess
+from app import planner_proc
+from app.planner_proc import FORK_MIN, PlannerProcess, fork_copy
 from app.server import ViewerConfig, run
 from pregrasp_core import pipeline as ppl
 from pregrasp_core.pregrasps import SamplingParams
@@ -169,6 +170,7 @@ def test_a_stale_plan_is_cancelled_and_the_worker_plans_the_next_one(make_app):
     ``run_pipeline``'s grasps."""
     app = ready_app(make_app, params=DENSE)
     c, pp = app.controller, app.controller.planner
+    pp.fork = "always"  # the copy forked whatever the machine's load
     assert len(c.state.result.pool) > max(200, FORK_MIN)
     pid = pp.pid
     fired: list[float] = []
@@ -200,6 +202,7 @@ def test_a_killed_worker_is_replaced_and_the_plan_goes_on_here(make_app):
     the next request."""
     app = ready_app(make_app, params=DENSE)
     c, pp = app.controller, app.controller.planner
+    pp.fork = "always"  # the copy forked whatever the machine's load
     old = pp.pid
     notices: list[str] = []
     c.notify = lambda client, title, body, color="blue": notices.append(f"{title}: {body}")
@@ -286,7 +289,7 @@ def test_no_process_outlives_the_app_or_the_viewer():
     assert descendants(os.getpid()) - before == set()
     # a viewer killed without closing: its worker sees the pipe close and leaves
     script = (
-        "import os, sys; from app.planner_proc import FORK_MIN, PlannerProcess; "
+        "import os, sys; from app.planner_proc import PlannerProcess; "
         "pp = PlannerProcess(warm=False); assert pp.wait_ready(120); "
         "print(pp.pid, flush=True); os._exit(0)"
     )
@@ -314,3 +317,16 @@ def test_a_worker_that_cannot_start_leaves_every_plan_here(hand_pool, monkeypatc
     assert (pp.plans, pp.local_plans) == (0, 1)
     assert bits(got) == bits(plan_grasps(points, normals, pool, hand, one, support))
     pp.close()
+
+
+def test_the_worker_forks_for_a_large_pool_and_a_free_core(monkeypatch):
+    """``fork_copy``: never below ``FORK_MIN`` pre-grasps or with ``never``; with ``auto`` only
+    when a core is free (the running tasks read from /proc/stat, here replaced)."""
+    for free in (-1, 0, 1):
+        monkeypatch.setattr(planner_proc, "free_cores", lambda free=free: free)
+        assert fork_copy(FORK_MIN, "auto") == (free >= 1)
+        assert fork_copy(FORK_MIN, "always") and not fork_copy(FORK_MIN, "never")
+        assert not fork_copy(FORK_MIN - 1, "always") and not fork_copy(FORK_MIN - 1, "auto")
+    monkeypatch.undo()
+    n = planner_proc.free_cores()
+    assert n <= len(os.sched_getaffinity(0)) - 1  # this test's own process is running
