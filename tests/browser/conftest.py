@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -84,3 +85,26 @@ def live_app() -> Iterator:
 def shots_dir() -> Path:
     SHOTS_DIR.mkdir(parents=True, exist_ok=True)
     return SHOTS_DIR
+
+
+def look_from(client, eye, look, deadline: float) -> None:
+    """Move ``client``'s browser camera to ``eye`` looking at ``look`` (world, metres) and wait
+    until the browser reports that pose and has been quiet for 1.5 s (it animates to a new pose
+    and reports its camera on the way); ``deadline``: ``time.monotonic()`` to give up at."""
+    import numpy as np
+    import viser.transforms as vtf
+
+    eye, look = np.asarray(eye, dtype=float), np.asarray(look, dtype=float)
+    reports: list[float] = []
+    client.camera.on_update(lambda cam: reports.append(time.monotonic()))
+    client.camera.position = eye  # position first: it moves look_at along
+    client.camera.look_at = look
+    want = (look - eye) / np.linalg.norm(look - eye)
+    while True:
+        R = vtf.SO3(np.asarray(client.camera.wxyz)).as_matrix()
+        near = np.linalg.norm(np.asarray(client.camera.position) - eye) < 1e-4
+        quiet = bool(reports) and time.monotonic() - reports[-1] > 1.5
+        if near and quiet and float(R[:, 2] @ want) > np.cos(1e-3):
+            return
+        assert time.monotonic() < deadline, "the browser did not take the camera"
+        time.sleep(0.1)

@@ -20,6 +20,7 @@ import viser.transforms as vtf
 
 from pregrasp_core.sensor import Intrinsics
 from pregrasp_core.sensor.synthetic import orbit_camera, render_view
+from tests.browser.conftest import look_from
 from tests.core.test_depth_input import two_boxes, write_scene_pcd
 
 LOAD_TIMEOUT_MS = 180_000
@@ -83,20 +84,7 @@ def test_click_on_the_canvas_picks_the_other_box(browser_context, scene_app, sho
         assert box is not None
         (client,) = app.server.get_clients().values()
         # the app frames the big box from -y, where it hides the small one: look from +y
-        eye, look = np.array([0.05, 0.6, 0.35]), np.array([0.0, 0.07, 0.05])
-        reports: list[float] = []  # the browser animates to a new pose and reports its camera
-        client.camera.on_update(lambda cam: reports.append(time.monotonic()))
-        client.camera.position = eye  # position first: it moves look_at along
-        client.camera.look_at = look
-        want = (look - eye) / np.linalg.norm(look - eye)
-        while True:  # the browser's own reports: at the new pose, and quiet for 1.5 s
-            R = vtf.SO3(np.asarray(client.camera.wxyz)).as_matrix()
-            near = np.linalg.norm(np.asarray(client.camera.position) - eye) < 1e-4
-            quiet = bool(reports) and time.monotonic() - reports[-1] > 1.5
-            if near and quiet and float(R[:, 2] @ want) > np.cos(1e-3):
-                break
-            assert time.monotonic() < deadline, "the browser did not take the camera"
-            time.sleep(0.1)
+        look_from(client, [0.05, 0.6, 0.35], [0.0, 0.07, 0.05], deadline)
         x, y = _pixel(client, box, small_c + [0.0, 0.0, 0.025])  # the small box's top face
         page.mouse.click(x, y)
         while c.state.cloud.points[:, 1].min() < 0.12 or not c.idle():
