@@ -7,6 +7,7 @@ them; they are never skipped (``scripts/test.sh`` installs Chromium on a fresh m
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import tempfile
@@ -65,14 +66,24 @@ def browser_context(chromium) -> Iterator:
 @pytest.fixture(scope="module")
 def live_app() -> Iterator:
     """The real app on a real ``ViserServer`` (127.0.0.1, free port) on the default object."""
+    from app.server import ViewerConfig
+
+    # as `pregrasp view` starts: ghosts off, the best grasp planned in the background
+    with app_on_server(ViewerConfig(n_points=5000, plan_on_start=True)) as app:
+        yield app
+
+
+@contextlib.contextmanager
+def app_on_server(config) -> Iterator:
+    """The app of ``config`` (a ``ViewerConfig``) on a real ``ViserServer`` (127.0.0.1, a free
+    port); closed, with its server, on the way out."""
     import viser
 
-    from app.server import ViewerConfig, run
+    from app.server import run
 
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     try:
-        # as `pregrasp view` starts: ghosts off, the best grasp planned in the background
-        app = run(ViewerConfig(n_points=5000, plan_on_start=True), server)
+        app = run(config, server)
         try:
             yield app
         finally:

@@ -20,7 +20,7 @@ import viser.transforms as vtf
 
 from pregrasp_core.sensor import Intrinsics
 from pregrasp_core.sensor.synthetic import orbit_camera, render_view
-from tests.browser.conftest import look_from
+from tests.browser.conftest import app_on_server, look_from
 from tests.core.test_depth_input import two_boxes, write_scene_pcd
 
 LOAD_TIMEOUT_MS = 180_000
@@ -29,9 +29,7 @@ LOAD_TIMEOUT_MS = 180_000
 
 @pytest.fixture(scope="module")
 def scene_app(tmp_path_factory) -> Iterator:
-    import viser
-
-    from app.server import ViewerConfig, run
+    from app.server import ViewerConfig
 
     mesh, _, small_c = two_boxes()
     T = orbit_camera(np.array([0.0, 0.07, 0.05]), 0.7, np.radians(20.0), np.radians(40.0))
@@ -40,15 +38,8 @@ def scene_app(tmp_path_factory) -> Iterator:
     pts, _ = view.points_world()
     path: Path = tmp_path_factory.mktemp("scene") / "two_boxes.pcd"
     write_scene_pcd(path, pts, T)
-    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    try:
-        app = run(ViewerConfig(input=path, n_points=3000), server)
-        try:
-            yield app, small_c
-        finally:
-            app.close()
-    finally:
-        server.stop()
+    with app_on_server(ViewerConfig(input=path, n_points=3000)) as app:
+        yield app, small_c
 
 
 def _pixel(client, canvas_box: dict, point: np.ndarray) -> tuple[float, float]:

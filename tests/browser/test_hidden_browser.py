@@ -16,7 +16,7 @@ import pytest
 
 from app.scene_data import HIDDEN_RGB
 from pregrasp_core.paths import OBJECTS_DIR
-from tests.browser.conftest import look_from
+from tests.browser.conftest import app_on_server, look_from
 from tests.browser.test_app_browser import _canvas_clip, _canvas_png, _Screencast
 
 LOAD_TIMEOUT_MS = 180_000
@@ -25,25 +25,16 @@ LOAD_TIMEOUT_MS = 180_000
 
 @pytest.fixture(scope="module")
 def occupied_app() -> Iterator:
-    import viser
-
-    from app.server import ViewerConfig, run
+    from app.server import ViewerConfig
     from pregrasp_core.pipeline import PipelineParams
 
-    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    try:
-        cfg = ViewerConfig(
-            input=OBJECTS_DIR / "mug_depth.png",
-            params=PipelineParams(occluded="occupied"),
-            planner_process=False,  # the pool alone: nothing is planned here
-        )
-        app = run(cfg, server)
-        try:
-            yield app
-        finally:
-            app.close()
-    finally:
-        server.stop()
+    cfg = ViewerConfig(
+        input=OBJECTS_DIR / "mug_depth.png",
+        params=PipelineParams(occluded="occupied"),
+        planner_process=False,  # the pool alone: nothing is planned here
+    )
+    with app_on_server(cfg) as app:
+        yield app
 
 
 def _pale_blue(img: np.ndarray) -> int:
