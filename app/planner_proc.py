@@ -484,6 +484,12 @@ def _warm_up(hand: Any) -> None:
 def worker_main(r_req: int, w_ans: int, urdf_path: str, warm: bool) -> None:
     """The worker: load the hand (and warm up), say ``ready``, then plan each job it is sent
     until it is told to stop or its pipe closes. One thread only, so ``plan_grasps`` forks."""
+    import signal
+
+    # Ctrl-C in the viewer's terminal reaches its whole process group, this worker included:
+    # the viewer ends the worker itself (App.close) and a viewer that dies closes the pipe, so
+    # the worker ignores it (else every Ctrl-C printed its KeyboardInterrupt traceback)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     logging.basicConfig(level=logging.WARNING, format="planner process: %(message)s")
     conn = _Duplex(r_req, w_ans)
     os.register_at_fork(after_in_child=_die_with_parent)

@@ -256,6 +256,27 @@ def test_an_error_in_the_worker_is_raised_here_and_the_worker_goes_on(hand_pool)
     assert pp.pid is None and not alive(pid)
 
 
+def test_ctrl_c_reaches_the_viewer_not_the_worker(hand_pool, capfd):
+    """A Ctrl-C in the terminal of ``pregrasp view`` is sent to its whole process group: the
+    worker ignores it (no traceback on the terminal, the same worker plans on) and ends when the
+    viewer closes it."""
+    hand, points, normals, pool, params, support = hand_pool
+    pp = PlannerProcess(warm=False)
+    try:
+        assert pp.wait_ready(READY_S)
+        pid = pp.pid
+        os.kill(pid, signal.SIGINT)
+        time.sleep(0.5)
+        one = dataclasses.replace(params, threads=1)
+        gs = pp.plan(points, normals, pool, hand, one, support)
+        assert pp.pid == pid and alive(pid) and pp.plans == 1 and pp.local_plans == 0
+        assert len(gs.grasps) == len(pool)
+    finally:
+        pp.close()
+    assert not alive(pid)
+    assert "KeyboardInterrupt" not in capfd.readouterr().err
+
+
 @pytest.fixture
 def hand_pool():
     from pregrasp_core import io as pio
