@@ -220,12 +220,10 @@ class PlannerProcess:
                 pass
             conn.close()  # its pipe closed: an idle worker leaves at once
         if proc is not None:
-            for step in (proc.wait, proc.terminate, proc.kill):
-                try:
-                    if step is proc.wait:
-                        proc.wait(timeout=2.0)
-                        break
+            for step in (None, proc.terminate, proc.kill):  # 2 s for each to take effect
+                if step is not None:
                     step()
+                try:
                     proc.wait(timeout=2.0)
                     break
                 except subprocess.TimeoutExpired:
