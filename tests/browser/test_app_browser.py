@@ -2,8 +2,9 @@
 boxes change (and a second tab see the same), hide the face masks and show the ghosts, plan and
 see the ranked table, pick a grasp, open a result file, save screenshots, upload a broken file
 and see the error notification. Each action is timed: the server must draw its change within
-:data:`ACTION_S` of the edit's arrival, and the time until it is on screen (the page's text, or
-the canvas's pixels) is printed (software WebGL: the machine's speed, not asserted).
+:data:`ACTION_S` of the edit's arrival, and the change must be on screen within
+:data:`ACTION_S` of the action (the page's text, or the first frame Chromium composites with
+the changed canvas), in the best of up to :data:`TRIES` tries (:func:`_shown_within`).
 
 What the page shows is checked against what the server's scene holds (the box handles under
 their fixed names), so the "boxes: N" label cannot drift from the scene.
@@ -44,14 +45,51 @@ def _boxes_in_page(page) -> int:
 def page(browser_context, live_app):
     page = browser_context.new_page()
     page.set_default_timeout(LOAD_TIMEOUT_MS)
+    t0 = time.perf_counter()
     page.goto(f"http://127.0.0.1:{live_app.server.get_port()}")
     page.get_by_text(re.compile(r"^boxes: \d+$")).wait_for(timeout=LOAD_TIMEOUT_MS)
+    t1 = time.perf_counter()
+    page.get_by_text(FC_TEXT).wait_for(timeout=LOAD_TIMEOUT_MS)
+    print(  # noqa: T201 - figures for the log
+        f"first screen: boxes {t1 - t0:.2f} s, best grasp {time.perf_counter() - t0:.2f} s"
+    )
     yield page
     page.close()
 
 
 ACTION_S = 2.0
 """Longest time from an action to its change on screen (issue 14)."""
+
+TRIES = 3
+"""Tries of an action whose change was not on screen within :data:`ACTION_S`. The shared
+2-core VM's other jobs add their time to a try (software WebGL draws a frame of this scene in
+about 0.2 s on a quiet machine, seconds while other browsers run), so an action is held to
+its best of three tries, as a benchmark takes its minimum; an app that is slow fails every try
+(a first screen of 214 hand ghosts took 11 to 28 s per action)."""
+
+
+def _shown_within(what: str, attempt) -> float:
+    """Call ``attempt(i)`` (the i-th try of an action, from the state the try before it left;
+    it returns the seconds until the change was on screen) until one is within
+    :data:`ACTION_S`, at most :data:`TRIES` times; assert that one was. Returns the number of
+    tries."""
+    times: list[float] = []
+    for i in range(TRIES):
+        times.append(attempt(i))
+        if times[-1] < ACTION_S:
+            break
+    listed = ", ".join(f"{t:.2f}" for t in times)
+    print(f"{what}: on screen after {listed} s")  # noqa: T201 - figures for the log
+    assert min(times) < ACTION_S, f"{what}: on screen only after {listed} s in {len(times)} tries"
+    return len(times)
+
+
+def _wait_until(page, cond, what: str, timeout_s: float = 90.0) -> None:
+    """Poll ``cond()`` every 50 ms (letting the page run) until it holds."""
+    end = time.monotonic() + timeout_s
+    while not cond():
+        assert time.monotonic() < end, f"never: {what}"
+        page.wait_for_timeout(50)
 
 
 class _Watch:
@@ -166,6 +204,47 @@ class _Screencast:
         self._cdp.detach()
 
 
+_TEXT_JS = """([want, key]) => {
+  const re = new RegExp(want);
+  window[key] = null;
+  const hit = (n) => n && re.test((n.textContent || '').trim());
+  const seen = new MutationObserver((records) => {
+    if (records.some((r) => hit(r.target) || [...r.addedNodes].some(hit))) {
+      seen.disconnect();
+      requestAnimationFrame(() => requestAnimationFrame(() => { window[key] = Date.now(); }));
+    }
+  });
+  seen.observe(document.body, {subtree: true, childList: true, characterData: true});
+}"""
+
+
+class _TextWatch:
+    """When the page first painted a text matching ``pattern`` (a JavaScript regular
+    expression): a ``MutationObserver`` in the page sees the node change, and the time is
+    taken at the start of the second animation frame after it, when the frame that painted
+    the text has been drawn (an upper bound). Playwright's own wait for a text polls at
+    growing intervals (up to 0.5 s, each poll queued behind the page's frames), which put
+    0.5 to 2.5 s on top of the page's time at a load of 3 (session 11)."""
+
+    _n = 0
+
+    def __init__(self, page, pattern: str) -> None:
+        _TextWatch._n += 1
+        self._page, self._key = page, f"__pregraspText{_TextWatch._n}"
+        self._wall = time.time() - time.perf_counter()  # wall clock -> perf_counter
+        page.evaluate(_TEXT_JS, [pattern, self._key])
+
+    def painted(self) -> float | None:
+        """The time (on the perf_counter) the text was painted, or None if it was not seen
+        changing (it was there before, or the observer missed it)."""
+        for _ in range(20):
+            at = self._page.evaluate(f"() => window['{self._key}']")
+            if at is not None:
+                return float(at) / 1000.0 - self._wall
+            self._page.wait_for_timeout(50)
+        return None
+
+
 def _differs(now: np.ndarray, before: np.ndarray) -> bool:
     """Whether more than 0.2 % of the canvas's pixels changed (by more than 12 of 255)."""
     return now.shape != before.shape or (np.abs(now - before).max(axis=2) > 12).mean() > 0.002
@@ -173,16 +252,13 @@ def _differs(now: np.ndarray, before: np.ndarray) -> bool:
 
 def _check_shown(
     page, what: str, t0: float, t_screen: float, watch: _Watch, frame: float | None = None
-) -> None:
+) -> float:
     """Assert that the server drew the action's change within :data:`ACTION_S` of the last
-    arrival of its edit, and print that with the time until the change was on screen.
-
-    The on-screen time is printed, not asserted: with software WebGL in headless Chromium it is
-    the machine's rendering speed (11 to 28 s were measured on the shared 2-core VM while other
-    jobs ran, 1.7 to 4.1 s in a CI run), which a test cannot hold to a bound without failing on
-    a busy machine; it is a figure for ``docs/benchmarks.md``. That the change does show is
-    asserted by each test (texts, canvas pixels). ``frame``: the first composited frame with the
-    change (:class:`_Screencast`), printed beside the screenshot's time when given."""
+    arrival of its edit, print that with the time until the change was on screen, and return
+    the time the user waited: ``frame`` (the first composited frame with the change,
+    :class:`_Screencast`) when given, else ``t_screen - t0`` (the test saw the text, or a
+    screenshot showed the canvas changed; a screenshot waits for a frame of its own, 0.9 to
+    1.4 s while the hand animates, so for the canvas it is an upper bound)."""
     del page
     t_server = watch.done()
     came = [t for t in ARRIVALS if t0 <= t <= t_server]
@@ -193,6 +269,7 @@ def _check_shown(
         f"{what}: on screen {on_screen:.2f} s{first}, server {server:.2f} s from the edit's arrival"
     )
     assert server < ACTION_S, f"{what}: the server took {server:.2f} s to draw the change"
+    return on_screen if frame is None else frame
 
 
 def _canvas_changed(page, before: np.ndarray, clip: dict, timeout: float = 90.0) -> float:
@@ -304,17 +381,26 @@ def test_threshold_change_changes_the_boxes(page, live_app, shots_dir):
         pytest.fail("no volume ratio changes the number of parts of the default object")
     box = page.get_by_label("volume ratio", exact=True)
     app = live_app
+    # the tries go to the new ratio, back to the first one, and to the new one again
+    steps = ((ratio, expected), (str(s0.params.decomposition.volume_ratio), n0))
 
-    def drawn() -> bool:
-        r = app.scene.rendered
-        return r is not None and r.params.decomposition.volume_ratio == float(ratio)
+    def change(i: int) -> float:
+        want, n = steps[i % 2]
 
-    watch = _Watch(drawn)
-    t0 = time.perf_counter()
-    box.fill(ratio)  # sent as typed: the first edit runs at once, later ones coalesce
-    box.press("Enter")
-    page.get_by_text(f"boxes: {expected}", exact=True).wait_for(timeout=LOAD_TIMEOUT_MS)
-    _check_shown(page, "threshold change", t0, time.perf_counter(), watch)
+        def drawn() -> bool:
+            r = app.scene.rendered
+            return r is not None and r.params.decomposition.volume_ratio == float(want)
+
+        watch = _Watch(drawn)
+        text = _TextWatch(page, f"^boxes: {n}$")
+        t0 = time.perf_counter()
+        box.fill(want)  # sent as typed: the first edit runs at once, later ones coalesce
+        box.press("Enter")
+        page.get_by_text(f"boxes: {n}", exact=True).wait_for(timeout=LOAD_TIMEOUT_MS)
+        t1 = text.painted() or time.perf_counter()
+        return _check_shown(page, "threshold change", t0, t1, watch)
+
+    ratio, expected = steps[(_shown_within("threshold change", change) - 1) % 2]
     assert _boxes_in_page(page) == expected == _scene_box_count(live_app)
     assert live_app.controller.state.params.decomposition.volume_ratio == float(ratio)
     # a second browser sees the same shared state (docs/app.md: one state per server)
@@ -334,27 +420,45 @@ def test_face_masks_and_ghosts_show_and_hide(page, live_app, shots_dir):
     says."""
     masks = page.get_by_label("face masks", exact=True)
     assert masks.is_checked() and live_app.scene.n_faces_shown != (0, 0)
+    scene = live_app.scene
     clip = _canvas_clip(page)
-    before = _canvas_png(page, clip=clip)
     cast = _Screencast(page)
-    page.wait_for_timeout(300)  # the frame on screen before the action
-    watch = _Watch(lambda: live_app.scene.n_faces_shown == (0, 0))
-    t0 = time.perf_counter()
-    masks.uncheck()
-    _canvas_changed(page, before, clip)
-    t1 = time.perf_counter()
-    _check_shown(page, "face masks hidden", t0, t1, watch, cast.first_change(t0, clip))
+
+    def hide_masks(i: int) -> float:
+        if i:  # the masks back on screen for another try
+            masks.check()
+            _wait_until(page, lambda: scene.n_faces_shown != (0, 0), "the masks drawn again")
+            page.wait_for_timeout(1000)
+        before = _canvas_png(page, clip=clip)
+        page.wait_for_timeout(300)  # the frame on screen before the action
+        watch = _Watch(lambda: scene.n_faces_shown == (0, 0))
+        t0 = time.perf_counter()
+        masks.uncheck()
+        _canvas_changed(page, before, clip)
+        t1 = time.perf_counter()
+        return _check_shown(page, "face masks hidden", t0, t1, watch, cast.first_change(t0, clip))
+
+    _shown_within("face masks hidden", hide_masks)
     assert live_app.scene.n_faces_shown == (0, 0) and not masks.is_checked()
     ghosts = page.get_by_label("hand ghosts", exact=True)
-    before = _canvas_png(page, clip=clip)
-    watch = _Watch(lambda: live_app.scene.n_ghosts_shown > 0)
-    t0 = time.perf_counter()
-    ghosts.check()
     drawn = re.compile(r"pool: \d+ pre-grasps, \d+ pass the filters, [1-9]\d* ghosts drawn")
-    page.get_by_text(drawn).wait_for(timeout=LOAD_TIMEOUT_MS)
-    _canvas_changed(page, before, clip)
-    t1 = time.perf_counter()
-    _check_shown(page, "ghosts shown", t0, t1, watch, cast.first_change(t0, clip))
+
+    def show_ghosts(i: int) -> float:
+        if i:  # the ghosts off the screen for another try
+            ghosts.uncheck()
+            page.get_by_text(re.compile(r", 0 ghosts drawn")).wait_for(timeout=LOAD_TIMEOUT_MS)
+            page.wait_for_timeout(1000)
+        before = _canvas_png(page, clip=clip)
+        page.wait_for_timeout(300)  # the frame on screen before the action
+        watch = _Watch(lambda: scene.n_ghosts_shown > 0)
+        t0 = time.perf_counter()
+        ghosts.check()
+        page.get_by_text(drawn).wait_for(timeout=LOAD_TIMEOUT_MS)
+        _canvas_changed(page, before, clip)
+        t1 = time.perf_counter()
+        return _check_shown(page, "ghosts shown", t0, t1, watch, cast.first_change(t0, clip))
+
+    _shown_within("ghosts shown", show_ghosts)
     cast.stop()
     n = live_app.scene.n_ghosts_shown
     assert 0 < n <= live_app.scene.max_ghosts
@@ -372,30 +476,38 @@ def test_face_masks_and_ghosts_show_and_hide(page, live_app, shots_dir):
 
 def test_plan_shows_ranked_table_and_pick_a_grasp(page, live_app, shots_dir):
     c = live_app.controller
-    for _ in range(900):  # the start-up plan has finished: a new plan starts from a quiet app
-        if c.idle() and c.state.planned:
-            break
-        page.wait_for_timeout(100)
-    # a fresh cloud (one point more), so that the plan runs the planner (the start-up plan's
-    # grasps would be reused as they are)
-    c.set_n_points(c.state.n_points + 1)
-    assert not c.state.planned
-    v0 = live_app.controller.state.version
-    # the page drops the old summary line first (the new cloud is not planned)
-    page.get_by_text(FC_TEXT).first.wait_for(state="hidden", timeout=LOAD_TIMEOUT_MS)
-    watch = _Watch(lambda: c.state.busy == "plan" or c.state.planned)
+    v0 = c.state.version
+
+    def start_plan(i: int) -> float:
+        nonlocal v0, t0
+        # the plan before (the start-up plan, or the try before) has finished: a new plan
+        # starts from a quiet app
+        _wait_until(page, lambda: c.idle() and c.state.planned, "the plan before ended")
+        # a fresh cloud (one point more), so that the plan runs the planner (the start-up
+        # plan's grasps would be reused as they are)
+        c.set_n_points(c.state.n_points + 1)
+        assert not c.state.planned
+        v0 = c.state.version
+        # the page drops the old summary line first (the new cloud is not planned)
+        page.get_by_text(FC_TEXT).first.wait_for(state="hidden", timeout=LOAD_TIMEOUT_MS)
+        watch = _Watch(lambda: c.state.busy == "plan" or c.state.planned)
+        text = _TextWatch(page, r"^(planning\.\.\.|\d+ force-closure of \d+ kept)")
+        t0 = time.perf_counter()
+        page.get_by_role("button", name="plan grasps").click()
+        # the page shows the plan running, or already its result: a plan of 5,000 points can
+        # end before the page has drawn its progress (both updates then arrive in one frame)
+        page.wait_for_function(
+            "() => [...document.querySelectorAll('button')].some(b => b.innerText.includes("
+            "'planning...')) || document.querySelector('[role=progressbar]') !== null || "
+            "[...document.querySelectorAll('strong')].some(e => "
+            "/^\\d+ force-closure of \\d+ kept$/.test(e.innerText))",
+            timeout=LOAD_TIMEOUT_MS,
+        )
+        t1 = text.painted() or time.perf_counter()
+        return _check_shown(page, "plan started", t0, t1, watch)
+
     t0 = time.perf_counter()
-    page.get_by_role("button", name="plan grasps").click()
-    # the page shows the plan running, or already its result: a plan of 5,000 points can end
-    # before the page has drawn its progress (both updates then arrive in one frame)
-    page.wait_for_function(
-        "() => [...document.querySelectorAll('button')].some(b => b.innerText.includes("
-        "'planning...')) || document.querySelector('[role=progressbar]') !== null || "
-        "[...document.querySelectorAll('strong')].some(e => "
-        "/^\\d+ force-closure of \\d+ kept$/.test(e.innerText))",
-        timeout=LOAD_TIMEOUT_MS,
-    )
-    _check_shown(page, "plan started", t0, time.perf_counter(), watch)
+    _shown_within("plan started", start_plan)
     for _ in range(900):  # the plan is committed (the button is enabled again)
         s = live_app.controller.state
         if s.version > v0 and s.planned and live_app.controller.idle():
@@ -410,47 +522,52 @@ def test_plan_shows_ranked_table_and_pick_a_grasp(page, live_app, shots_dir):
     page.screenshot(path=str(shots_dir / "browser_planned.png"))
     if len(ranked) < 2:
         pytest.fail("the default object should give at least two ranked grasps")
-    page.get_by_label("grasp", exact=True).click()
-    option = page.get_by_role("option", name=re.compile(r"^#2 "))
-    option.wait_for()
     clip = _canvas_clip(page)
-    before = _canvas_png(page, clip=clip)
     app = live_app
-
-    def posed() -> bool:
-        r = app.scene.rendered
-        return r is not None and r.view.selected_grasp == 1
-
     cast = _Screencast(page)
-    page.wait_for_timeout(300)  # the frame on screen before the action
-    watch = _Watch(posed)
-    t0 = time.perf_counter()
-    option.click()
-    page.wait_for_function(
-        "() => [...document.querySelectorAll('input')].some(i => i.value.startsWith('#2 '))",
-        timeout=LOAD_TIMEOUT_MS,
-    )
-    _canvas_changed(page, before, clip)  # the hand moves
-    t1 = time.perf_counter()
-    _check_shown(page, "grasp choice", t0, t1, watch, cast.first_change(t0, clip))
+    order = (1, 2, 1) if len(ranked) >= 3 else (1, 0, 1)  # grasps chosen by the tries
+
+    def closed() -> bool:  # the choice plays the approach and closing (2 s at speed 1)
+        s = app.controller.state  # the scene has drawn the closed hand, not just been told
+        return not s.view.playing and s.view.anim_t == 1.0 and app.scene.rendered is s
+
+    def choose(i: int) -> float:
+        k = order[i]
+        if i:  # the hand of the try before at rest, for another try
+            _wait_until(page, closed, "the hand closed")
+        page.get_by_label("grasp", exact=True).click()
+        option = page.get_by_role("option", name=re.compile(rf"^#{k + 1} "))
+        option.wait_for()
+        before = _canvas_png(page, clip=clip)
+        page.wait_for_timeout(300)  # the frame on screen before the action
+
+        def posed() -> bool:
+            r = app.scene.rendered
+            return r is not None and r.view.selected_grasp == k
+
+        watch = _Watch(posed)
+        t0 = time.perf_counter()
+        option.click()
+        page.wait_for_function(
+            f"() => [...document.querySelectorAll('input')].some(i => i.value.startsWith("
+            f"'#{k + 1} '))",
+            timeout=LOAD_TIMEOUT_MS,
+        )
+        _canvas_changed(page, before, clip)  # the hand moves
+        t1 = time.perf_counter()
+        return _check_shown(page, "grasp choice", t0, t1, watch, cast.first_change(t0, clip))
+
+    chosen = order[_shown_within("grasp choice", choose) - 1]
     cast.stop()
     # the server saw the choice and posed the URDF hand at that grasp
-    for _ in range(100):
-        if live_app.controller.state.view.selected_grasp == 1:
-            break
-        page.wait_for_timeout(100)
-    assert live_app.controller.state.view.selected_grasp == 1
-    for _ in range(300):  # the choice plays the approach and closing (2 s at speed 1)
-        s = live_app.controller.state
-        if not s.view.playing and s.view.anim_t == 1.0 and live_app.scene.rendered is s:
-            break  # the scene has drawn the closed hand, not just been told of it
-        page.wait_for_timeout(100)
+    _wait_until(page, lambda: app.controller.state.view.selected_grasp == chosen, "the choice")
+    _wait_until(page, closed, "the hand closed")
     frame = live_app.scene.handle("hand_frame")
     assert frame.visible
     # against the result the scene drew: a plan committed after the table was read (the
     # start-up plan finishing late) may rank slightly different poses
     shown = ranked_grasps(live_app.scene.rendered.result)
-    assert abs(frame.position - shown[1].T_world_hand[:3, 3]).max() < 1e-6
+    assert abs(frame.position - shown[chosen].T_world_hand[:3, 3]).max() < 1e-6
     page.screenshot(path=str(shots_dir / "browser_grasp.png"))
 
 
@@ -603,20 +720,33 @@ def test_open_a_result_file(page, live_app, shots_dir):
     doc = ppl.result_document(res)
     data = json.dumps(doc).encode()
 
-    def shown() -> bool:
-        r = live_app.scene.rendered
-        return r is not None and r.loaded is not None and r.loaded.name == "mug.result.json"
+    def name(i: int) -> str:  # each try uploads the file under a name of its own
+        return "mug.result.json" if i == 0 else f"mug-{i + 1}.result.json"
 
-    watch = _Watch(shown)
-    t0 = time.perf_counter()
-    page.locator("input[type=file]").first.set_input_files(
-        files=[{"name": "mug.result.json", "mimeType": "application/json", "buffer": data}]
-    )
-    status = page.get_by_text("mug.result.json: result file of", exact=False)
-    status.first.wait_for(timeout=LOAD_TIMEOUT_MS)
+    def status(i: int):
+        return page.get_by_text(f"{name(i)}: result file of", exact=False)
+
     what = f"result file ({len(data) / 1e6:.1f} MB) opened"
-    _check_shown(page, what, t0, time.perf_counter(), watch)
-    assert "holds no points" in status.first.inner_text()
+
+    def upload(i: int) -> float:
+        def shown() -> bool:
+            r = live_app.scene.rendered
+            return r is not None and r.loaded is not None and r.loaded.name == name(i)
+
+        if i:
+            _wait_until(page, c.idle, "the file before loaded")
+        watch = _Watch(shown)
+        text = _TextWatch(page, "^" + re.escape(f"{name(i)}: result file of"))
+        t0 = time.perf_counter()
+        page.locator("input[type=file]").first.set_input_files(
+            files=[{"name": name(i), "mimeType": "application/json", "buffer": data}]
+        )
+        status(i).first.wait_for(timeout=LOAD_TIMEOUT_MS)
+        t1 = text.painted() or time.perf_counter()
+        return _check_shown(page, what, t0, t1, watch)
+
+    last = _shown_within(what, upload) - 1
+    assert "holds no points" in status(last).first.inner_text()
     leaves = doc["tree"]["leaves"]
     page.get_by_text(f"boxes: {len(leaves)}", exact=True).wait_for(timeout=LOAD_TIMEOUT_MS)
     assert live_app.scene.box_ids == leaves

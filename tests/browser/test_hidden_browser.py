@@ -2,7 +2,8 @@
 table, one view) opened with ``--occluded occupied`` draws the space behind the seen surface in
 its own pale blue (``app.scene_data.HIDDEN_RGB``); unticking "hidden space" removes it from the
 canvas without re-planning. The pale-blue pixels are counted on the canvas as displayed, and
-the first composited frame without them is timed (printed, as in ``test_app_browser.py``).
+the first composited frame without them is on screen within 2 s (in the best of three tries,
+as in ``test_app_browser.py``).
 """
 
 from __future__ import annotations
@@ -17,7 +18,13 @@ import pytest
 from app.scene_data import HIDDEN_RGB
 from pregrasp_core.paths import OBJECTS_DIR
 from tests.browser.conftest import app_on_server, look_from
-from tests.browser.test_app_browser import _canvas_clip, _canvas_png, _Screencast
+from tests.browser.test_app_browser import (
+    ACTION_S,
+    _canvas_clip,
+    _canvas_png,
+    _Screencast,
+    _shown_within,
+)
 
 LOAD_TIMEOUT_MS = 180_000
 """Generous: headless Chromium renders WebGL in software, on a shared machine."""
@@ -73,24 +80,35 @@ def test_the_hidden_space_shows_in_its_colour_and_hides(browser_context, occupie
         real = c._run
         c._run = lambda *a, **k: runs.append(1) or real(*a, **k)  # no pipeline run may follow
         cast = _Screencast(page)
-        page.wait_for_timeout(300)  # the frame on screen before the action
-        t0 = time.perf_counter()
-        box.uncheck()
-        while app.scene.handle("hidden") is not None or app.scene.n_hidden_points_shown:
-            assert time.monotonic() < deadline, "the server kept the hidden-space layer"
-            page.wait_for_timeout(20)
-        server_s = time.perf_counter() - t0
-        while _pale_blue(_canvas_png(page, frames=0, clip=clip)) > shown // 20:
-            assert time.monotonic() < deadline, "the pale blue stayed on the canvas"
-        on_screen = time.perf_counter() - t0
-        frame = cast.first_change(t0, clip)
+
+        def hide(i: int) -> float:
+            if i:  # the layer back on screen for another try
+                box.check()
+                while _pale_blue(_canvas_png(page, frames=0, clip=clip)) < shown // 2:
+                    assert time.monotonic() < deadline, "the pale blue did not come back"
+                page.wait_for_timeout(1000)
+            page.wait_for_timeout(300)  # the frame on screen before the action
+            t0 = time.perf_counter()
+            box.uncheck()
+            while app.scene.handle("hidden") is not None or app.scene.n_hidden_points_shown:
+                assert time.monotonic() < deadline, "the server kept the hidden-space layer"
+                page.wait_for_timeout(20)
+            server_s = time.perf_counter() - t0
+            while _pale_blue(_canvas_png(page, frames=0, clip=clip)) > shown // 20:
+                assert time.monotonic() < deadline, "the pale blue stayed on the canvas"
+            on_screen = time.perf_counter() - t0
+            frame = cast.first_change(t0, clip)
+            first = "" if frame is None else f", first frame with it {frame:.2f} s"
+            print(  # noqa: T201 - figures for the log
+                f"hidden space hidden: on screen {on_screen:.2f} s{first}, server {server_s:.2f} s"
+            )
+            assert server_s < ACTION_S, f"the server took {server_s:.2f} s to drop the layer"
+            return on_screen if frame is None else frame
+
+        _shown_within("hidden space hidden", hide)
         cast.stop()
         hidden = _pale_blue(_canvas_png(page, clip=clip))
-        first = "" if frame is None else f", first frame with it {frame:.2f} s"
-        print(  # noqa: T201 - figures for the log
-            f"hidden space hidden: on screen {on_screen:.2f} s{first}, server {server_s:.2f} s; "
-            f"pale-blue pixels {shown} -> {hidden}"
-        )
+        print(f"pale-blue pixels {shown} -> {hidden}")  # noqa: T201 - figures for the log
         c._run = real
         assert shown >= 500, f"only {shown} pale-blue pixels with the layer on"
         assert hidden <= shown // 20
