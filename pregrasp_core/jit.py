@@ -36,12 +36,17 @@ class Lazy(Generic[T]):
         return self._value
 
 
-def njit(fn: F, fastmath: bool | set[str] = False) -> F:
+def njit(fn: F, fastmath: bool | set[str] = False, error_model: str = "python") -> F:
     """``fn`` compiled by numba (imported here, on the first call): ``cache=True``,
-    ``nogil=True``, and ``fastmath`` as given (False: none)."""
+    ``nogil=True``, ``fastmath`` as given (False: none) and numba's ``error_model``
+    ("python": a float division by zero raises ZeroDivisionError, which puts a branch into
+    every division; "numpy": it gives inf or NaN as numpy does, and loops with divisions can
+    be vectorised; the same value for every other division)."""
     import numba
 
-    return cast(F, numba.njit(fn, cache=True, nogil=True, fastmath=fastmath))
+    return cast(
+        F, numba.njit(fn, cache=True, nogil=True, fastmath=fastmath, error_model=error_model)
+    )
 
 
 def inline_helpers(namespace: dict[str, object], *names: str) -> None:

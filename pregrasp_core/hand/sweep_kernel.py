@@ -12,9 +12,15 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..jit import Lazy, njit
+from ..jit import Lazy, inline_helpers, njit
 
-_KERNEL = Lazy(lambda: njit(coarse_sweep_loop))
+_KERNEL = Lazy(lambda: _build_sweep())
+
+
+def _build_sweep() -> Callable[..., tuple[np.ndarray, np.ndarray]]:
+    # (the speeds divided by are > 0: lengths and half thicknesses plus |margin|)
+    inline_helpers(globals(), "first_tests")
+    return njit(coarse_sweep_loop, error_model="numpy")
 
 
 def sweep_kernel() -> Callable[..., tuple[np.ndarray, np.ndarray]]:
@@ -51,14 +57,44 @@ def coarse_sweep_loop(
     # buckets as linked lists: head[k] -> first point, nxt_in[p] -> the next point
     head = np.full(C1 + 1, -1, dtype=np.int64)
     link = np.full(P, -1, dtype=np.int64)
-    for p in range(P - 1, -1, -1):  # every point starts at sample 0
-        link[p] = head[0]
-        head[0] = p
+    hit_row = np.zeros(R, dtype=np.bool_)
+    # sample 0, where every point is tested (most of the sweep's tests): the pair tests of
+    # every point in one branch-free pass (vectorised by the compiler), then the points that
+    # are not touched go to the next sample they may touch at (in the bucket order below)
+    clear0 = np.empty(P)
+    hit0 = np.empty(P, dtype=np.bool_)
+    first_tests(flat, px, py, rows, C1, m, mid, dis, clear0, hit0)
+    t_next0 = np.empty(P, dtype=np.int64)
+    for p in range(P):
+        rw = rows[p]
+        t_next0[p] = -1  # not tested (its slice ended before sample 0) or touched
+        if lim[rw] > 0:
+            ci = rw * C1
+            clear = clear0[p]
+            tk = t_flat[ci]
+            f = free[p]
+            if tk - clear < f:
+                free[p] = max(f, tk + clear)
+            if hit0[p]:
+                hit_row[rw] = True
+            else:
+                y = (tk + clear) * inv_step[rw]
+                nxt = np.int64(min(np.floor(y), C1)) if math.isfinite(y) else np.int64(C1)
+                t_next0[p] = nxt if nxt > 1 else 1
+    for rw in range(R):  # the first touch of the slices hit at sample 0
+        if hit_row[rw]:
+            best[rw] = 0
+            lim[rw] = min(n_t[rw], 0)
+            hit_row[rw] = False
+    for p in range(P):  # (head insertion: each bucket's points in decreasing order)
+        nk = t_next0[p]
+        if nk >= 0 and nk < lim[rows[p]]:
+            link[p] = head[nk]
+            head[nk] = p
     tested = np.empty(P, dtype=np.int64)
     t_next = np.empty(P, dtype=np.int64)
     t_hit = np.zeros(P, dtype=np.bool_)
-    hit_row = np.zeros(R, dtype=np.bool_)
-    for k in range(C1):  # the samples in order: a slice stops at its first touch
+    for k in range(1, C1):  # the samples in order: a slice stops at its first touch
         n = 0
         p = head[k]
         head[k] = -1
@@ -132,6 +168,97 @@ def coarse_sweep_loop(
                 link[p] = head[nk]
                 head[nk] = p
     return best, free
+
+
+def first_tests(
+    flat: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    rows: np.ndarray,
+    C1: int,
+    m: float,
+    mid: bool,
+    dis: bool,
+    clear: np.ndarray,
+    hit: np.ndarray,
+) -> None:
+    """:func:`coarse_sweep_loop`'s pair test of every point at the first sample of its row,
+    into ``clear`` and ``hit`` (P,): the same arithmetic in the same order (so the same
+    values), without a branch on the point: the points go run by run of the same row (the
+    points of a slice are consecutive), each run's configuration read once, so that numba
+    vectorises the loop over the run's points."""
+    P = px.shape[0]
+    p0 = 0
+    while p0 < P:
+        rw = rows[p0]
+        p1 = p0 + 1
+        while p1 < P and rows[p1] == rw:
+            p1 += 1
+        ci = rw * C1
+        hm = flat[6, ci]
+        d1x, d1y, d2x, d2y = flat[0, ci], flat[1, ci], flat[2, ci], flat[3, ci]
+        cs, cr, top0, top1, sp0, sp1 = (
+            flat[4, ci],
+            flat[5, ci],
+            flat[7, ci],
+            flat[8, ci],
+            flat[9, ci],
+            flat[10, ci],
+        )
+        xs, ys, cl, ht = px[p0:p1], py[p0:p1], clear[p0:p1], hit[p0:p1]
+        for i in range(p1 - p0):  # (views from 0: numba vectorises the loop)
+            x, y = xs[i], ys[i]
+            h = False
+            c = np.inf
+            if mid:
+                s = d1x * x
+                s += d1y * y
+                r = d1x * y
+                r -= d1y * x
+                r = abs(r)
+                top = s - top0
+                s = -s
+                s -= m
+                s = max(s, top)
+                s = max(s, 0.0)
+                r -= hm
+                r = max(r, 0.0)
+                h = h | (max(s, r) == 0.0)
+                s *= s
+                r *= r
+                s += r
+                s = math.sqrt(s)
+                s -= 1e-9
+                s = max(s, 0.0)
+                s /= sp0
+                c = min(c, s)
+            if dis:
+                s = d2x * x
+                s += d2y * y
+                r = d2x * y
+                r -= d2y * x
+                s -= cs
+                r -= cr
+                r = abs(r)
+                top = s - top1
+                s = -s
+                s -= m
+                s = max(s, top)
+                s = max(s, 0.0)
+                r -= hm
+                r = max(r, 0.0)
+                h = h | (max(s, r) == 0.0)
+                s *= s
+                r *= r
+                s += r
+                s = math.sqrt(s)
+                s -= 1e-9
+                s = max(s, 0.0)
+                s /= sp1
+                c = min(c, s)
+            cl[i] = 0.0 if h else c
+            ht[i] = h
+        p0 = p1
 
 
 _HITS = Lazy(lambda: njit(ragged_hits_loop))
