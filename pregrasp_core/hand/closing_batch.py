@@ -11,6 +11,7 @@ import numpy as np
 from ..tolerances import HAND_CLOSING_ANGLE_TOL
 from .batch_events import BatchEvents, batch_first_events
 from .batch_hits import SliceBatch, paths, points_of
+from .sweep_kernel import reach_kernel
 from .model import (
     DEFAULT_CLOSING_STEPS,
     DEFAULT_COUPLING,
@@ -78,15 +79,13 @@ def close_fingers(
     q0 = np.clip(q0, lower, upper)
     # only points within a finger's reach from its first joint can ever be touched
     sizes = np.array([len(P) for P in pts], dtype=np.int64)
-    P_all = np.concatenate(pts) if sizes.sum() else np.zeros((0, 2))
-    seg_all = np.repeat(np.arange(S), sizes)
+    P_in = np.concatenate(pts) if sizes.sum() else np.zeros((0, 2))
     reach = geom[:, 1] + np.hypot(geom[:, 2], geom[:, 3]) + 2.0 * abs(margin)
-    keep = np.einsum("ij,ij->i", P_all, P_all) <= (reach * reach)[seg_all]
-    kept = None  # the rows of P_all kept (None: all)
-    if not keep.all():  # (integer indices: much faster than a boolean mask on (N, 2))
-        kept = np.flatnonzero(keep)
-        P_all, seg_all = P_all[kept], seg_all[kept]
-    seg = seg_all
+    # (one compiled pass: the points within reach, their coordinates and their slices)
+    P_all, x_all, y_all, seg, kept_rows, n_kept = reach_kernel()(
+        np.ascontiguousarray(P_in), sizes, reach * reach
+    )
+    kept = None if n_kept == len(P_in) else kept_rows  # the rows of P_in kept (None: all)
     B = SliceBatch(
         fingers=tuple(fingers),
         Lk=geom[:, 0],
@@ -95,8 +94,8 @@ def close_fingers(
         h=geom[:, 3],
         upper=upper,
         P=P_all,
-        x=np.ascontiguousarray(P_all[:, 0]),
-        y=np.ascontiguousarray(P_all[:, 1]),
+        x=x_all,
+        y=y_all,
         seg=seg,
         start=np.concatenate([[0], np.cumsum(np.bincount(seg, minlength=S))]),
         margin=float(margin),
