@@ -13,14 +13,13 @@ from ..tolerances import HAND_CLOSING_ANGLE_TOL
 from .batch_hits import (
     Configs,
     SliceBatch,
-    any_hit_ragged,
     batch_distance,
     pair_hits,
     paths,
     points_of,
 )
 from .closing import REFINE_BUDGET, REFINE_SAMPLES, FingerGeometry
-from .sweep_kernel import sweep_kernel
+from .sweep_kernel import refine_kernels, sweep_kernel
 
 
 def _coarse_sweep(
@@ -159,29 +158,20 @@ def batch_first_events(
         p_ref, r_ref = p_near[sel], row_of[r_near[sel]]
         f_lo, f_hi = lo[ref], hi[ref]
         n_max = int(n_ref.max())
-        j_all = np.arange(1, n_max + 1, dtype=np.float64)[None, :]
-        while True:
+        samples, level = refine_kernels()
+        qb_r, up_r, sl_r = qb[ref], upper[ref], sl[ref]
+        p_ref, r_ref = p_ref.astype(np.int64, copy=False), r_ref.astype(np.int64, copy=False)
+        A0, A1 = float(A[0]), float(A[1])
+        while True:  # one level: two compiled passes around numpy's cosines and sines
             live = np.flatnonzero(f_hi - f_lo > HAND_CLOSING_ANGLE_TOL)
             if len(live) == 0:
                 break
-            # np.linspace(lo, hi, n_ref + 2)[1:-1] per slice, padded to n_max samples
-            stp = (f_hi[live] - f_lo[live]) / (n_ref[live] + 1)
-            ts = j_all * stp[:, None]
-            ts += f_lo[live][:, None]
-            valid = j_all <= n_ref[live][:, None]
-            ts = np.where(valid, ts, f_hi[live][:, None])
-            Q = paths(qb[ref[live]], A, upper[ref[live]], ts)
-            cfg = Configs.of(B, sl[ref[live]], Q, links)
-            row_of = np.full(len(ref), -1, dtype=np.int64)
-            row_of[live] = np.arange(len(live))
-            sel = row_of[r_ref] >= 0
-            hit = any_hit_ragged(B, cfg, p_ref[sel], row_of[r_ref[sel]], n_ref[live], links)
-            found = hit.any(axis=1)
-            j = np.argmax(hit, axis=1)
-            rows = np.arange(len(live))
-            prev = np.where(j > 0, ts[rows, np.maximum(j - 1, 0)], f_lo[live])
-            f_lo[live] = np.where(found, prev, ts[rows, n_ref[live] - 1])
-            f_hi[live] = np.where(found, ts[rows, j], f_hi[live])
+            ts, a1, a2 = samples(f_lo, f_hi, n_ref, live, n_max, qb_r, A0, A1, up_r)
+            level(
+                ts, np.cos(a1), np.sin(a1), np.cos(a2), np.sin(a2), live, n_ref, f_lo, f_hi,
+                sl_r, B.Lk, B.Lm, B.Ld, B.h, float(m), bool(B.palm), B.x, B.y, B.seg, p_ref,
+                r_ref, bool(links[0]), bool(links[1]),
+            )  # fmt: skip
         lo[ref], hi[ref] = f_lo, f_hi
     # the event at hi (tested on the points that may touch there, a superset of those that do):
     # the touching point of least distance per link

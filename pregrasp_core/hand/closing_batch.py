@@ -11,7 +11,6 @@ import numpy as np
 from ..tolerances import HAND_CLOSING_ANGLE_TOL
 from .batch_events import BatchEvents, batch_first_events
 from .batch_hits import SliceBatch, paths, points_of
-from .sweep_kernel import reach_kernel
 from .model import (
     DEFAULT_CLOSING_STEPS,
     DEFAULT_COUPLING,
@@ -20,6 +19,7 @@ from .model import (
     FingerContact,
     HandModel,
 )
+from .sweep_kernel import reach_kernel
 
 
 def close_fingers(

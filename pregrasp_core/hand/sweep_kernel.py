@@ -366,3 +366,159 @@ def ragged_hits_loop(
                 if s >= -m and s <= top_d and abs(r) <= hm:
                     out[row, j] = True
     return out
+
+
+_REFINE = Lazy(lambda: (njit(refine_samples_loop), njit(refine_hits_loop)))
+
+
+def refine_kernels() -> tuple[Callable[..., tuple[np.ndarray, ...]], Callable[..., None]]:
+    """The compiled ``(refine_samples_loop, refine_hits_loop)`` (numba imported on the first
+    call): one level of the refinement of the closing's brackets in two compiled passes
+    around numpy's cosines and sines (``batch_events.batch_first_events``)."""
+    return _REFINE.get()
+
+
+def refine_samples_loop(
+    f_lo: np.ndarray,
+    f_hi: np.ndarray,
+    n_ref: np.ndarray,
+    live: np.ndarray,
+    n_max: int,
+    qb: np.ndarray,
+    A0: float,
+    A1: float,
+    upper: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The samples of one refinement level of the live brackets ``live`` (L,) (indices into
+    ``f_lo``, ``f_hi``, ``n_ref`` (E,) and the path rows ``qb``, ``upper`` (E, 2)):
+    ``np.linspace(lo, hi, n_ref + 2)[1:-1]`` per bracket, padded with ``hi`` to ``n_max``
+    samples, as ``(ts (L, n_max), a1, a2)`` with ``a1``, ``a2`` the middle and distal link
+    angles of the configurations ``min(qb + A t, upper)`` there (``batch_hits.paths``; a1 =
+    q1, a2 = q1 + q2). The same operations as the numpy code they replace, value by value."""
+    L = live.shape[0]
+    ts = np.empty((L, n_max))
+    a1 = np.empty((L, n_max))
+    a2 = np.empty((L, n_max))
+    for i in range(L):
+        e = live[i]
+        lo, hi, n = f_lo[e], f_hi[e], n_ref[e]
+        stp = (hi - lo) / np.float64(n + 1)
+        u0, u1 = upper[e, 0], upper[e, 1]
+        for j in range(n_max):
+            t = np.float64(j + 1) * stp
+            t += lo
+            if not j + 1 <= n:
+                t = hi
+            ts[i, j] = t
+            q1 = qb[e, 0] + A0 * t
+            q2 = qb[e, 1] + A1 * t
+            q1 = q1 if (q1 < u0 or q1 != q1) else u0  # np.minimum (NaN propagated)
+            q2 = q2 if (q2 < u1 or q2 != q2) else u1
+            a1[i, j] = q1
+            a2[i, j] = q1 + q2
+    return ts, a1, a2
+
+
+def refine_hits_loop(
+    ts: np.ndarray,
+    d1x: np.ndarray,
+    d1y: np.ndarray,
+    d2x: np.ndarray,
+    d2y: np.ndarray,
+    live: np.ndarray,
+    n_ref: np.ndarray,
+    f_lo: np.ndarray,
+    f_hi: np.ndarray,
+    sl_of: np.ndarray,
+    Lk: np.ndarray,
+    Lm: np.ndarray,
+    Ld: np.ndarray,
+    h: np.ndarray,
+    margin: float,
+    palm_on: bool,
+    px: np.ndarray,
+    py: np.ndarray,
+    seg: np.ndarray,
+    pts: np.ndarray,
+    rows: np.ndarray,
+    mid_on: bool,
+    dis_on: bool,
+) -> None:
+    """One refinement level of the live brackets (``live``, as :func:`refine_samples_loop`),
+    given the cosines and sines of its link angles (``d1x = cos a1`` ... (L, n_max)): the
+    configurations' distal joint terms and palm tests (``batch_hits.Configs.of``), the points'
+    hits (``pts`` (Np,) with their brackets ``rows``, only those of live brackets are tested:
+    :func:`ragged_hits_loop`'s tests), then each live bracket narrowed to the first touching
+    sample (``f_lo`` = the sample before it, ``f_hi`` = it) or, when none touches, to
+    ``[last sample, f_hi]``; in place. ``sl_of`` (E,): the slice of each bracket. Every value
+    by the operations of the numpy code it replaces, so the same brackets."""
+    L, C = d1x.shape
+    m = margin
+    row_of = np.full(f_lo.shape[0], -1, dtype=np.int64)
+    for i in range(L):
+        row_of[live[i]] = i
+    cs = np.empty((L, C))
+    cr = np.empty((L, C))
+    out = np.zeros((L, C), dtype=np.bool_)
+    for i in range(L):
+        e = live[i]
+        s_ = sl_of[e]
+        lm, ld, hh = Lm[s_], Ld[s_], h[s_]
+        floor = -Lk[s_] + m
+        for j in range(C):
+            o2x = lm * d1x[i, j]
+            o2y = lm * d1y[i, j]
+            cs[i, j] = d2x[i, j] * o2x + d2y[i, j] * o2y
+            cr[i, j] = -d2y[i, j] * o2x + d2x[i, j] * o2y
+            pm = False
+            pd = False
+            if palm_on:
+                if mid_on:
+                    v = lm * d1x[i, j]
+                    v = 0.0 if 0.0 < v else v  # np.minimum(0.0, v) (NaN propagated)
+                    pm = v - hh * abs(d1y[i, j]) < floor
+                if dis_on:
+                    v = ld * d2x[i, j]
+                    v = 0.0 if 0.0 < v else v
+                    pd = o2x + v - hh * abs(d2y[i, j]) < floor
+            out[i, j] = (pm | pd) & (j < n_ref[e])
+    for k in range(pts.shape[0]):  # ragged_hits_loop's tests, on the live brackets' points
+        row = row_of[rows[k]]
+        if row < 0:
+            continue
+        p = pts[k]
+        x, y = px[p], py[p]
+        s_ = seg[p]
+        hm = h[s_] + m
+        top_m = Lm[s_] + m
+        top_d = Ld[s_] + m
+        for j in range(n_ref[live[row]]):
+            if out[row, j]:
+                continue
+            if mid_on:
+                dx, dy = d1x[row, j], d1y[row, j]
+                s = dx * x + dy * y
+                r = -dy * x + dx * y
+                if s >= -m and s <= top_m and abs(r) <= hm:
+                    out[row, j] = True
+                    continue
+            if dis_on:
+                dx, dy = d2x[row, j], d2y[row, j]
+                s = dx * x + dy * y
+                s -= cs[row, j]
+                r = -dy * x + dx * y
+                r -= cr[row, j]
+                if s >= -m and s <= top_d and abs(r) <= hm:
+                    out[row, j] = True
+    for i in range(L):  # the first touching sample of each live bracket
+        e = live[i]
+        jj = -1
+        for j in range(C):
+            if out[i, j]:
+                jj = j
+                break
+        if jj >= 0:
+            f_lo[e] = ts[i, jj - 1] if jj > 0 else f_lo[e]
+            f_hi[e] = ts[i, jj]
+        else:
+            f_lo[e] = ts[i, n_ref[e] - 1]
