@@ -19,7 +19,6 @@ from .model import (
     FingerContact,
     HandModel,
 )
-from .sweep_kernel import reach_kernel
 
 
 def close_fingers(
@@ -79,13 +78,15 @@ def close_fingers(
     q0 = np.clip(q0, lower, upper)
     # only points within a finger's reach from its first joint can ever be touched
     sizes = np.array([len(P) for P in pts], dtype=np.int64)
-    P_in = np.concatenate(pts) if sizes.sum() else np.zeros((0, 2))
+    P_all = np.concatenate(pts) if sizes.sum() else np.zeros((0, 2))
+    seg_all = np.repeat(np.arange(S), sizes)
     reach = geom[:, 1] + np.hypot(geom[:, 2], geom[:, 3]) + 2.0 * abs(margin)
-    # (one compiled pass: the points within reach, their coordinates and their slices)
-    P_all, x_all, y_all, seg, kept_rows, n_kept = reach_kernel()(
-        np.ascontiguousarray(P_in), sizes, reach * reach
-    )
-    kept = None if n_kept == len(P_in) else kept_rows  # the rows of P_in kept (None: all)
+    keep = np.einsum("ij,ij->i", P_all, P_all) <= (reach * reach)[seg_all]
+    kept = None  # the rows of P_all kept (None: all)
+    if not keep.all():  # (integer indices: much faster than a boolean mask on (N, 2))
+        kept = np.flatnonzero(keep)
+        P_all, seg_all = P_all[kept], seg_all[kept]
+    seg = seg_all
     B = SliceBatch(
         fingers=tuple(fingers),
         Lk=geom[:, 0],
@@ -94,8 +95,8 @@ def close_fingers(
         h=geom[:, 3],
         upper=upper,
         P=P_all,
-        x=x_all,
-        y=y_all,
+        x=np.ascontiguousarray(P_all[:, 0]),
+        y=np.ascontiguousarray(P_all[:, 1]),
         seg=seg,
         start=np.concatenate([[0], np.cumsum(np.bincount(seg, minlength=S))]),
         margin=float(margin),

@@ -261,47 +261,6 @@ def first_tests(
         p0 = p1
 
 
-_REACH = Lazy(lambda: njit(reach_filter_loop))
-
-
-def reach_kernel() -> Callable[..., tuple[np.ndarray, ...]]:
-    """The compiled :func:`reach_filter_loop` (numba imported on the first call)."""
-    return _REACH.get()
-
-
-def reach_filter_loop(
-    P: np.ndarray, sizes: np.ndarray, reach2: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
-    """The points of many slices within reach of their finger's first joint, in one pass:
-    ``P`` (N, 2) the slices' points one slice after the other (``sizes`` (S,) each), ``reach2``
-    (S,) the squared reach of each slice. A point is kept when ``x * x + y * y <= reach2`` of
-    its slice: the value of ``np.einsum("ij,ij->i", P, P)`` (its 2-term sum of products is
-    ``x * x + y * y``, each product rounded, on every platform: its vector accumulator starts
-    at zero), so the same points. Returns ``(P_kept (M, 2), x (M,), y (M,), seg (M,) the slice
-    of each, kept (M,) their rows in P, M)``."""
-    N = P.shape[0]
-    S = sizes.shape[0]
-    Pk = np.empty((N, 2))
-    xs = np.empty(N)
-    ys = np.empty(N)
-    seg = np.empty(N, dtype=np.int64)
-    kept = np.empty(N, dtype=np.int64)
-    n = 0
-    i = 0
-    for s in range(S):
-        lim = reach2[s]
-        for _ in range(sizes[s]):
-            x, y = P[i, 0], P[i, 1]
-            if x * x + y * y <= lim:
-                Pk[n, 0], Pk[n, 1] = x, y
-                xs[n], ys[n] = x, y
-                seg[n] = s
-                kept[n] = i
-                n += 1
-            i += 1
-    return Pk[:n], xs[:n], ys[:n], seg[:n], kept[:n], n
-
-
 _HITS = Lazy(lambda: njit(ragged_hits_loop))
 
 
