@@ -19,7 +19,7 @@ from .batch_hits import (
     points_of,
 )
 from .closing import REFINE_BUDGET, REFINE_SAMPLES, FingerGeometry
-from .sweep_kernel import refine_kernels, sweep_kernel
+from .sweep_kernel import candidate_kernels, refine_kernels, sweep_kernel
 
 
 def _coarse_sweep(
@@ -128,24 +128,19 @@ def batch_first_events(
     hi[pos] = t[pos, k[pos]]
     # the points that may touch a link in [lo, hi]: those that the sweep did not certify off the
     # links over [0, hi] (an exact superset)
-    r_all = rows_all
-    near = has[r_all] & ~(hi[r_all] < free)
-    p_near, r_near = pts_all[near], r_all[near]
     # of those, the ones that may touch a link between the bracket's ends along the path
-    # (closing.may_touch: the same exact superset, from the distances at hi)
+    # (closing.may_touch: the same exact superset, from the distances at hi); one compiled
+    # pass, with numpy's cos and sin of the brackets' ends
     Qb = paths(qb, A, upper, np.stack([lo, hi], axis=1))  # (R, 2, 2)
-    qa, qz = Qb[r_near, 0], Qb[r_near, 1]
-    d1 = np.abs(qz[:, 0] - qa[:, 0])
-    d2 = np.abs((qz[:, 0] + qz[:, 1]) - (qa[:, 0] + qa[:, 1]))
-    P_near = B.P[p_near]
-    rho = np.sqrt(np.einsum("ij,ij->i", P_near, P_near))
-    lm = B.Lm[B.seg[p_near]]
-    keep = np.zeros(len(p_near), dtype=bool)
-    if links[0]:
-        keep |= batch_distance(B, qz, p_near, 0) <= m + rho * d1 + 1e-9
-    if links[1]:
-        keep |= batch_distance(B, qz, p_near, 1) <= m + (rho + lm) * d2 + lm * d1 + 1e-9
-    p_near, r_near = p_near[keep], r_near[keep]
+    qa0, qa1 = np.ascontiguousarray(Qb[:, 0, 0]), np.ascontiguousarray(Qb[:, 0, 1])
+    qz0, qz1 = np.ascontiguousarray(Qb[:, 1, 0]), np.ascontiguousarray(Qb[:, 1, 1])
+    a2 = qz0 + qz1
+    p_near, r_near = candidate_kernels()[0](
+        has, hi, free, pts_all.astype(np.int64, copy=False),
+        rows_all.astype(np.int64, copy=False), qa0, qa1, qz0, qz1, np.cos(qz0), np.sin(qz0),
+        np.cos(a2), np.sin(a2), B.x, B.y, B.seg, B.Lm, B.Ld, B.h, float(m), bool(links[0]),
+        bool(links[1]),
+    )  # fmt: skip
     # refinement of [last free, first touching], all slices level by level, each with its own
     # number of samples per level (as for one slice: REFINE_BUDGET // points within reach)
     ref = np.flatnonzero(pos)

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..tolerances import HAND_CLOSING_ANGLE_TOL
 from .batch_events import BatchEvents, batch_first_events
-from .batch_hits import SliceBatch, paths, points_of
+from .batch_hits import SliceBatch, paths
 from .model import (
     DEFAULT_CLOSING_STEPS,
     DEFAULT_COUPLING,
@@ -19,6 +19,7 @@ from .model import (
     FingerContact,
     HandModel,
 )
+from .sweep_kernel import candidate_kernels
 
 
 def close_fingers(
@@ -81,11 +82,15 @@ def close_fingers(
     P_all = np.concatenate(pts) if sizes.sum() else np.zeros((0, 2))
     seg_all = np.repeat(np.arange(S), sizes)
     reach = geom[:, 1] + np.hypot(geom[:, 2], geom[:, 3]) + 2.0 * abs(margin)
-    keep = np.einsum("ij,ij->i", P_all, P_all) <= (reach * reach)[seg_all]
+    # (x * x + y * y is einsum("ij,ij->i")'s 2-term sum of products to the bit: each product
+    # rounded, then their sum; on contiguous columns, which the batch keeps anyway)
+    x_all, y_all = np.ascontiguousarray(P_all[:, 0]), np.ascontiguousarray(P_all[:, 1])
+    keep = x_all * x_all + y_all * y_all <= (reach * reach)[seg_all]
     kept = None  # the rows of P_all kept (None: all)
     if not keep.all():  # (integer indices: much faster than a boolean mask on (N, 2))
         kept = np.flatnonzero(keep)
         P_all, seg_all = P_all[kept], seg_all[kept]
+        x_all, y_all = x_all[kept], y_all[kept]
     seg = seg_all
     B = SliceBatch(
         fingers=tuple(fingers),
@@ -95,8 +100,8 @@ def close_fingers(
         h=geom[:, 3],
         upper=upper,
         P=P_all,
-        x=np.ascontiguousarray(P_all[:, 0]),
-        y=np.ascontiguousarray(P_all[:, 1]),
+        x=x_all,
+        y=y_all,
         seg=seg,
         start=np.concatenate([[0], np.cumsum(np.bincount(seg, minlength=S))]),
         margin=float(margin),
@@ -122,13 +127,9 @@ def close_fingers(
         # circumradius (grown by the margin) of it can be touched
         o2x, o2y = B.Lm * np.cos(q_free[:, 0]), B.Lm * np.sin(q_free[:, 0])  # (S,)
         r2 = np.hypot(B.Ld + abs(margin), B.h + abs(margin)) + 1e-9  # (S,)
-        pts2, rows2 = points_of(B, two)  # (tested on the points of these slices only)
-        seg2 = B.seg[pts2]
-        dx, dy = B.x[pts2] - o2x[seg2], B.y[pts2] - o2y[seg2]
-        near2 = dx * dx + dy * dy <= (r2 * r2)[seg2]
-        ev2 = batch_first_events(
-            B, two, q_free[two], A2, t_end2, n_steps, (False, True), (pts2[near2], rows2[near2])
-        )
+        # (the points of these slices only, in one compiled pass)
+        cand2 = candidate_kernels()[1](B.start, two, B.x, B.y, o2x, o2y, r2 * r2)
+        ev2 = batch_first_events(B, two, q_free[two], A2, t_end2, n_steps, (False, True), cand2)
         Q2 = paths(q_free[two], A2, upper[two], ev2.t)
         q_stop = paths(q_free[two], A2, upper[two], ev2.t_free[:, None])[:, 0]
         n_t2 = ev2.n_t

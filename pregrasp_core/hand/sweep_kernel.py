@@ -481,3 +481,132 @@ def refine_hits_loop(
             f_hi[e] = ts[i, jj]
         else:
             f_lo[e] = ts[i, n_ref[e] - 1]
+
+
+def _build_candidates() -> tuple[Callable[..., tuple[np.ndarray, np.ndarray]], ...]:
+    inline_helpers(globals(), "_link_distance")
+    return njit(near_candidates_loop), njit(distal_candidates_loop)
+
+
+_CANDIDATES = Lazy(_build_candidates)
+
+
+def candidate_kernels() -> tuple[Callable[..., tuple[np.ndarray, np.ndarray]], ...]:
+    """The compiled ``(near_candidates_loop, distal_candidates_loop)`` (numba imported on the
+    first call)."""
+    return _CANDIDATES.get()
+
+
+def _link_distance(x: float, y: float, dx: float, dy: float, length: float, h: float) -> float:
+    """``batch_hits.batch_distance`` of one point (``x``, ``y``, from the link's joint) to a
+    link of ``length`` and half thickness ``h`` along ``(dx, dy)``: the same operations,
+    ``np.maximum``'s NaN included."""
+    s = x * dx + y * dy
+    r = x * -dy + y * dx
+    a = abs(s - 0.5 * length) - 0.5 * length
+    b = abs(r) - h
+    return a if (a >= b or a != a) else b
+
+
+def near_candidates_loop(
+    has: np.ndarray,
+    hi: np.ndarray,
+    free: np.ndarray,
+    pts: np.ndarray,
+    rows: np.ndarray,
+    qa0: np.ndarray,
+    qa1: np.ndarray,
+    qz0: np.ndarray,
+    qz1: np.ndarray,
+    c0: np.ndarray,
+    s0: np.ndarray,
+    c1: np.ndarray,
+    s1: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    seg: np.ndarray,
+    Lm: np.ndarray,
+    Ld: np.ndarray,
+    h: np.ndarray,
+    m: float,
+    mid: bool,
+    dis: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The points ``pts`` (with their rows ``rows``, the sweep's ``free`` of each) that may
+    touch a link inside their row's bracket ``[lo, hi]`` (``batch_events.batch_first_events``):
+    those of rows with a touch (``has``) that the sweep did not certify off the links over
+    ``[0, hi]``, and whose distance to a link at ``hi`` is within what the link can move over
+    the bracket (``closing.may_touch``). ``qa*``, ``qz*`` (R,): the joints at the brackets'
+    ends; ``c0, s0, c1, s1`` (R,): numpy's cos and sin of ``qz0`` and of ``qz0 + qz1``. The
+    same operations as the numpy code, so the same points, in the same order: ``(pts, rows)``."""
+    n_in = pts.shape[0]
+    keep = np.zeros(n_in, dtype=np.bool_)
+    n = 0
+    for i in range(n_in):
+        r = rows[i]
+        if not has[r] or hi[r] < free[i]:
+            continue
+        p = pts[i]
+        x, y = px[p], py[p]
+        s_ = seg[p]
+        d1 = abs(qz0[r] - qa0[r])
+        d2 = abs((qz0[r] + qz1[r]) - (qa0[r] + qa1[r]))
+        rho = math.sqrt(x * x + y * y)
+        lm = Lm[s_]
+        k = False
+        if mid:
+            k = _link_distance(x, y, c0[r], s0[r], lm, h[s_]) <= m + rho * d1 + 1e-9
+        if dis:
+            x2 = x - lm * c0[r]
+            y2 = y - lm * s0[r]
+            lim = m + (rho + lm) * d2 + lm * d1 + 1e-9
+            k = k | (_link_distance(x2, y2, c1[r], s1[r], Ld[s_], h[s_]) <= lim)
+        keep[i] = k
+        n += k
+    out_p = np.empty(n, dtype=np.int64)
+    out_r = np.empty(n, dtype=np.int64)
+    j = 0
+    for i in range(n_in):
+        if keep[i]:
+            out_p[j] = pts[i]
+            out_r[j] = rows[i]
+            j += 1
+    return out_p, out_r
+
+
+def distal_candidates_loop(
+    start: np.ndarray,
+    two: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    o2x: np.ndarray,
+    o2y: np.ndarray,
+    r2sq: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The points of the slices ``two`` (increasing; slice ``s`` holds the points
+    ``start[s]:start[s + 1]``) within ``sqrt(r2sq)`` of their slice's distal joint
+    ``(o2x, o2y)``, as ``(pts, rows)`` (rows: the index in ``two``), in point order: the
+    candidates of the closing's phase 2 (``closing_batch.close_fingers``), by the numpy code's
+    operations (``dx * dx + dy * dy <= r2 * r2``)."""
+    n = 0
+    for k in range(two.shape[0]):  # count them
+        s = two[k]
+        ox, oy, lim = o2x[s], o2y[s], r2sq[s]
+        for p in range(start[s], start[s + 1]):
+            dx = px[p] - ox
+            dy = py[p] - oy
+            n += dx * dx + dy * dy <= lim
+    out_p = np.empty(n, dtype=np.int64)
+    out_r = np.empty(n, dtype=np.int64)
+    n = 0
+    for k in range(two.shape[0]):  # then list them
+        s = two[k]
+        ox, oy, lim = o2x[s], o2y[s], r2sq[s]
+        for p in range(start[s], start[s + 1]):
+            dx = px[p] - ox
+            dy = py[p] - oy
+            if dx * dx + dy * dy <= lim:
+                out_p[n] = p
+                out_r[n] = k
+                n += 1
+    return out_p, out_r
