@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
-from typing import Generic, TypeVar, cast
+from typing import Generic, Literal, TypeVar, cast
 
 T = TypeVar("T")
 F = TypeVar("F", bound=Callable[..., object])
@@ -36,7 +36,9 @@ class Lazy(Generic[T]):
         return self._value
 
 
-def njit(fn: F, fastmath: bool | set[str] = False, error_model: str = "python") -> F:
+def njit(
+    fn: F, fastmath: bool | set[str] = False, error_model: Literal["python", "numpy"] = "python"
+) -> F:
     """``fn`` compiled by numba (imported here, on the first call): ``cache=True``,
     ``nogil=True``, ``fastmath`` as given (False: none) and numba's ``error_model``
     ("python": a float division by zero raises ZeroDivisionError, which puts a branch into
