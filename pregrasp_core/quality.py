@@ -537,6 +537,35 @@ def closure_certificate(wrenches: np.ndarray) -> tuple[bool | None, float]:
     return None, 0.0
 
 
+CHEAP_MEMO_SIZE: int = 4096
+"""Wrench sets whose cheapest bounds :func:`wrench_quality` keeps (then it starts afresh): the
+planner scores every kept grasp at the cheapest level first and refines some of them later
+(``planner/rank.py``), which would compute the same bounds of the same wrenches again. The
+planner empties it at the end of each plan (:func:`forget_cheap_bounds`), so that a plan never
+gains from an earlier one's sets (nor holds their memory)."""
+
+_CHEAP_MEMO: dict[tuple[tuple[int, ...], int, bytes], tuple[float, float, bool | None, float]] = {}
+"""(shape, edges per contact, the wrenches' bytes) -> :func:`_cheap_bounds` of a full-rank set
+(pure functions of those: a hit gives the values a new computation would, bit for bit)."""
+
+
+def forget_cheap_bounds() -> None:
+    """Empty the memo of :func:`wrench_quality`'s cheapest bounds (:data:`CHEAP_MEMO_SIZE`)."""
+    _CHEAP_MEMO.clear()
+
+
+def _cheap_bounds(
+    w: np.ndarray, centred: np.ndarray | None, n_edges: int
+) -> tuple[float, float, bool | None, float]:
+    """``(epsilon upper bound, volume upper bound, force closure or None, epsilon lower bound)``
+    of full-rank 6D wrenches ``w`` from the fixed directions, the principal box and the
+    closure certificate (:func:`wrench_quality`'s cheapest level)."""
+    upper = direction_bound(w, wrench_frame(w, n_edges))
+    vol = box_volume_bound(w, centred)
+    closure, lower = (False, 0.0) if upper <= NOT_CLOSURE_BOUND else closure_certificate(w)
+    return upper, vol, closure, lower
+
+
 def wrench_quality(
     wrenches: np.ndarray, n_contacts: int, n_edges: int, level: int = LEVEL_EXACT
 ) -> GraspQuality:
@@ -552,13 +581,19 @@ def wrench_quality(
     w = np.asarray(wrenches, dtype=np.float64)
     if w.ndim != 2:
         raise ValueError(f"wrenches must have shape (M, D), got {w.shape}")
-    reason, centred = _centred_check(w)
-    if reason:
-        return GraspQuality(0.0, 0.0, n_contacts, False, reason)
+    key = (w.shape, int(n_edges), w.tobytes())
+    cheap = _CHEAP_MEMO.get(key)  # (a set seen before passed the check)
+    if cheap is None:
+        reason, centred = _centred_check(w)
+        if reason:
+            return GraspQuality(0.0, 0.0, n_contacts, False, reason)
     if level < LEVEL_EXACT and w.shape[1] == 6:
-        upper = direction_bound(w, wrench_frame(w, n_edges))
-        vol = box_volume_bound(w, centred)
-        closure, lower = (False, 0.0) if upper <= NOT_CLOSURE_BOUND else closure_certificate(w)
+        if cheap is None:
+            cheap = _cheap_bounds(w, centred, n_edges)
+            if len(_CHEAP_MEMO) >= CHEAP_MEMO_SIZE:
+                _CHEAP_MEMO.clear()
+            _CHEAP_MEMO[key] = cheap
+        upper, vol, closure, lower = cheap
         half = None
         if level > LEVEL_CHEAPEST or closure is None:
             half = half_cone_bounds(w, n_edges)

@@ -35,6 +35,7 @@ from ..quality import (
     GraspQuality,
     QualityParams,
     contact_wrenches,
+    forget_cheap_bounds,
     grasp_quality,
     object_frame,
     wrench_quality,
@@ -186,6 +187,7 @@ def settle_exact(
             for i, q in zip(todo, done, strict=True):
                 out[i] = with_quality(out[i], q)
             n_refined += len(todo)
+    forget_cheap_bounds()  # (the refinements reused the plan's cheapest bounds: dropped now)
     return out, n_refined
 
 

@@ -401,3 +401,35 @@ def test_wrench_frame_and_bounds_equal_the_numpy_forms_to_the_bit():
         assert got.tobytes() == ref.tobytes(), trial
         c = w - w.mean(axis=0)
         assert box_volume_bound(w, c) == box_volume_bound(w)
+
+
+def test_memo_of_the_cheapest_bounds_changes_no_score():
+    """The cheapest bounds that ``wrench_quality`` keeps per wrench set (for the planner's
+    refinements) give every level the scores a fresh computation gives: the same sets scored
+    at levels 0, 1, 2 in a row (hits) and each from an empty memo (misses) agree field by
+    field; the same wrenches with another edge count do not share an entry."""
+    from pregrasp_core import quality
+
+    rng = np.random.default_rng(11)
+    n_hits = 0
+    for trial in range(60):
+        k = int(rng.integers(3, 7))
+        m = int(rng.choice([6, 8]))
+        p, n, t, c, r = _contact_set(rng, k, spread=0.3 if trial % 2 else 0.9)
+        w = contact_wrenches(p, n, QualityParams(n_edges=m), tangents=t, center=c, radius=r)
+        fresh = []
+        for level in (LEVEL_CHEAPEST, LEVEL_HALF_CONES, LEVEL_EXACT):
+            quality.forget_cheap_bounds()
+            fresh.append(quality.wrench_quality(w, k, m, level))
+        quality.forget_cheap_bounds()
+        for level, want in zip((LEVEL_CHEAPEST, LEVEL_HALF_CONES, LEVEL_EXACT), fresh, strict=True):
+            n_hits += level > LEVEL_CHEAPEST and len(quality._CHEAP_MEMO) > 0
+            got = quality.wrench_quality(w.copy(), k, m, level)
+            assert dataclasses.astuple(got) == dataclasses.astuple(want), (trial, level)
+        # the same bytes with another edge count (another frame, other bounds): not a hit
+        other = quality.wrench_quality(w, k, 2 * m if m == 6 else m // 2, LEVEL_CHEAPEST)
+        quality.forget_cheap_bounds()
+        want = quality.wrench_quality(w, k, 2 * m if m == 6 else m // 2, LEVEL_CHEAPEST)
+        assert dataclasses.astuple(other) == dataclasses.astuple(want), trial
+    assert n_hits >= 100
+    quality.forget_cheap_bounds()
