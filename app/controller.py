@@ -69,6 +69,44 @@ class Superseded(Exception):
     (it includes every change the superseded one asked for)."""
 
 
+class _Replan:
+    """The re-plan of a threshold change (:meth:`Controller._rerun`) on a thread of its own,
+    started as soon as the stages have run, so that the planner (the planner process's worker,
+    on the other core) plans while the controller commits and draws the new scene. Its
+    progress reaches the state only after that commit (which resets the progress bar), its
+    result or exception is taken by :meth:`result`, and :meth:`cancel` stops it (the pipeline's
+    checks of ``gen``, the worker's cancel) and waits for it."""
+
+    def __init__(self, controller: Controller, result: Any, params: Any, gen: int) -> None:
+        self._value: Any = None
+        self._error: BaseException | None = None
+        self._stopped = threading.Event()
+        self.shown = shown = threading.Event()
+        """Set once the new scene is committed: the re-plan's progress may show from then."""
+
+        def run() -> None:
+            try:
+                self._value = controller._run(
+                    result.cloud, params, previous=result, plan=True, gen=gen, show=True,
+                    shown=shown, stopped=self._stopped,
+                )  # fmt: skip
+            except BaseException as exc:  # noqa: BLE001 - raised again by result()
+                self._error = exc
+
+        self._thread = threading.Thread(target=run, name="replan", daemon=True)
+        self._thread.start()
+
+    def result(self) -> Any:
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        return self._value
+
+    def cancel(self) -> None:
+        self._stopped.set()
+        self._thread.join()
+
+
 def _number(value: Any, what: str, integer: bool = False) -> float:
     """``value`` as a finite number (an integer when ``integer``), else ``ValueError`` naming
     ``what``; GUI values arrive as whatever a browser sent."""
@@ -620,9 +658,10 @@ class Controller:
             with self._req_lock:
                 self._running -= 1
 
-    def _check(self, gen: int) -> None:
-        """Raise :class:`Superseded` when a newer long request has arrived."""
-        if self._generation != gen:
+    def _check(self, gen: int, stopped: threading.Event | None = None) -> None:
+        """Raise :class:`Superseded` when a newer long request has arrived (or ``stopped`` is
+        set: the request's own thread has given up on it)."""
+        if self._generation != gen or (stopped is not None and stopped.is_set()):
             raise Superseded
 
     def _settle(self, gen: int, state: AppState) -> AppState:
@@ -723,9 +762,11 @@ class Controller:
 
     def _rerun(self, gen: int) -> AppState:
         """Re-run the stages downstream of a threshold change outside the lock and commit the
-        new scene (boxes, masks, pool) under it; when grasps were planned, then re-plan (the
-        progress bar shows it) and commit the new grasps. Each commit builds on the state as it
-        is then, unless a newer request has arrived (it then includes this change)."""
+        new scene (boxes, masks, pool) under it; when grasps were planned, re-plan (the
+        progress bar shows it) and commit the new grasps. The re-plan starts before the new
+        scene is committed and drawn (:class:`_Replan`: with the planner process, the worker
+        plans while this thread draws). Each commit builds on the state as it is then, unless a
+        newer request has arrived (it then includes this change)."""
         with self._lock:
             self._check(gen)
             s = self._state
@@ -739,6 +780,48 @@ class Controller:
         result = self._run(s.result.cloud, params, previous=s.result, plan=False, gen=gen)
         dt = time.perf_counter() - t0
         msg = f"{len(result.tree.leaves())} parts, pool {len(result.pool)} ({dt * 1000:.0f} ms)"
+        t1 = time.perf_counter()
+        plan = _Replan(self, result, params, gen) if replan else None
+        try:
+            state = self._show_rerun(gen, s, result, params, plan, msg)
+        except BaseException:
+            if plan is not None:  # superseded or failed: the plan stops at its next check
+                plan.cancel()
+            raise
+        if plan is None:
+            return state
+        planned = plan.result()
+        n = len(ranked_grasps(planned))
+        with self._lock:
+            self._check(gen)
+            now = self._state
+            if now.result is not result:
+                raise Superseded
+            view = dataclasses.replace(
+                now.view, selected_grasp=0 if n else None, anim_t=0.0, playing=bool(n)
+            )
+            return self._settle(
+                gen,
+                dataclasses.replace(
+                    now,
+                    result=planned,
+                    planned=True,
+                    replanning=False,
+                    view=view,
+                    busy="",
+                    progress=0.0,
+                    message=f"{msg}; planned again: {n} grasps kept "
+                    f"({time.perf_counter() - t1:.1f} s)",
+                    error="",
+                ),
+            )
+
+    def _show_rerun(
+        self, gen: int, s: AppState, result: Any, params: Any, plan: _Replan | None, msg: str
+    ) -> AppState:
+        """Commit (and draw) the new scene of :meth:`_rerun`'s stages (``result``, computed from
+        the state ``s``); ``plan``: the re-plan that runs meanwhile, or None."""
+        replan = plan is not None
         with self._lock:
             self._check(gen)
             now = self._state
@@ -764,34 +847,9 @@ class Controller:
                     error="",
                 ),
             )
-        if not replan:
-            return state
-        t1 = time.perf_counter()
-        planned = self._run(result.cloud, params, previous=result, plan=True, gen=gen, show=True)
-        n = len(ranked_grasps(planned))
-        with self._lock:
-            self._check(gen)
-            now = self._state
-            if now.result is not result:
-                raise Superseded
-            view = dataclasses.replace(
-                now.view, selected_grasp=0 if n else None, anim_t=0.0, playing=bool(n)
-            )
-            return self._settle(
-                gen,
-                dataclasses.replace(
-                    now,
-                    result=planned,
-                    planned=True,
-                    replanning=False,
-                    view=view,
-                    busy="",
-                    progress=0.0,
-                    message=f"{msg}; planned again: {n} grasps kept "
-                    f"({time.perf_counter() - t1:.1f} s)",
-                    error="",
-                ),
-            )
+        if plan is not None:
+            plan.shown.set()  # the re-plan's progress bar may move from here on
+        return state
 
     # ------------------------------------------------------------------ view
     def _set_view(self, **changes: Any) -> AppState:
@@ -907,13 +965,16 @@ class Controller:
                 self._commit(dataclasses.replace(self._state, busy="", progress=0.0), render=False)
                 raise
 
-    def _progress(self, gen: int, show: bool) -> Callable[[float], None]:
-        """The pipeline's progress callback of request ``gen``: stops it when superseded and,
-        when ``show``, publishes the fraction done (the GUI's progress bar)."""
+    def _progress(
+        self, check: Callable[[], None], show: bool, shown: threading.Event | None = None
+    ) -> Callable[[float], None]:
+        """The pipeline's progress callback of a request: ``check()`` (raises when it is
+        superseded) and, when ``show``, publishes the fraction done (the GUI's progress bar;
+        with ``shown``, only once it is set)."""
 
         def progress(fraction: float) -> None:
-            self._check(gen)
-            if show:
+            check()
+            if show and (shown is None or shown.is_set()):
                 with self._lock:
                     self._commit(
                         dataclasses.replace(self._state, progress=float(np.clip(fraction, 0, 1))),
@@ -1030,26 +1091,29 @@ class Controller:
         plan: bool,
         gen: int,
         show: bool = False,
+        shown: threading.Event | None = None,
+        stopped: threading.Event | None = None,
     ) -> Any:
         """One call into ``pregrasp_core.pipeline`` (the app has no pipeline of its own); it
         stops between stages (and between planner chunks) when request ``gen`` is superseded.
         The core refuses work past its limits (``WorkLimitError``, ``docs/limits.md``). With a
-        planner process, the grasps stage plans there (cancelled as soon as ``gen`` is stale)."""
+        planner process, the grasps stage plans there (cancelled as soon as ``gen`` is stale).
+        ``shown``: progress is published only once it is set; ``stopped``: once set, the run
+        stops as if superseded."""
         planner = None
+        check = functools.partial(self._check, gen, stopped)
         if plan and self.planner is not None:
-            planner = functools.partial(
-                self.planner.plan, check=functools.partial(self._check, gen)
-            )
+            planner = functools.partial(self.planner.plan, check=check)
         result = ppl.run_pipeline(
             cloud,
             params,
             self.hand,
             until="grasps" if plan else "pool",
             previous=previous,
-            progress=self._progress(gen, show),
+            progress=self._progress(check, show, shown),
             planner=planner,
         )
-        self._check(gen)
+        check()
         return result
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import json
+import threading
 import time
 
 import numpy as np
@@ -209,6 +210,43 @@ def test_threshold_change_after_planning_replans(app):
     s = app.controller.state
     assert s.planned and s.params.decomposition.volume_ratio == 0.8
     assert s.result.grasps is not None
+
+
+def test_the_replan_of_an_edit_starts_before_its_new_scene_is_drawn(app, monkeypatch):
+    """After a threshold change, the planner (the planner process's worker, here a stand-in
+    that plans in this process) is called before the new scene (boxes, masks, pool) is drawn,
+    so that it plans while the scene is drawn: a drawing that waits for the planner's call
+    goes on (before the change, it waited in vain: the plan started only after the drawing),
+    and the grasps are ``plan_grasps``'s."""
+    from pregrasp_core.planner import plan_grasps
+
+    c = app.controller
+    c.plan()
+    called = threading.Event()
+    seen: list[bool] = []
+
+    class Planner:  # the controller calls planner.plan(..., check=...) in the grasps stage
+        def plan(self, *args, check=None, **kw):
+            called.set()
+            return plan_grasps(*args, **kw)
+
+    draw = app.scene.render
+
+    def render(state):
+        if state.replanning and state.busy == "plan":  # the edit's new scene, before the plan
+            seen.append(called.wait(10.0))
+        draw(state)
+
+    monkeypatch.setattr(c, "planner", Planner())
+    monkeypatch.setattr(app.scene, "render", render)
+    app.gui.params[("decomposition", "volume_ratio")].value = 0.8
+    s = c.state
+    assert seen == [True]
+    assert s.planned and s.error == "" and s.params.decomposition.volume_ratio == 0.8
+    r = s.result
+    want = plan_grasps(r.cloud.points, r.normals, r.pool, r.hand, r.params.planner, r.masks.support)
+    assert [g.epsilon for g in r.grasps.grasps] == [g.epsilon for g in want.grasps]
+    assert np.array_equal(r.grasps.ranking, want.ranking)
 
 
 def test_export_is_a_valid_result_document(app):
