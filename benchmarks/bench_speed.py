@@ -78,7 +78,14 @@ def digest_grasps(gs):
 
 import resource
 
+try:  # the forked copies are reaped without waiting since this session: reap them here
+    from pregrasp_core.planner.plan import _reap_leaving
+except ImportError:
+    _reap_leaving = None
+
 def cpu():  # CPU seconds of this process and of its waited-for children (forked planners)
+    if _reap_leaving is not None:
+        _reap_leaving(True)
     a, b = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
 

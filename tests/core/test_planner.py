@@ -524,6 +524,8 @@ def check_fork_paths(hand, monkeypatch) -> None:
     """The checks of the test above, in a process running one thread."""
     import os
     import threading
+    import time
+    from pathlib import Path
 
     from pregrasp_core.planner import plan as plan_mod
 
@@ -606,6 +608,30 @@ def check_fork_paths(hand, monkeypatch) -> None:
     monkeypatch.setattr(plan_mod, "run_quality_job", raising_job)
     with pytest.raises(ValueError, match="from a job of the copy"):
         plan_grasps(pts, nrm, pool, hand, PlannerParams(threads=2))
+    monkeypatch.setattr(plan_mod, "run_quality_job", real_job)
+    # the copy's end is not waited for: a copy slow to exit is still there when the plan has
+    # returned (and a zombie is never left: reaped at the next plan's end, or at exit)
+    pids, real_exit = [], os._exit
+
+    def fork_pid():
+        pid = real_fork()
+        pids.append(pid)
+        return pid
+
+    def slow_exit(code):
+        if os.getpid() != parent:
+            time.sleep(1.0)
+        real_exit(code)
+
+    monkeypatch.setattr(os, "fork", fork_pid)
+    monkeypatch.setattr(os, "_exit", slow_exit)
+    _same_grasps(one, plan_grasps(pts, nrm, pool, hand, PlannerParams(threads=2)))
+    state = Path(f"/proc/{pids[-1]}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    assert state != "Z" and pids[-1] in plan_mod._LEAVING  # alive, not waited for
+    plan_mod._reap_leaving(True)
+    assert not plan_mod._LEAVING
+    with pytest.raises(ChildProcessError):  # no child of this process is left, not even a zombie
+        os.waitpid(-1, os.WNOHANG)
 
 
 @pytest.mark.parametrize("P, n_proc", [(1, 2), (70, 2), (276, 2), (1000, 3), (5000, 2)])
