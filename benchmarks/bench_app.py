@@ -276,6 +276,7 @@ def bench_clients(n_points: int, n_clients: int, trials: int, process: bool = Tr
             "scene_max": max(scene),
             "best": statistics.median(best),
             "best_max": max(best),
+            "best_min": min(best),
             "planner": statistics.median(plan_s),
             "stages": statistics.median(stages_s),
             "other": statistics.median(
@@ -328,9 +329,9 @@ def main() -> None:
     )
     print()
     print("| points | clients | planner process | pool | new scene (ms) | max "
-          "| new best grasp (ms) | max | stages (ms) | planner (ms) | other (ms) "
+          "| new best grasp (ms) | max | min | stages (ms) | planner (ms) | other (ms) "
           "| CPU viewer / worker (ms) | load |")  # fmt: skip
-    print("|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|")
+    print("|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---|")
     for _ in range(args.rounds):
         for points in args.client_points:
             for n in args.clients:
@@ -341,6 +342,7 @@ def main() -> None:
                         f"| {r['points']:,} | {r['clients']} | {r['process']} | {r['pool']} | "
                         f"{r['scene'] * 1e3:.0f} | {r['scene_max'] * 1e3:.0f} | "
                         f"{r['best'] * 1e3:.0f} | {r['best_max'] * 1e3:.0f} | "
+                        f"{r['best_min'] * 1e3:.0f} | "
                         f"{r['stages'] * 1e3:.0f} | {r['planner'] * 1e3:.0f} | "
                         f"{r['other'] * 1e3:.0f} | {r['cpu_here'] * 1e3:.0f} / "
                         f"{r['cpu_worker'] * 1e3:.0f} | {load0:.1f}-{os.getloadavg()[0]:.1f} |",
