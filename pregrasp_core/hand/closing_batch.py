@@ -174,22 +174,38 @@ def close_fingers(
         src = (ci if kept is None else kept[ci]) - (np.cumsum(sizes) - sizes)[B.seg[ci]]
 
     out: list[FingerClosing] = []
+    # (per-slice values as Python lists: one conversion each, not S numpy scalar reads)
+    found1_l, in2_l, found2_l = found1.tolist(), in2.tolist(), found2.tolist()
+    n_t1_l, j1_l, j2_l, row2_l, n_t2_l = (
+        ev1.n_t.tolist(),
+        j1.tolist(),
+        j2.tolist(),
+        row2.tolist(),
+        np.asarray(n_t2).tolist(),
+    )
+    idx_l, src_l = c_idx.T.tolist(), src.T.tolist()  # (S, 3)
+    flags = np.stack([stopped_middle, stopped_distal, palm_stop, at_limits, ev1.k == 0]).T
+    flags_l = flags.tolist()
     for s in range(S):  # loop over slices: the small result objects
         f = fingers[s]
-        if not found1[s]:  # no stop: both joints end at their limits
-            path = Q1[s, : ev1.n_t[s]].copy()
-        elif not in2[s]:
-            path = np.concatenate([Q1[s, : j1[s]], q_free[s : s + 1]])
+        if not found1_l[s]:  # no stop: both joints end at their limits
+            path = Q1[s, : n_t1_l[s]].copy()
+        elif not in2_l[s]:
+            path = np.concatenate([Q1[s, : j1_l[s]], q_free[s : s + 1]])
         else:
-            r = row2[s]
-            tail = [Q2[r, 1 : j2[s]], q_stop[r : r + 1]] if found2[s] else [Q2[r, 1 : n_t2[r]]]
-            path = np.concatenate([Q1[s, : j1[s]], q_free[s : s + 1], *tail])
+            r = row2_l[s]
+            tail = (
+                [Q2[r, 1 : j2_l[s]], q_stop[r : r + 1]] if found2_l[s] else [Q2[r, 1 : n_t2_l[r]]]
+            )
+            path = np.concatenate([Q1[s, : j1_l[s]], q_free[s : s + 1], *tail])
+        ids, srcs = idx_l[s], src_l[s]
         contacts = tuple(
-            FingerContact(f.links[1 if c == 0 else 2], P_c[c, s].copy(), int(src[c, s]))
-            for c, i in enumerate((mid1[s], dis1[s], dis2[s]))
-            if i >= 0
+            FingerContact(f.links[1 if c == 0 else 2], P_c[c, s].copy(), srcs[c])
+            for c in range(3)
+            if ids[c] >= 0
         )
         last = contacts[-1] if contacts else None
+        sm, sd, ps, al, sc = flags_l[s]
         out.append(
             FingerClosing(
                 finger=f.name,
@@ -198,11 +214,11 @@ def close_fingers(
                 contact_point=None if last is None else last.point,
                 contact_index=None if last is None else last.index,
                 contacts=contacts,
-                stopped_middle=bool(stopped_middle[s]),
-                stopped_distal=bool(stopped_distal[s]),
-                palm_stop=bool(palm_stop[s]),
-                at_limits=bool(at_limits[s]),
-                start_in_contact=bool(ev1.k[s] == 0),
+                stopped_middle=sm,
+                stopped_distal=sd,
+                palm_stop=ps,
+                at_limits=al,
+                start_in_contact=sc,
                 path=path,
             )
         )
