@@ -19,7 +19,7 @@ from .model import (
     FingerContact,
     HandModel,
 )
-from .sweep_kernel import candidate_kernels
+from .sweep_kernel import candidate_kernels, reach_kernel
 
 
 def close_fingers(
@@ -82,12 +82,11 @@ def close_fingers(
     P_all = np.concatenate(pts) if sizes.sum() else np.zeros((0, 2))
     seg_all = np.repeat(np.arange(S), sizes)
     reach = geom[:, 1] + np.hypot(geom[:, 2], geom[:, 3]) + 2.0 * abs(margin)
-    # (x * x + y * y is einsum("ij,ij->i")'s 2-term sum of products to the bit: each product
-    # rounded, then their sum; on contiguous columns, which the batch keeps anyway)
-    x_all, y_all = np.ascontiguousarray(P_all[:, 0]), np.ascontiguousarray(P_all[:, 1])
-    keep = x_all * x_all + y_all * y_all <= (reach * reach)[seg_all]
+    # the columns and the reach test in one compiled pass (x * x + y * y <= reach^2, the bits
+    # of einsum("ij,ij->i")'s 2-term sums)
+    x_all, y_all, keep, n_keep = reach_kernel()(np.ascontiguousarray(P_all), sizes, reach * reach)
     kept = None  # the rows of P_all kept (None: all)
-    if not keep.all():  # (integer indices: much faster than a boolean mask on (N, 2))
+    if n_keep < len(P_all):  # (integer indices: much faster than a boolean mask on (N, 2))
         kept = np.flatnonzero(keep)
         P_all, seg_all = P_all[kept], seg_all[kept]
         x_all, y_all = x_all[kept], y_all[kept]

@@ -610,3 +610,41 @@ def distal_candidates_loop(
                 out_r[n] = k
                 n += 1
     return out_p, out_r
+
+
+_REACH = Lazy(lambda: njit(reach_loop))
+
+
+def reach_kernel() -> Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray, int]]:
+    """The compiled :func:`reach_loop` (numba imported on the first call)."""
+    return _REACH.get()
+
+
+def reach_loop(
+    P: np.ndarray, sizes: np.ndarray, reach2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """The columns and the reach test of the points of many slices in one branch-free pass:
+    ``P`` (N, 2) the slices' points one slice after the other (``sizes`` (S,) each),
+    ``reach2`` (S,) each slice's squared reach. Returns ``(x (N,), y (N,), keep (N,), n)``:
+    ``P``'s columns, whether ``x * x + y * y <= reach2`` of the point's slice (the value of
+    ``np.einsum("ij,ij->i", P, P)``: each product rounded, then their sum), and how many are
+    kept (``closing_batch.close_fingers``)."""
+    N = P.shape[0]
+    xs = np.empty(N)
+    ys = np.empty(N)
+    keep = np.empty(N, dtype=np.bool_)
+    n = 0
+    i0 = 0
+    for s in range(sizes.shape[0]):
+        i1 = i0 + sizes[s]
+        lim = reach2[s]
+        Ps, xv, yv, kv = P[i0:i1], xs[i0:i1], ys[i0:i1], keep[i0:i1]
+        for i in range(i1 - i0):  # (views from 0: numba vectorises the loop)
+            x, y = Ps[i, 0], Ps[i, 1]
+            xv[i] = x
+            yv[i] = y
+            k = x * x + y * y <= lim
+            kv[i] = k
+            n += k
+        i0 = i1
+    return xs, ys, keep, n
