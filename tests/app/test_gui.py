@@ -388,7 +388,12 @@ def test_an_edit_during_the_replan_cancels_it_and_the_grasps_follow_the_last_edi
     first = threading.Thread(target=_browser_edit, args=(h, 0.5))
     first.start()
     assert held.wait(60), "the re-plan of the first edit never started"
-    assert c.state.params.decomposition.volume_ratio == 0.5 and c.state.busy == "plan"
+    # the re-plan starts before the new scene is committed (Controller._rerun): wait for it
+    deadline = time.monotonic() + 60
+    while c.state.params.decomposition.volume_ratio != 0.5:
+        assert time.monotonic() < deadline, "the scene of the first edit was never committed"
+        time.sleep(0.005)
+    assert c.state.busy == "plan" and c.state.replanning
     _browser_edit(h, 0.9)  # waits for the re-plan of 0.5 to stop
     gate.set()
     first.join(timeout=120)
