@@ -71,11 +71,32 @@ FORK_MODES: tuple[str, ...] = ("auto", "always", "never")
 least :data:`FORK_MIN`; ``never`` = one process."""
 
 
-def free_cores(samples: int = 5, every: float = 0.002) -> int:
+def running_tasks(pid: int) -> int:
+    """The threads of process ``pid`` that are running or runnable now (state ``R`` in
+    ``/proc/<pid>/task/*/stat``); 0 when the process is gone or on a system without /proc."""
+    n = 0
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return 0
+    for tid in tids:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/stat", encoding="ascii", errors="replace") as fh:
+                stat = fh.read()
+        except OSError:
+            continue  # the thread ended meanwhile
+        # the state follows the command name in parentheses (which may hold spaces)
+        n += stat[stat.rfind(")") + 2 : stat.rfind(")") + 3] == "R"
+    return n
+
+
+def free_cores(samples: int = 5, every: float = 0.002, exclude: int | None = None) -> int:
     """The usable CPUs that no other task is running on or waiting for, now: the CPUs less the
     median over ``samples`` readings (``every`` s apart) of the running and runnable tasks
-    (``procs_running`` of ``/proc/stat``, which counts the caller too). Linux; elsewhere the
-    CPUs less one."""
+    (``procs_running`` of ``/proc/stat``, which counts the caller too), less those of process
+    ``exclude`` (:func:`running_tasks`): the worker passes the viewer's, whose drawing of the
+    new scene runs beside the plan it asked for (``Controller._rerun``) and ends within it, so
+    it is no reason to plan on one core. Linux; elsewhere the CPUs less one."""
     n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     seen: list[int] = []
     try:
@@ -83,22 +104,26 @@ def free_cores(samples: int = 5, every: float = 0.002) -> int:
             if k:
                 time.sleep(every)
             with open("/proc/stat", encoding="ascii") as fh:
-                seen.extend(int(ln.split()[1]) for ln in fh if ln.startswith("procs_running"))
+                running = [int(ln.split()[1]) for ln in fh if ln.startswith("procs_running")]
+            if running:  # ``exclude``'s threads read only when they can matter (~1 ms)
+                r = running[0]
+                seen.append(r - running_tasks(exclude) if exclude and r >= n else r)
     except OSError:
         return n - 1
     if not seen:
         return n - 1
-    return n - int(sorted(seen)[len(seen) // 2])
+    return n - max(1, int(sorted(seen)[len(seen) // 2]))  # the caller runs at least
 
 
-def fork_copy(n_pool: int, mode: str) -> bool:
+def fork_copy(n_pool: int, mode: str, exclude: int | None = None) -> bool:
     """Whether the worker plans ``n_pool`` pre-grasps on two processes (``mode``: one of
-    :data:`FORK_MODES`). With both cores busy (other work on the machine), the forked plan's
-    two processes wait for each other and it was no faster than one (docs/benchmarks.md,
-    "Session 10")."""
+    :data:`FORK_MODES`; ``exclude``: the viewer's process id, whose running threads are not
+    counted, :func:`free_cores`). With both cores busy (other work on the machine), the forked
+    plan's two processes wait for each other and it was no faster than one
+    (docs/benchmarks.md, "Session 10")."""
     if mode == "never" or n_pool < FORK_MIN:
         return False
-    return mode == "always" or free_cores() >= 1
+    return mode == "always" or free_cores(exclude=exclude) >= 1
 
 
 WARM_POINTS: int = 1000
@@ -334,6 +359,7 @@ class PlannerProcess:
                     "support": support,
                     "assumed": assumed,
                     "fork": self.fork,
+                    "viewer": os.getpid(),
                 }
                 try:
                     gs = self._remote(self._job, kw, progress, check)
@@ -527,7 +553,8 @@ def worker_main(r_req: int, w_ans: int, urdf_path: str, warm: bool) -> None:
         reply: tuple[Any, ...]
         try:
             params = kw["params"]
-            if not fork_copy(len(kw["pool"]), kw.get("fork", "auto")):  # one process
+            if not fork_copy(len(kw["pool"]), kw.get("fork", "auto"), kw.get("viewer")):
+                # one process
                 params = dataclasses.replace(params or _planner_params(), threads=1)
             gs = plan_grasps(
                 kw["points"],

@@ -344,10 +344,44 @@ def test_the_worker_forks_for_a_large_pool_and_a_free_core(monkeypatch):
     """``fork_copy``: never below ``FORK_MIN`` pre-grasps or with ``never``; with ``auto`` only
     when a core is free (the running tasks read from /proc/stat, here replaced)."""
     for free in (-1, 0, 1):
-        monkeypatch.setattr(planner_proc, "free_cores", lambda free=free: free)
+        monkeypatch.setattr(planner_proc, "free_cores", lambda free=free, **kw: free)
         assert fork_copy(FORK_MIN, "auto") == (free >= 1)
         assert fork_copy(FORK_MIN, "always") and not fork_copy(FORK_MIN, "never")
         assert not fork_copy(FORK_MIN - 1, "always") and not fork_copy(FORK_MIN - 1, "auto")
     monkeypatch.undo()
     n = planner_proc.free_cores()
     assert n <= len(os.sched_getaffinity(0)) - 1  # this test's own process is running
+
+
+def test_the_viewers_own_running_threads_do_not_keep_the_worker_on_one_core():
+    """``running_tasks`` reads a process's runnable threads from /proc (a process spinning on
+    two threads: 2; one asleep: 0), and ``free_cores(exclude=pid)`` does not count them: the
+    viewer draws the new scene while the worker plans the re-plan it asked for."""
+    import subprocess
+    import sys
+
+    spin = (
+        "import threading\n"
+        "def f():\n    while True: pass\n"
+        "threading.Thread(target=f, daemon=True).start()\n"
+        "import os\nwhile True: os.getpid()\n"
+    )  # two threads that never sleep: the GIL's holder runs, the other waits on it or runs
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    idle = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+    two = subprocess.Popen([sys.executable, "-c", spin])
+    try:
+        time.sleep(1.0)  # started and settled
+        assert planner_proc.running_tasks(busy.pid) == 1  # R: running or runnable
+        assert planner_proc.running_tasks(idle.pid) == 0
+        assert 1 <= planner_proc.running_tasks(two.pid) <= 2
+        assert planner_proc.running_tasks(2**22 + 12345) == 0  # no such process
+        n = len(os.sched_getaffinity(0))
+        # with the spinner excluded, it takes no core: at least as many free as with it
+        # counted and never more than all but the caller's (each reading's median)
+        with_it = min(planner_proc.free_cores() for _ in range(5))
+        without = max(planner_proc.free_cores(exclude=busy.pid) for _ in range(5))
+        assert without <= n - 1 and without >= with_it
+    finally:
+        for p in (busy, idle, two):
+            p.kill()
+            p.wait()
