@@ -630,6 +630,12 @@ class Gui:
         """
         if handle is None:
             return
+        if id(handle) in self._editing():
+            # a newer edit of it has arrived and its callback has not read it yet: sending the
+            # value in use now would overwrite that edit's value before it is read (a flood of
+            # 2,000 toggles then ended with the masks shown; 1 run in 5); that edit's own run
+            # sends the value in use when it ends
+            return
         with self._values_lock:
             found, v = self._value_in_use(handle)
             if found:
