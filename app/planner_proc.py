@@ -85,8 +85,9 @@ def running_tasks(pid: int) -> int:
                 stat = fh.read()
         except OSError:
             continue  # the thread ended meanwhile
-        # the state follows the command name in parentheses (which may hold spaces)
-        n += stat[stat.rfind(")") + 2 : stat.rfind(")") + 3] == "R"
+        # the state is the first field after the command name in parentheses (which may hold
+        # spaces and parentheses)
+        n += stat.rpartition(")")[2].split()[:1] == ["R"]
     return n
 
 
