@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .decomposition import BoxTree, DecompositionParams, decompose
+from .errors import WorkLimitError
 from .facemask import FaceMaskParams, FaceMasks, compute_face_masks, support_plane
 from .io import PointCloud
 from .limits import WorkLimits
@@ -79,10 +80,13 @@ class PipelineParams:
     """Traversal policy and pre-grasp sampling."""
     planner: PlannerParams = field(default_factory=PlannerParams)
     """Slicing contact planner, quality measure and cloud normals."""
-    occluded: str = "completed"
+    occluded: str = "auto"
     """A single view's unseen space: ``completed`` = free but for the completion's assumed
     points; ``occupied`` = an obstacle for the pool and the planner (the hand stays out of it;
-    contacts only on real points; docs/partial-views.md). No effect on complete clouds."""
+    contacts only on real points; docs/partial-views.md); ``auto`` (the default) = planned
+    with ``occupied`` and again with ``completed`` when no kept grasp is force closure or the
+    hidden space passes its work limit (``PipelineResult.occluded_used`` says which). No
+    effect on complete clouds (every setting plans them as ``completed``)."""
 
     def __post_init__(self) -> None:
         if self.occluded not in OCCLUDED_MODES:
@@ -132,6 +136,15 @@ class PipelineResult:
     (``params.occluded == "occupied"``; ``sensor/occluded.py``), the very object they used (the
     viewer draws it, nothing computes it again); ``None`` for a complete cloud, for
     ``completed`` and for a run that stops before the pool. Not in the result file."""
+    occluded_used: str = "completed"
+    """The setting the stages from the pool on were run with: ``occupied`` or ``completed``
+    (``params.occluded`` unless it is ``auto``: then ``occupied`` for a single view, or
+    ``completed`` when the occupied plan had no force-closure grasp or its hidden space passed
+    the work limit); ``completed`` for a complete cloud whatever the setting."""
+    fallback: str | None = None
+    """Why an ``auto`` run planned with ``completed`` after ``occupied``: ``"no_force_closure"``
+    (no kept grasp of the occupied plan was force closure) or ``"work_limit"`` (the hidden
+    space passed ``MAX_OCCLUDED_VOXELS``); ``None`` otherwise."""
 
 
 def _same_cloud(a: PointCloud, b: PointCloud) -> bool:
@@ -177,12 +190,121 @@ def run_pipeline(
     if last >= 4 and not _normals_reusable(prev, params):
         background = _Background(view_normals, cloud, params.planner.normals)
     try:
+        if params.occluded == "auto" and cloud.sensor is not None and last >= 4:
+            return _run_auto(
+                cloud, params, hand, last, prev, progress, limits, background,
+                planner or plan_grasps,
+            )  # fmt: skip
         return _run_stages(
-            cloud, params, hand, last, prev, progress, limits, background, planner or plan_grasps
-        )
+            cloud, params, hand, last, prev, progress, limits, background,
+            planner or plan_grasps, mode=planned_mode(cloud, params),
+        )  # fmt: skip
     finally:
         if background is not None:  # joined whatever happened: no thread outlives the run
             background.join()
+
+
+def planned_mode(cloud: PointCloud, params: PipelineParams) -> str:
+    """The setting a run of ``params`` on ``cloud`` starts with: ``completed`` for a complete
+    cloud (no sensor view) whatever ``params.occluded``; for a view ``occupied`` when
+    ``params.occluded`` is ``auto`` (the pool a run up to ``pool`` shows; the planner may still
+    fall back, :func:`run_pipeline`), else ``params.occluded``."""
+    if cloud.sensor is None:
+        return "completed"
+    return "occupied" if params.occluded == "auto" else params.occluded
+
+
+class _HiddenSpaceLimit(WorkLimitError):
+    """The view's hidden space passed its work limit (``auto`` falls back to ``completed``;
+    any other caller sees the ``WorkLimitError`` it is)."""
+
+
+FALLBACK_REASONS: dict[str, str] = {
+    "no_force_closure": "with it occupied no grasp was force closure",
+    "work_limit": "its occupied space passed the work limit",
+}
+"""``PipelineResult.fallback`` -> why, in words (the viewer's status line)."""
+
+
+def occluded_note(result: PipelineResult) -> str:
+    """How a single view's unseen back was planned, in words for a status line ("" for a
+    complete cloud and before the pool): ``"unseen back occupied"``, or ``"unseen back
+    completed"`` with why when ``auto`` fell back."""
+    if result.cloud.sensor is None or result.pool is None:
+        return ""
+    text = f"unseen back {result.occluded_used}"
+    if result.fallback is not None:
+        text += f" (--occluded auto: {FALLBACK_REASONS[result.fallback]})"
+    return text
+
+
+def _run_auto(
+    cloud: PointCloud,
+    params: PipelineParams,
+    hand: Hand | None,
+    last: int,
+    prev: PipelineResult | None,
+    progress: Callable[[float], None] | None,
+    limits: WorkLimits | None,
+    background: _Background | None,
+    planner: Callable[..., GraspSet],
+) -> PipelineResult:
+    """``occluded="auto"`` on a single view up to the grasps: the stages with the hidden space
+    occupied, then, when no kept grasp is force closure (or the hidden space passes its work
+    limit), the pool and the planner again with ``completed``, reusing the stages before the
+    pool (and the normals) of the first run. A ``previous`` auto result of the very same
+    parameters that fell back goes straight to ``completed`` (all its stages reused)."""
+    if (
+        prev is not None
+        and prev.params == params
+        and prev.occluded_used == "completed"
+        and prev.grasps is not None
+    ):
+        res = _run_stages(
+            cloud, params, hand, last, prev, progress, limits, background, planner,
+            mode="completed",
+        )  # fmt: skip
+        return dataclasses.replace(res, fallback=prev.fallback)
+    try:
+        first = _run_stages(
+            cloud, params, hand, last, prev, progress, limits, background, planner,
+            mode="occupied",
+        )  # fmt: skip
+    except _HiddenSpaceLimit as exc:
+        logger.info("occluded auto: %s; planning with the completed back", exc)
+        res = _run_stages(
+            cloud, params, hand, last, prev, progress, limits, background, planner,
+            mode="completed",
+        )  # fmt: skip
+        return dataclasses.replace(res, fallback="work_limit")
+    assert first.grasps is not None
+    if first.grasps.best is not None:
+        return first
+    logger.info("occluded auto: no force-closure grasp with the hidden space occupied")
+    # the completed plan from the stages before the pool of the first run; a previous
+    # completed result whose stages the first run reused also lends its pool and grasps
+    base = first
+    before_pool = ("decompose", "classify", "facemask")
+    if (
+        prev is not None
+        and prev.occluded_used == "completed"
+        and all(s in first.reused for s in before_pool)
+        and _normals_reusable(prev, params)
+    ):
+        base = prev
+    res = _run_stages(
+        cloud, params, first.hand, last, base, progress, limits, background, planner,
+        mode="completed",
+    )  # fmt: skip
+    timings = dict(res.timings)
+    for name in before_pool + ("normals",):  # computed (or reused) by the first run
+        if name in first.timings:
+            timings[name] = first.timings[name]
+    timings["occupied_attempt"] = sum(
+        first.timings.get(s, 0.0) for s in ("pool", "grasps") if s not in first.reused
+    )
+    reused = tuple(s for s in res.reused if s not in before_pool or s in first.reused)
+    return dataclasses.replace(res, timings=timings, reused=reused, fallback="no_force_closure")
 
 
 def _normals_reusable(prev: PipelineResult | None, params: PipelineParams) -> bool:
@@ -234,21 +356,26 @@ def _run_stages(
     limits: WorkLimits | None,
     background: _Background | None,
     planner: Callable[..., GraspSet] = plan_grasps,
+    mode: str = "completed",
 ) -> PipelineResult:
     """The stages of :func:`run_pipeline` up to ``ALL_STAGES[last]`` (``prev``: the previous
     result of the same cloud or None); the normals from ``background`` when it computes them;
-    the grasps by ``planner`` (``plan_grasps`` or a stand-in with its arguments)."""
+    the grasps by ``planner`` (``plan_grasps`` or a stand-in with its arguments); the pool and
+    the grasps with the hidden space as ``mode`` says (``completed`` or ``occupied``; a
+    previous result's pool is reused only when it was built with the same)."""
     points = np.asarray(cloud.points, dtype=np.float64)
     pp = prev.params if prev is not None else None
     hidden: list[OccupiedSpace | None] = []  # the view's hidden space (once, when needed)
-    if prev is not None and prev.occupied is not None and pp is not None:
-        if pp.occluded == params.occluded:  # the same cloud and setting: the same space
-            hidden.append(prev.occupied)
+    if prev is not None and prev.occupied is not None and prev.occluded_used == mode:
+        hidden.append(prev.occupied)  # the same cloud and setting: the same space
 
     def obstacles() -> tuple[np.ndarray, OccupiedSpace | None]:
         """The points the pool and the planner must clear, and the hidden space or None."""
         if not hidden:
-            hidden.append(occupied_of(cloud, params))
+            try:
+                hidden.append(occupied_of(cloud, params, mode))
+            except WorkLimitError as exc:  # auto falls back on this one (a WorkLimitError)
+                raise _HiddenSpaceLimit(str(exc)) from exc
         occ = hidden[0]
         return (points if occ is None else np.concatenate([points, occ.points])), occ
 
@@ -333,7 +460,7 @@ def _run_stages(
             and prev is not None
             and pp is not None
             and pp.sampling == params.sampling
-            and pp.occluded == params.occluded
+            and prev.occluded_used == mode
             and prev.hand is hand,
             ("traversal", "pool"),
             _pool,
@@ -399,15 +526,21 @@ def _run_stages(
         reused=tuple(reused),
         hand=hand if last >= 3 else (prev.hand if prev is not None else None),
         occupied=hidden[0] if hidden and last >= 3 else None,
+        occluded_used=mode if cloud.sensor is not None else "completed",
         **out,
     )
 
 
-def occupied_of(cloud: PointCloud, params: PipelineParams) -> OccupiedSpace | None:
-    """The hidden space of a single view as obstacle points (``sensor/occluded.py``) when
-    ``params.occluded`` is ``occupied`` and ``cloud`` is a view, else None."""
+def occupied_of(
+    cloud: PointCloud, params: PipelineParams, mode: str | None = None
+) -> OccupiedSpace | None:
+    """The hidden space of a single view as obstacle points (``sensor/occluded.py``) when the
+    setting (``mode``, default :func:`planned_mode`: ``occupied`` for ``occupied`` and
+    ``auto``) is ``occupied`` and ``cloud`` is a view, else None."""
     sv = cloud.sensor
-    if params.occluded != "occupied" or sv is None:
+    if mode is None:
+        mode = planned_mode(cloud, params)
+    if mode != "occupied" or sv is None:
         return None
     return occupied_space(sv.points[~sv.assumed], sv.points, sv.viewpoint, sv.plane)
 
@@ -490,8 +623,10 @@ def result_document(
             raise ValueError("the result has grasps but no hand: it was not made by run_pipeline")
         extra.update(grasps_sections(result.grasps, result.hand, params.planner, simulation))
     sections: dict[str, object] = dict(params.as_dict())
-    if params.occluded != "completed":  # written only when not the default (docs/result-schema)
+    if params.occluded != "auto":  # written only when not the default (docs/result-schema)
         sections["occluded"] = params.occluded
+    if result.cloud.sensor is not None:  # a single view: the setting actually planned
+        sections["occluded_used"] = result.occluded_used
     if simulation is not None:
         sections["simulation"] = simulation.params
     return _result_document(

@@ -35,9 +35,11 @@ from ..errors import WorkLimitError
 from ..facemask import SupportPlane
 from .completion import RangeImage
 
-OCCLUDED_MODES: tuple[str, ...] = ("completed", "occupied")
+OCCLUDED_MODES: tuple[str, ...] = ("auto", "completed", "occupied")
 """Values of ``PipelineParams.occluded``: ``completed`` = the unseen space is free but for the
-completion's assumed points (the default); ``occupied`` = it is an obstacle."""
+completion's assumed points; ``occupied`` = it is an obstacle; ``auto`` (the default) =
+``occupied``, and ``completed`` again when that plan has no force-closure grasp or the hidden
+space passes :data:`MAX_OCCLUDED_VOXELS` (``pregrasp_core.pipeline.run_pipeline``)."""
 
 SLAB_VOXELS: int = 65_536
 """Voxels :func:`occupied_space` tests at once, a slab of its grid (their temporaries take

@@ -19,11 +19,12 @@ from scipy.spatial.transform import Rotation
 
 from app.cli import main
 from pregrasp_core import pipeline
-from pregrasp_core.errors import WorkLimitError
+from pregrasp_core.errors import InputError, WorkLimitError
 from pregrasp_core.facemask import SupportPlane
 from pregrasp_core.io import load_point_cloud
 from pregrasp_core.paths import OBJECTS_DIR
 from pregrasp_core.pipeline import PipelineParams, run_pipeline
+from pregrasp_core.result import to_jsonable
 from pregrasp_core.sensor import occluded, prepare_view
 from pregrasp_core.sensor.occluded import MAX_OCCLUDED_VOXELS, OccludedParams, occupied_space
 from pregrasp_core.sensor.synthetic import LABEL_OBJECT, orbit_camera, render_view
@@ -153,7 +154,9 @@ def test_no_finger_enters_the_hidden_handle_with_occupied(
     )
     again = run_pipeline(cloud, res.params, res.hand, until="grasps", previous=res)
     assert "grasps" in again.reused and again.grasps is res.grasps and not calls
-    other = run_pipeline(cloud, PipelineParams(), res.hand, until="grasps", previous=res)
+    other = run_pipeline(
+        cloud, PipelineParams(occluded="completed"), res.hand, until="grasps", previous=res
+    )
     assert "pool" not in other.reused and not calls
     back = run_pipeline(cloud, res.params, res.hand, until="grasps", previous=other)
     assert calls == [1]
@@ -163,8 +166,13 @@ def test_no_finger_enters_the_hidden_handle_with_occupied(
     assert main(["plan", str(path), "--occluded", "occupied", "-o", str(out)]) == 0
     doc = json.loads(out.read_text())
     assert doc["parameters"]["occluded"] == "occupied"
-    assert main(["plan", str(path), "-o", str(out)]) == 0
-    assert "occluded" not in json.loads(out.read_text())["parameters"]
+    assert doc["parameters"]["occluded_used"] == "occupied"
+    assert main(["plan", str(path), "-o", str(out)]) == 0  # auto, the default: not written
+    doc = json.loads(out.read_text())
+    assert "occluded" not in doc["parameters"] and doc["parameters"]["occluded_used"] == "occupied"
+    assert main(["plan", str(path), "--occluded", "completed", "-o", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["parameters"]["occluded"] == doc["parameters"]["occluded_used"] == "completed"
 
 
 def test_occluded_must_be_a_known_setting() -> None:
@@ -225,4 +233,106 @@ def test_the_result_carries_the_hidden_space_it_used(make_views, tmp_path: Path,
     assert a is not None and b is not None and len(a.ranked) > 0
     key = [(g.pregrasp, g.epsilon, g.T_world_hand.tobytes()) for g in a.ranked]
     assert key == [(g.pregrasp, g.epsilon, g.T_world_hand.tobytes()) for g in b.ranked]
-    assert run_pipeline(cloud, PipelineParams(), pool.hand, until="pool").occupied is None
+    completed = PipelineParams(occluded="completed")
+    assert run_pipeline(cloud, completed, pool.hand, until="pool").occupied is None
+
+
+def _view_pcd(mv, name: str, camera: int, noise: float, path: Path) -> Path:
+    """``scripts/make_views.py``'s view of the demo mesh ``name`` from ``camera``, as its PCD."""
+    mesh = trimesh.load(OBJECTS_DIR / f"{name}.obj", force="mesh")
+    view = mv.make_view(mesh, mv.AZIMUTHS_DEG[camera], noise, mv.view_seed(name, camera, noise))
+    pts, lab = view.points_world()
+    label = np.where(lab == LABEL_OBJECT, 2, 1).astype(np.uint8)
+    path.write_bytes(mv.pcd_bytes(pts, label, view.T_world_camera))
+    return path
+
+
+def _key(gs) -> list[tuple]:
+    return [(g.pregrasp, g.epsilon, g.T_world_hand.tobytes()) for g in gs.ranked]
+
+
+def test_auto_is_the_occupied_plan_when_it_has_a_force_closure_grasp(
+    make_views, tmp_path: Path
+) -> None:
+    """The bottle from camera 0: with the hidden space occupied the best grasp is force closure, so
+    ``auto`` (the default) is exactly the ``occupied`` plan (same grasps, same hidden space)."""
+    cloud = load_point_cloud(_view_pcd(make_views, "bottle", 0, 0.0, tmp_path / "b.pcd"))
+    auto = run_pipeline(cloud, PipelineParams(), until="grasps")
+    assert PipelineParams().occluded == "auto"
+    occ = run_pipeline(cloud, PipelineParams(occluded="occupied"), until="grasps")
+    assert occ.grasps is not None and occ.grasps.best is not None
+    assert auto.occluded_used == "occupied" and auto.fallback is None
+    assert auto.occupied is not None and np.array_equal(auto.occupied.points, occ.occupied.points)
+    assert _key(auto.grasps) == _key(occ.grasps)
+    assert pipeline.occluded_note(auto) == "unseen back occupied"
+
+
+def test_auto_falls_back_to_the_completed_plan_without_force_closure(
+    make_views, tmp_path: Path, monkeypatch
+) -> None:
+    """The lemon from camera 2 (measured: no kept grasp of its occupied plan is force closure,
+    the completed plan's best has epsilon 0.11): ``auto`` returns the completed plan, grasp for
+    grasp, says why, and keeps no hidden space; a run with the same parameters after it reuses
+    it without building the hidden space again."""
+    cloud = load_point_cloud(_view_pcd(make_views, "fruit_lemon", 2, 0.0, tmp_path / "l.pcd"))
+    occ = run_pipeline(cloud, PipelineParams(occluded="occupied"), until="grasps")
+    assert occ.grasps is not None and occ.grasps.best is None and occ.occupied is not None
+    com = run_pipeline(cloud, PipelineParams(occluded="completed"), until="grasps")
+    assert com.grasps is not None and com.grasps.best is not None
+    built: list[int] = []
+    real = pipeline.occupied_space
+    monkeypatch.setattr(
+        pipeline, "occupied_space", lambda *a, **k: built.append(1) or real(*a, **k)
+    )
+    auto = run_pipeline(cloud, PipelineParams(), until="grasps")
+    assert built == [1]
+    assert auto.occluded_used == "completed" and auto.fallback == "no_force_closure"
+    assert auto.occupied is None and auto.grasps is not None
+    assert _key(auto.grasps) == _key(com.grasps) and auto.grasps.best == com.grasps.best
+    assert "occupied_attempt" in auto.timings
+    assert "no grasp was force closure" in pipeline.occluded_note(auto)
+    again = run_pipeline(cloud, auto.params, auto.hand, until="grasps", previous=auto)
+    assert built == [1] and again.grasps is auto.grasps and again.fallback == "no_force_closure"
+    # the result file: parameters.occluded only when it is not auto, occluded_used for views
+    doc = pipeline.result_document(auto)
+    assert "occluded" not in doc["parameters"]
+    assert doc["parameters"]["occluded_used"] == "completed"
+    # the viewer reads it back as it was planned
+    from app.result_file import read_result_file
+
+    back = read_result_file(json.dumps(to_jsonable(doc)).encode(), "l.json", auto.hand)
+    assert back.result.params.occluded == "auto" and back.result.occluded_used == "completed"
+    # a view's file from before auto (the default was completed then) reads as completed
+    del doc["parameters"]["occluded_used"]
+    old = read_result_file(json.dumps(to_jsonable(doc)).encode(), "old.json", auto.hand)
+    assert old.result.params.occluded == "completed" and old.result.occluded_used == "completed"
+    doc["parameters"]["occluded_used"] = "guessed"
+    with pytest.raises(InputError, match=r"bad\.json.*occluded_used"):
+        read_result_file(json.dumps(to_jsonable(doc)).encode(), "bad.json", auto.hand)
+
+
+def test_auto_falls_back_when_the_hidden_space_passes_its_work_limit(
+    make_views, tmp_path: Path, monkeypatch
+) -> None:
+    """A hidden space over ``MAX_OCCLUDED_VOXELS`` is refused with ``occupied`` (the error names
+    the way out) and planned with ``completed`` under ``auto``."""
+    cloud = load_point_cloud(_view_pcd(make_views, "can_soda", 1, 0.001, tmp_path / "c.pcd"), 3000)
+    monkeypatch.setattr(occluded, "MAX_OCCLUDED_VOXELS", 1000)
+    with pytest.raises(WorkLimitError, match="--occluded completed"):
+        run_pipeline(cloud, PipelineParams(occluded="occupied"), until="grasps")
+    auto = run_pipeline(cloud, PipelineParams(), until="grasps")
+    com = run_pipeline(cloud, PipelineParams(occluded="completed"), until="grasps")
+    assert auto.fallback == "work_limit" and auto.occluded_used == "completed"
+    assert _key(auto.grasps) == _key(com.grasps)
+
+
+def test_auto_plans_a_complete_cloud_as_completed() -> None:
+    """No sensor view: every setting plans the same grasps and the file says nothing of it."""
+    cloud = load_point_cloud(OBJECTS_DIR / "can_soda.obj", n_points=3000, seed=0)
+    auto = run_pipeline(cloud, PipelineParams(), until="grasps")
+    com = run_pipeline(cloud, PipelineParams(occluded="completed"), until="grasps")
+    assert auto.occluded_used == "completed" and auto.fallback is None and auto.occupied is None
+    assert _key(auto.grasps) == _key(com.grasps)
+    doc = pipeline.result_document(auto)
+    assert "occluded" not in doc["parameters"] and "occluded_used" not in doc["parameters"]
+    assert pipeline.occluded_note(auto) == ""
