@@ -811,7 +811,8 @@ class Controller:
                     busy="",
                     progress=0.0,
                     message=f"{msg}; planned again: {n} grasps kept "
-                    f"({time.perf_counter() - t1:.1f} s)",
+                    f"({time.perf_counter() - t1:.1f} s)"
+                    + (f"; {note}" if (note := ppl.occluded_note(planned)) else ""),
                     error="",
                 ),
             )
@@ -947,6 +948,8 @@ class Controller:
                 self._state.view, selected_grasp=0 if n else None, anim_t=0.0, playing=bool(n)
             )
             msg = f"planned {len(result.pool)} pre-grasps: {n} grasps kept ({dt:.1f} s)"
+            if note := ppl.occluded_note(result):
+                msg += f"; {note}"
             new = dataclasses.replace(
                 self._state,
                 params=params,

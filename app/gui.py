@@ -22,6 +22,7 @@ import numpy as np
 
 from pregrasp_core.limits import MAX_SCALE, MIN_SCALE
 from pregrasp_core.paths import demo_depth_images, demo_objects
+from pregrasp_core.pipeline import occluded_note
 from pregrasp_core.planner.rank import score_text
 from pregrasp_core.shape import GRASP_TYPES
 
@@ -768,6 +769,9 @@ class Gui:
                 f"\n\nhidden space (occupied): {occ.volume * 1e6:.0f} cm^3, "
                 f"{len(occ.points)} obstacle points, {self.scene.n_hidden_points_shown} drawn"
             )
+        view = getattr(s.cloud, "sensor", None) is not None
+        if view and s.planned and (note := occluded_note(s.result)):  # which setting planned it
+            text += f"\n\n{md_text(note)}"
         self._set("pool_info", self.pool_info, "content", text)
 
     def _sync_grasp_options(self, s: AppState) -> None:

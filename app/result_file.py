@@ -190,14 +190,27 @@ def _build(cls: Any, d: Any, where: str) -> Any:
         raise _Bad(where, str(exc)) from None
 
 
-def _params(doc: dict[str, Any]) -> PipelineParams:
+def _params(doc: dict[str, Any]) -> tuple[PipelineParams, str]:
+    """The file's parameters and the setting its single view's hidden space was planned with
+    (``PipelineResult.occluded_used``). ``parameters.occluded`` is written only when it is not
+    the default ``auto``; a view's file without it and without ``occluded_used`` was written
+    before ``auto`` existed, when the default was ``completed`` (docs/result-schema.md)."""
     sections = _get(doc, "parameters", dict, "")
     base = PipelineParams()
-    kw = {}
+    kw: dict[str, Any] = {}
     for name in base.as_dict():
         if name in sections:
             kw[name] = _build(type(getattr(base, name)), sections[name], f"parameters.{name}")
-    return PipelineParams(**kw)
+    inp = doc.get("input")
+    view = isinstance(inp, dict) and "scene" in inp
+    used = sections.get("occluded_used", "completed")
+    if used not in ("completed", "occupied"):
+        raise _Bad("parameters.occluded_used", f"{used!r} is not 'completed' or 'occupied'")
+    if "occluded" in sections:
+        kw["occluded"] = _get(sections, "occluded", str, "parameters")
+    elif view and "occluded_used" not in sections:
+        kw["occluded"] = "completed"
+    return PipelineParams(**kw), used if view else "completed"
 
 
 def _tree(doc: dict[str, Any]) -> tuple[BoxTree, tuple[NodeShape, ...] | None, np.ndarray | None]:
@@ -400,7 +413,7 @@ def read_result_file(data: bytes, name: str, hand: Any) -> ResultFile:
     Raises ``InputError`` naming the file and the first bad field."""
     doc = parse_document(data, name)
     try:
-        params = _params(doc)
+        params, occluded_used = _params(doc)
         tree, shapes, fm = _tree(doc)
         inp = _get(doc, "input", dict, "")
         pool = _pool(doc, tuple(hand.joint_names))
@@ -446,6 +459,7 @@ def read_result_file(data: bytes, name: str, hand: Any) -> ResultFile:
             grasps=grasps,
             timings={str(k): float(v) for k, v in timings.items() if isinstance(v, int | float)},
             hand=hand,
+            occluded_used=occluded_used,
         )
     except _Bad as exc:
         raise InputError(f"{name}: malformed {SCHEMA} result file: {exc}") from None

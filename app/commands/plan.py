@@ -53,7 +53,13 @@ import numpy as np
 from pregrasp_core.errors import InputError, PregraspError
 from pregrasp_core.hand import Hand, load_hand
 from pregrasp_core.io import SUPPORTED_EXTENSIONS, PointCloud
-from pregrasp_core.pipeline import PipelineParams, PipelineResult, result_document, run_pipeline
+from pregrasp_core.pipeline import (
+    PipelineParams,
+    PipelineResult,
+    occluded_note,
+    result_document,
+    run_pipeline,
+)
 from pregrasp_core.planner import Grasp, GraspSet, PlannerParams
 from pregrasp_core.planner.rank import score_text
 from pregrasp_core.planner.serialize import SimulatedRanking
@@ -350,6 +356,8 @@ def run(args: argparse.Namespace) -> int:
     )
     if lift is not None:
         tail += f"; {len(lift.results)} simulated, {lift.n_lifted} lifted"
+    if note := occluded_note(result):
+        tail += f"; {note}"
     print(
         f"wrote {written}: {len(result.pool or ())} pre-grasps, {len(gs.ranking)} grasps kept{tail}"
     )

@@ -39,7 +39,15 @@ def test_plan_the_demo_depth_image(tmp_path: Path, capsys: pytest.CaptureFixture
     assert doc["parameters"]["planner"]["normals"]["viewpoint"] == pytest.approx(sc["viewpoint"])
     assert doc["best"] is not None and doc["best_reason"].startswith("force closure")
     best = doc["grasps"]["items"][doc["best"]]
-    assert best["epsilon"] > 0.05  # force closure (measured 0.153 at the defaults)
+    # --occluded auto (the default): the hidden back is an obstacle and the best grasp keeps
+    # out of it (measured epsilon 0.020); planned with the back completed instead, the best
+    # grasp wraps the assumed back (measured 0.153)
+    assert "occluded" not in doc["parameters"] and doc["parameters"]["occluded_used"] == "occupied"
+    assert best["epsilon"] > 0.0 and "unseen back occupied" in capsys.readouterr().out
+    assert main(["plan", str(DEMO), "--occluded", "completed", "-o", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["parameters"]["occluded"] == doc["parameters"]["occluded_used"] == "completed"
+    assert doc["grasps"]["items"][doc["best"]]["epsilon"] > 0.05
 
 
 def test_pick_and_no_scene_on_a_rendered_scene(tmp_path: Path) -> None:
