@@ -144,9 +144,10 @@ def main() -> None:
     )
     ap.add_argument(
         "--occluded",
-        choices=("completed", "occupied"),
-        default="completed",
-        help="a single view's hidden space (occupied: drawn as the 'hidden' layer)",
+        choices=("auto", "completed", "occupied"),
+        default="auto",
+        help="a single view's hidden space (auto, the default, or occupied: drawn as the "
+        "'hidden' layer when the plan kept the hand out of it)",
     )
     ap.add_argument("--points", type=int, default=5000)
     ap.add_argument("--frames", type=int, default=5)

@@ -21,7 +21,7 @@ Targets (issue 13): force closure on >= 80 % of the views, penetration <= 2 mm, 
 Usage: .venv/bin/python scripts/make_views.py /tmp/pregrasp_views   (once)
        PYTHONPATH=. .venv/bin/python benchmarks/bench_partial_grasps.py [VIEWS] [--all]
                                                [--clearance D] [--no-smooth]
-                                               [--occluded completed occupied]
+                                               [--occluded auto completed occupied]
 
 ``--occluded`` with several settings plans each view with each of them in turn (interleaved, one
 run) and prints one table per setting; ``kept`` is the number of kept grasps (the tables add
@@ -77,6 +77,7 @@ class Row:
     pool: int = 0
     cpu: float = 0.0
     mode: str = "completed"
+    used: str = "completed"
 
 
 def main() -> int:
@@ -89,8 +90,9 @@ def main() -> int:
     parser.add_argument("--no-smooth", action="store_true", help="no smoothing of noisy views")
     parser.add_argument("--no-parts", action="store_true", help="skip the parts count")
     parser.add_argument(
-        "--occluded", nargs="+", default=["completed"], choices=OCCLUDED_MODES,
-        help="PipelineParams.occluded settings, each view planned with each",
+        "--occluded", nargs="+", default=["auto"], choices=OCCLUDED_MODES,
+        help="PipelineParams.occluded settings, each view planned with each (default: auto, "
+        "the default; its rows say auto:occ or auto:com, the setting it used)",
     )  # fmt: skip
     parser.add_argument(
         "--occluded-margin", type=float, default=None, metavar="M",
@@ -154,12 +156,13 @@ def main() -> int:
                 full_parts[name] = len(decompose(full).leaves())
         parts = len(res.tree.leaves())
         row = Row(name, float(e["noise_m"]), parts, full_parts.get(name, -1))
-        row.kept, row.cpu, row.mode = len(gs.ranking), cpu, mode
+        row.kept, row.cpu, row.mode, row.used = len(gs.ranking), cpu, mode, res.occluded_used
         row.pool = len(res.pool) if res.pool is not None else 0
         best = gs.best
         if best is None and len(gs.ranking):
             best = int(gs.ranking[0])
-        line = f"{name:<12} {e['camera']:>3} {e['noise_m'] * 1000:>4.0f}m {mode:<9} "
+        shown = f"auto:{res.occluded_used[:3]}" if mode == "auto" else mode
+        line = f"{name:<12} {e['camera']:>3} {e['noise_m'] * 1000:>4.0f}m {shown:<9} "
         line += f"{len(gs.ranking):>4} "
         line += f"{gs.n_force_closure:>4} "
         if best is None:
@@ -210,7 +213,16 @@ def main() -> int:
     for mode in args.occluded:
         mine = [r for r in rows if r.mode == mode]
         print()
-        print(f"occluded = {mode}:")
+        fell = sum(r.used == "completed" for r in mine)
+        print(
+            f"occluded = {mode}:"
+            + (
+                f" {fell} of {len(mine)} views planned with the back "
+                "completed (no force closure with it occupied)"
+                if mode == "auto"
+                else ""
+            )
+        )
         print(
             "| views | best grasp force closure | penetration median / worst (mm) | "
             "penetration <= 2 mm | contact median / worst (mm) | contacts within 3 mm | "

@@ -4,13 +4,14 @@ Starts the app on a free port (default object unless INPUT is given), opens it i
 Chromium through Python playwright, sets up each view through the app's controller (the same
 actions the GUI runs) and saves ``docs/screenshots/{decomposition,face_masks,pregrasps,
 grasp}.png``, then ``depth_demo.png``: the depth-camera demo (``assets/objects/mug_depth.png``
-opened as ``pregrasp view`` opens it, planned on start) with its best grasp closed
-(:func:`depth_demo_shot`; ``--depth`` takes only that one), and ``depth_hidden.png``: the same
-planned with ``--occluded occupied``, its hidden space drawn (``--hidden`` takes only that one).
+opened as ``pregrasp view`` opens it, planned on start with ``--occluded auto``: its hidden
+space drawn) with its best grasp closed (:func:`depth_demo_shot`; ``--depth`` takes only that
+one), and ``depth_completed.png``: the same planned with ``--occluded completed``, the back
+completed and no hidden space (``--completed`` takes only that one).
 
     .venv/bin/python scripts/screenshots.py [INPUT] [--out docs/screenshots] [--points 20000]
     .venv/bin/python scripts/screenshots.py --depth
-    .venv/bin/python scripts/screenshots.py --hidden
+    .venv/bin/python scripts/screenshots.py --completed
 """
 
 from __future__ import annotations
@@ -95,13 +96,21 @@ def _view_behind_the_hand(server, state, elevation: float = 0.75) -> None:
         client.camera.look_at = center
 
 
-def depth_demo_shot(out: Path, chromium: str, occluded: str = "completed") -> int:
+DEPTH_SHOTS: dict[str, str] = {
+    "auto": "depth_demo.png",
+    "completed": "depth_completed.png",
+    "occupied": "depth_hidden.png",
+}
+"""The file :func:`depth_demo_shot` writes per ``--occluded`` setting."""
+
+
+def depth_demo_shot(out: Path, chromium: str, occluded: str = "auto") -> int:
     """``out/depth_demo.png``: the depth demo in the viewer as ``pregrasp view
     assets/objects/mug_depth.png`` starts it (the table found and removed, drawn grey behind the
-    mug, the completed back in dark slate, the best grasp planned on start), the hand closed,
-    seen from the side away from the hand, the Object panel and the legend open.
-    ``occluded="occupied"``: ``out/depth_hidden.png``, the same planned with ``--occluded
-    occupied`` (the hidden space drawn pale blue)."""
+    mug, the completed back in dark slate, the hidden space the hand kept out of in pale blue,
+    the best grasp planned on start), the hand closed, seen from the side away from the hand,
+    the Object panel and the legend open. Another ``occluded``: the same planned with that
+    ``--occluded`` setting, in :data:`DEPTH_SHOTS`'s file."""
     import viser
     from playwright.sync_api import sync_playwright
 
@@ -109,7 +118,7 @@ def depth_demo_shot(out: Path, chromium: str, occluded: str = "completed") -> in
     from pregrasp_core.paths import OBJECTS_DIR
     from pregrasp_core.pipeline import PipelineParams
 
-    name = "depth_demo.png" if occluded == "completed" else "depth_hidden.png"
+    name = DEPTH_SHOTS[occluded]
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     params = PipelineParams(occluded=occluded)
     config = ViewerConfig(input=OBJECTS_DIR / "mug_depth.png", params=params, plan_on_start=True)
@@ -165,13 +174,15 @@ def main() -> int:
     ap.add_argument("--points", type=int, default=20000)
     ap.add_argument("--chromium", default=CHROMIUM)
     ap.add_argument("--depth", action="store_true", help="only the depth demo (depth_demo.png)")
-    hidden_help = "only the depth demo with --occluded occupied (depth_hidden.png)"
-    ap.add_argument("--hidden", action="store_true", help=hidden_help)
+    completed_help = "only the depth demo with --occluded completed (depth_completed.png)"
+    ap.add_argument("--completed", action="store_true", help=completed_help)
     args = ap.parse_args()
-    if args.depth or args.hidden:
+    if args.depth or args.completed:
         args.out.mkdir(parents=True, exist_ok=True)
         rc = depth_demo_shot(args.out, args.chromium) if args.depth else 0
-        return rc or (depth_demo_shot(args.out, args.chromium, "occupied") if args.hidden else 0)
+        if args.completed:
+            rc = rc or depth_demo_shot(args.out, args.chromium, "completed")
+        return rc
 
     import viser
     from playwright.sync_api import sync_playwright
@@ -233,7 +244,7 @@ def main() -> int:
         app.close()
         server.stop()
     return depth_demo_shot(args.out, args.chromium) or depth_demo_shot(
-        args.out, args.chromium, "occupied"
+        args.out, args.chromium, "completed"
     )
 
 
