@@ -41,7 +41,23 @@ below it, so no point that passes the exact test is left out (a larger pad only 
 points; the answers are the same)."""
 
 MAX_VOXELS: int = 1 << 21
-"""At most this many voxels in a cloud's grid (the voxel grows for a very large cloud box)."""
+"""At most this many voxels in a cloud's grid, and at most 8 per point (or 4,096): the voxel
+grows for a large or sparse cloud (the grid's arrays stay within 8 bytes a voxel, 32 a point)."""
+
+
+def _bounds(pts):  # pragma: no cover - compiled by numba
+    # (3,) minimum and (3,) maximum of the points (N, 3), N >= 1 (numpy's min(axis=0) and
+    # max(axis=0), which are slow on this layout)
+    lo = pts[0].copy()
+    hi = pts[0].copy()
+    for i in range(1, pts.shape[0]):
+        for a in range(3):
+            v = pts[i, a]
+            if v < lo[a]:
+                lo[a] = v
+            if v > hi[a]:
+                hi[a] = v
+    return lo, hi
 
 
 def _grid(pts, lo, h, dims):  # pragma: no cover - compiled by numba
@@ -209,6 +225,7 @@ def _hits(
 class Kernels(NamedTuple):
     """The compiled kernels (see the module docstring)."""
 
+    bounds: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
     grid: Callable[..., tuple[np.ndarray, np.ndarray]]
     hits: Callable[..., np.ndarray]
     frames: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -224,7 +241,13 @@ def kernels() -> Kernels:
 def _build() -> Kernels:
     """Import numba and wrap the kernels (compiled lazily, on their first call)."""
     inline_helpers(globals(), "_frame", "_range")  # compiled into the kernels that call them
-    return Kernels(grid=njit(_grid), hits=njit(_hits), frames=njit(_frames), local=njit(_local))
+    return Kernels(
+        bounds=njit(_bounds),
+        grid=njit(_grid),
+        hits=njit(_hits),
+        frames=njit(_frames),
+        local=njit(_local),
+    )
 
 
 _KERNELS = Lazy(_build)
@@ -248,16 +271,18 @@ class PointGrid(NamedTuple):
 def point_grid(pts: np.ndarray, h: float) -> PointGrid:
     """The points (N, 3), N >= 1, in a uniform grid of voxels of side ``h`` (larger when the grid
     would have more than :data:`MAX_VOXELS`) over their bounding box."""
+    k = kernels()
     pts = np.ascontiguousarray(pts, dtype=np.float64)
-    lo = pts.min(axis=0)
-    size = pts.max(axis=0) - lo
+    lo, hi = k.bounds(pts)
+    size = hi - lo
     h = float(h)
+    limit = min(MAX_VOXELS, max(4096, 8 * len(pts)))
     while True:
         dims = (np.floor(size / h) + 1).astype(np.int64)
-        if int(np.prod(dims)) <= MAX_VOXELS:
+        if int(np.prod(dims)) <= limit:
             break
         h *= 1.25
-    start, spts = kernels().grid(pts, lo, h, dims)
+    start, spts = k.grid(pts, lo, h, dims)
     return PointGrid(lo=lo, h=h, dims=dims, start=start, pts=spts)
 
 
