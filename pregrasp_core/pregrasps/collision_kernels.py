@@ -116,8 +116,18 @@ def _frames(T, Tc):  # pragma: no cover - compiled by numba
     return centres, Rs
 
 
+def _coord(d0, d1, d2, R, k):  # pragma: no cover - compiled by numba, inline
+    # coordinate k of the offset d in the cell frame R: ((0 + d0 R[0,k]) + d1 R[1,k]) + d2 R[2,k]
+    s = 0.0
+    s = s + d0 * R[0, k]
+    s = s + d1 * R[1, k]
+    s = s + d2 * R[2, k]
+    return s
+
+
 def _local(p, centre, R):  # pragma: no cover - compiled by numba
-    # (M, 3) cell coordinates of the points p (M, 3): (p - centre) @ R in the einsum's order
+    # (M, 3) cell coordinates of the points p (M, 3): (p - centre) @ R in the einsum's order,
+    # with the helper the kernel uses (for tests)
     M = p.shape[0]
     out = np.empty((M, 3))
     for m in range(M):
@@ -125,11 +135,7 @@ def _local(p, centre, R):  # pragma: no cover - compiled by numba
         d1 = p[m, 1] - centre[1]
         d2 = p[m, 2] - centre[2]
         for k in range(3):
-            s = 0.0
-            s = s + d0 * R[0, k]
-            s = s + d1 * R[1, k]
-            s = s + d2 * R[2, k]
-            out[m, k] = s
+            out[m, k] = _coord(d0, d1, d2, R, k)
     return out
 
 
@@ -193,23 +199,12 @@ def _hits(
                         d0 = spts[j, 0] - centre[0]
                         d1 = spts[j, 1] - centre[1]
                         d2 = spts[j, 2] - centre[2]
-                        s = 0.0
-                        s = s + d0 * R[0, 0]
-                        s = s + d1 * R[1, 0]
-                        s = s + d2 * R[2, 0]
-                        if not (abs(s) <= grown[0]):
+                        # the axes one by one, the first one out ends the point
+                        if not (abs(_coord(d0, d1, d2, R, 0)) <= grown[0]):
                             continue
-                        s = 0.0
-                        s = s + d0 * R[0, 1]
-                        s = s + d1 * R[1, 1]
-                        s = s + d2 * R[2, 1]
-                        if not (abs(s) <= grown[1]):
+                        if not (abs(_coord(d0, d1, d2, R, 1)) <= grown[1]):
                             continue
-                        s = 0.0
-                        s = s + d0 * R[0, 2]
-                        s = s + d1 * R[1, 2]
-                        s = s + d2 * R[2, 2]
-                        if abs(s) <= grown[2]:
+                        if abs(_coord(d0, d1, d2, R, 2)) <= grown[2]:
                             hit = True
                             break
                     if hit:
@@ -240,7 +235,7 @@ def kernels() -> Kernels:
 
 def _build() -> Kernels:
     """Import numba and wrap the kernels (compiled lazily, on their first call)."""
-    inline_helpers(globals(), "_frame", "_range")  # compiled into the kernels that call them
+    inline_helpers(globals(), "_frame", "_coord", "_range")  # copied into the kernels
     return Kernels(
         bounds=njit(_bounds),
         grid=njit(_grid),
