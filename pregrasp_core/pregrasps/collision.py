@@ -19,6 +19,7 @@ from ..tolerances import GEOM_EPS
 
 if TYPE_CHECKING:
     from ..hand import Hand
+    from .collision_kernels import PointGrid
 
 CELL_SEAM: float = 1e-12
 """Metres: cells of a link box are grown by this so that round-off at their shared seams
@@ -146,6 +147,42 @@ def _preshape_cells(
     return cells[key]
 
 
+def _preshape_parts(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(part (P,), first (K,))``: the rows of ``q`` (P, J), P >= 1, grouped by their bytes
+    (one preshape per group, every row of a group equal to its ``first`` row to the bit);
+    ``part[i]`` is the group of row i. (Faster than :func:`_by_preshape`'s
+    ``unique(axis=0)``: one look when every row is the first, as for the paper's types.)"""
+    Q = np.ascontiguousarray(q, dtype=np.float64).reshape(len(q), -1)
+    b = Q.view(np.int64)
+    if (b == b[0]).all():
+        return np.zeros(len(Q), dtype=np.int64), np.zeros(1, dtype=np.int64)
+    rows = Q.view(np.dtype((np.void, Q.shape[1] * 8))).reshape(-1)
+    _, first, inv = np.unique(rows, return_index=True, return_inverse=True)
+    return inv.reshape(-1).astype(np.int64), first
+
+
+_GRID: list[tuple[cKDTree, np.ndarray, float, PointGrid]] = []
+"""The last (k-d tree, points, voxel, grid) of :func:`hand_hits_points` (one entry): the calls
+of one pool share the cloud and its tree, and build its grid once."""
+
+
+def _point_grid(pts: np.ndarray, kd: cKDTree | None) -> PointGrid:
+    """The voxel grid of ``pts`` (:func:`.collision_kernels.point_grid`, voxel :data:`VOXEL`),
+    the one kept in :data:`_GRID` when ``kd`` and ``pts`` are the very objects it was built for
+    (``kd`` is the caller's tree of these points, as the numpy version assumes)."""
+    from . import collision_kernels as ck
+
+    if kd is not None and _GRID:
+        # the same objects (held here, so that no other object can take their ids), same voxel
+        k, p, h, grid = _GRID[0]
+        if k is kd and p is pts and h == VOXEL:
+            return grid
+    grid = ck.point_grid(pts, VOXEL)
+    if kd is not None:
+        _GRID[:] = [(kd, pts, VOXEL, grid)]
+    return grid
+
+
 def hand_hits_points(
     hand: Hand,
     T_world_hand: np.ndarray,
@@ -165,26 +202,32 @@ def hand_hits_points(
     :data:`VOXEL` and, per hand and cell, tests exactly (``abs(local) <= half + CELL_SEAM``, the
     operations of :func:`hand_hits_points_numpy` in their order) the points of the voxels that
     meet the cell's world bounding box; a hand's first hit ends it. The answers are those of
-    :func:`hand_hits_points_numpy` (tests check it). ``kd`` is not used (kept for the callers
-    of the numpy version); ``cells``: an optional dict caching :func:`link_cells` per preshape
-    across calls. Memory is O(P + N + cells + voxels), whatever P and N."""
+    :func:`hand_hits_points_numpy` (tests check it). ``kd``: when given, the tree of
+    ``points`` (the same objects over the calls of a pool): the grid is built once for them and
+    kept with them until a call with others. ``cells``: an optional dict caching
+    :func:`link_cells` per preshape across calls. Memory is O(P + N + cells + voxels), whatever
+    P and N (at most 8 voxels a point)."""
     from . import collision_kernels as ck
 
     pts = as_points(points)
     P = len(T_world_hand)
     if P == 0 or len(pts) == 0:
         return np.zeros(P, dtype=bool)
-    part = np.empty(P, dtype=np.int64)
+    part, first = _preshape_parts(q)
     Ts, hs = [], []
-    for i, every in enumerate(_by_preshape(q)):  # loop over the distinct preshapes
-        cell = _preshape_cells(hand, q[every[0]], margin, cells)
-        part[every] = i
+    for i in first:  # loop over the distinct preshapes
+        cell = _preshape_cells(hand, q[i], margin, cells)
         Ts.append(cell[0])
         hs.append(cell[1])
     cell_lo = np.concatenate([[0], np.cumsum([len(t) for t in Ts])])
-    grid = ck.point_grid(pts, VOXEL)
     return ck.hits(
-        T_world_hand, part, cell_lo, np.concatenate(Ts), np.concatenate(hs), CELL_SEAM, grid
+        T_world_hand,
+        part,
+        cell_lo,
+        np.concatenate(Ts),
+        np.concatenate(hs),
+        CELL_SEAM,
+        _point_grid(pts, kd),
     )
 
 

@@ -280,3 +280,36 @@ def test_warm_up_compiles_every_kernel():
     k = collision_kernels.kernels()
     for name in k._fields:
         assert getattr(k, name).signatures, f"{name} was not compiled by warm_up"
+
+
+def test_a_pools_calls_share_one_grid_and_a_new_cloud_gets_its_own(hand):
+    """The grid is kept for the very (tree, points) objects of the last call: a pool's calls
+    build it once; another cloud (or the same points without a tree) gets a new one, with the
+    answers of the fresh grid."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(7)
+    a, b = rng.uniform(-0.1, 0.1, (2000, 3)), rng.uniform(-0.1, 0.1, (2000, 3)) + 0.02
+    kd_a, kd_b = cKDTree(a), cKDTree(b)
+    G = 100
+    T = _poses(rng, G, spread=0.2)
+    q = np.tile(hand.preshape("spherical"), (G, 1))
+    gts = np.full(G, "spherical")
+    ga = collision._point_grid(a, kd_a)
+    assert collision._point_grid(a, kd_a) is ga
+    assert collision._point_grid(a, None) is not ga
+    assert collision._point_grid(a.copy(), kd_a) is not ga
+    for pts, kd in ((a, kd_a), (b, kd_b), (a, kd_a), (b, None)):
+        ours = hand_hits_points(hand, T, gts, q, pts, kd)
+        assert np.array_equal(ours, hand.hands_hit_points(pts, T, q[0]))
+        assert 10 < ours.sum() < G - 10
+
+
+def test_preshape_groups_are_those_of_the_numpy_version():
+    rng = np.random.default_rng(8)
+    shapes = rng.normal(size=(6, 16))
+    for q in (np.tile(shapes[0], (50, 1)), shapes[rng.integers(0, 6, 300)], shapes[:1]):
+        part, first = collision._preshape_parts(q)
+        groups = {tuple(np.flatnonzero(part == k)) for k in range(len(first))}
+        assert groups == {tuple(g) for g in collision._by_preshape(q)}
+        assert all(np.array_equal(q[first[part[i]]], q[i]) for i in range(len(q)))
