@@ -7,12 +7,13 @@ at ``--other-interval`` (default 0.03 m), re-running only the pool stage. Stage 
 of ``--repeats`` runs (each run recomputes every stage). A second table compares the two
 batched collision tests of the pool filter on the same poses and cloud in the same run: the
 hand model's ``Hand.hands_hit_points`` (k-d tree ball query around every link box) against
-``sampling.hand_hits_points`` (near-cubic cells decided by one nearest-point query each, exact
-test only for the undecided cells); both must give the same answer. A third table compares,
+``sampling.hand_hits_points`` (the pool's test: link boxes cut into near-cubic cells; since
+session 14 the compiled kernel below); both must give the same answer. A third table compares,
 on the same poses, the pool's collision test before and after its compiled kernel (issue 15):
 ``collision.hand_hits_points_numpy`` (the numpy version, ``_batch_hits``) against
 ``hand_hits_points`` (``collision_kernels``: a voxel grid of the cloud, the exact test per hand
-and cell), interleaved, ``--repeats`` times each, medians; the answers must be equal. The time
+and cell; its grid kept for the cloud), interleaved, ``--repeats`` (at least 5) times each,
+medians, the link cells built beforehand for both; the answers must be equal. The time
 of the kernels' first call in the process (numba imported, the kernels loaded from its cache or
 compiled) is printed first.
 
@@ -153,12 +154,14 @@ def kernel_table(points: int, repeats: int, hand: Hand) -> None:
             q = np.tile(hand.preshape(gt), (G, 1))
             gts = np.full(G, gt)
             for margin in (0.0, 0.005):
+                cells: dict = {}  # the link cells, built once for both (as the pool keeps them)
+                hand_hits_points(hand, T[:1], gts[:1], q[:1], pts, kd, margin, cells)
                 old_s, new_s = [], []
                 for _ in range(repeats):  # interleaved
                     t0 = time.perf_counter()
-                    old = hand_hits_points_numpy(hand, T, gts, q, pts, kd, margin, {})
+                    old = hand_hits_points_numpy(hand, T, gts, q, pts, kd, margin, cells)
                     t1 = time.perf_counter()
-                    new = hand_hits_points(hand, T, gts, q, pts, kd, margin, {})
+                    new = hand_hits_points(hand, T, gts, q, pts, kd, margin, cells)
                     t2 = time.perf_counter()
                     assert np.array_equal(old, new), (G, gt, margin)
                     old_s.append(t1 - t0)

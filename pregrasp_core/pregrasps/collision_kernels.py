@@ -42,7 +42,8 @@ points; the answers are the same)."""
 
 MAX_VOXELS: int = 1 << 21
 """At most this many voxels in a cloud's grid, and at most 8 per point (or 4,096): the voxel
-grows for a large or sparse cloud (the grid's arrays stay within 8 bytes a voxel, 32 a point)."""
+grows for a large or sparse cloud (the grid takes 32 bytes a point and 16 a voxel while it is
+built)."""
 
 
 def _bounds(pts):  # pragma: no cover - compiled by numba
