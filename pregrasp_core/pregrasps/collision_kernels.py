@@ -249,6 +249,14 @@ def _build() -> Kernels:
 _KERNELS = Lazy(_build)
 
 
+def _writable(a: np.ndarray, dtype: type = np.float64) -> np.ndarray:
+    """``a`` as a C-contiguous writable array of ``dtype`` (a copy only when it is not one
+    already): numba compiles a kernel once per array type, and a read-only array (the
+    pipeline's clouds are) is another type, which :func:`warm_up` would not have loaded."""
+    a = np.ascontiguousarray(a, dtype=dtype)
+    return a if a.flags.writeable else a.copy()
+
+
 class PointGrid(NamedTuple):
     """A cloud's points sorted by voxel of a uniform grid (see :func:`point_grid`)."""
 
@@ -268,7 +276,7 @@ def point_grid(pts: np.ndarray, h: float) -> PointGrid:
     """The points (N, 3), N >= 1, in a uniform grid of voxels of side ``h`` (larger when the grid
     would have more than :data:`MAX_VOXELS`) over their bounding box."""
     k = kernels()
-    pts = np.ascontiguousarray(pts, dtype=np.float64)
+    pts = _writable(pts)
     lo, hi = k.bounds(pts)
     size = hi - lo
     h = float(h)
@@ -294,14 +302,12 @@ def hits(
     """(G,) bool: hand g at ``T_world_hand[g]`` (G, 4, 4) holds a grid point inside one of the
     cells ``cell_lo[part[g]]`` to ``cell_lo[part[g] + 1] - 1`` of ``T_cell`` (C, 4, 4) and
     ``half`` (C, 3) (each half side grown by ``seam``)."""
-    T = np.ascontiguousarray(T_world_hand, dtype=np.float64)
-    Tc = np.ascontiguousarray(T_cell, dtype=np.float64)
-    hf = np.ascontiguousarray(half, dtype=np.float64)
+    T, Tc, hf = _writable(T_world_hand), _writable(T_cell), _writable(half)
     r_out = np.sqrt((hf + seam) ** 2 @ np.ones(3))  # bounding spheres (only prune)
     return kernels().hits(
         T,
-        np.ascontiguousarray(part, dtype=np.int64),
-        np.ascontiguousarray(cell_lo, dtype=np.int64),
+        _writable(part, np.int64),
+        _writable(cell_lo, np.int64),
         Tc,
         hf,
         r_out,

@@ -275,11 +275,19 @@ def test_demo_pools_get_the_answers_of_the_numpy_version(hand, monkeypatch, path
         assert sum(h for _, h, _ in calls) > 0 and sum(n - h for n, h, _ in calls) > 0
 
 
-def test_warm_up_compiles_every_kernel():
+def test_warm_up_compiles_every_kernel_for_the_pools_arrays(hand):
+    """warm_up compiles every kernel; a pool on the pipeline's (read-only) cloud then compiles
+    nothing more (numba would compile again for another array type)."""
     assert collision_kernels.warm_up() > 0.0
     k = collision_kernels.kernels()
     for name in k._fields:
         assert getattr(k, name).signatures, f"{name} was not compiled by warm_up"
+    before = {name: len(getattr(k, name).signatures) for name in ("bounds", "grid", "hits")}
+    cloud = load_point_cloud(DEFAULT_OBJECT, n_points=2000, seed=0)
+    assert not cloud.points.flags.writeable
+    run_pipeline(cloud, PipelineParams(), hand, until="pool")
+    after = {name: len(getattr(k, name).signatures) for name in ("bounds", "grid", "hits")}
+    assert after == before
 
 
 def test_a_pools_calls_share_one_grid_and_a_new_cloud_gets_its_own(hand):
