@@ -7,8 +7,15 @@ at ``--other-interval`` (default 0.03 m), re-running only the pool stage. Stage 
 of ``--repeats`` runs (each run recomputes every stage). A second table compares the two
 batched collision tests of the pool filter on the same poses and cloud in the same run: the
 hand model's ``Hand.hands_hit_points`` (k-d tree ball query around every link box) against
-``sampling.hand_hits_points`` (near-cubic cells decided by one nearest-point query each, exact
-test only for the undecided cells); both must give the same answer.
+``sampling.hand_hits_points`` (the pool's test: link boxes cut into near-cubic cells; since
+session 14 the compiled kernel below); both must give the same answer. A third table compares,
+on the same poses, the pool's collision test before and after its compiled kernel (issue 15):
+``collision.hand_hits_points_numpy`` (the numpy version, ``_batch_hits``) against
+``hand_hits_points`` (``collision_kernels``: a voxel grid of the cloud, the exact test per hand
+and cell; its grid kept for the cloud), interleaved, ``--repeats`` (at least 5) times each,
+medians, the link cells built beforehand for both; the answers must be equal. The time
+of the kernels' first call in the process (numba imported, the kernels loaded from its cache or
+compiled) is printed first.
 
     .venv/bin/python benchmarks/bench_pool.py [--points 20000] [--repeats 3]
 
@@ -41,7 +48,8 @@ from pregrasp_core.hand import Hand  # noqa: E402
 from pregrasp_core.io import load_point_cloud  # noqa: E402
 from pregrasp_core.paths import demo_objects  # noqa: E402
 from pregrasp_core.pipeline import STAGES, PipelineParams, run_pipeline  # noqa: E402
-from pregrasp_core.pregrasps import hand_hits_points  # noqa: E402
+from pregrasp_core.pregrasps import collision_kernels, hand_hits_points  # noqa: E402
+from pregrasp_core.pregrasps.collision import hand_hits_points_numpy  # noqa: E402
 
 POOL_STAGES = STAGES[: STAGES.index("pool") + 1]
 
@@ -87,6 +95,20 @@ def pool_table(points: int, repeats: int, hand: Hand, other_interval: float) -> 
     print(f"\nmedian total over objects: {statistics.median(totals):.0f} ms")
 
 
+def _hand_poses(G: int, centre: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(G, 4, 4) hands around the object, palm 0.05-0.15 m from its centre, facing it."""
+    T = np.tile(np.eye(4), (G, 1, 1))
+    T[:, :3, :3] = Rotation.random(G, random_state=1).as_matrix()
+    d = rng.normal(size=(G, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    T[:, :3, 2] = -d
+    x = np.cross(T[:, :3, 2], rng.normal(size=(G, 3)))
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    T[:, :3, 0], T[:, :3, 1] = x, np.cross(T[:, :3, 2], x)
+    T[:, :3, 3] = centre + d * rng.uniform(0.05, 0.15, (G, 1))
+    return T
+
+
 def collision_table(points: int, hand: Hand) -> None:
     cloud = load_point_cloud(demo_objects()[0].parent / "mug_handle.obj", n_points=points, seed=0)
     pts = cloud.points
@@ -99,16 +121,7 @@ def collision_table(points: int, hand: Hand) -> None:
     kd = cKDTree(pts)
     centre = pts.mean(axis=0)
     for G in (1000, 4000):
-        T = np.tile(np.eye(4), (G, 1, 1))
-        T[:, :3, :3] = Rotation.random(G, random_state=1).as_matrix()
-        # hands around the object, palm 0.05-0.15 m from its centre, facing it
-        d = rng.normal(size=(G, 3))
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        T[:, :3, 2] = -d
-        x = np.cross(T[:, :3, 2], rng.normal(size=(G, 3)))
-        x /= np.linalg.norm(x, axis=1, keepdims=True)
-        T[:, :3, 0], T[:, :3, 1] = x, np.cross(T[:, :3, 2], x)
-        T[:, :3, 3] = centre + d * rng.uniform(0.05, 0.15, (G, 1))
+        T = _hand_poses(G, centre, rng)
         for gt in ("spherical", "cylindrical"):
             q = np.tile(hand.preshape(gt), (G, 1))
             t0 = time.perf_counter()
@@ -120,6 +133,44 @@ def collision_table(points: int, hand: Hand) -> None:
                 f"| {G} | {gt} | {1000 * (t1 - t0):.0f} | {1000 * (t2 - t1):.0f} | "
                 f"{int(ref.sum())} | {bool(np.array_equal(ref, ours))} |"
             )
+
+
+def kernel_table(points: int, repeats: int, hand: Hand) -> None:
+    """The numpy version of the pool's collision test against the kernel, same poses, cloud
+    and k-d tree, interleaved; the answers are asserted equal."""
+    cloud = load_point_cloud(demo_objects()[0].parent / "mug_handle.obj", n_points=points, seed=0)
+    pts = cloud.points
+    rng = np.random.default_rng(0)
+    kd = cKDTree(pts)
+    centre = pts.mean(axis=0)
+    print(
+        "\n| hands | grasp type | margin | numpy (_batch_hits) ms | kernel ms | speed-up | hits "
+        "| same answer |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for G in (1000, 4000):
+        T = _hand_poses(G, centre, rng)
+        for gt in ("spherical", "cylindrical"):
+            q = np.tile(hand.preshape(gt), (G, 1))
+            gts = np.full(G, gt)
+            for margin in (0.0, 0.005):
+                cells: dict = {}  # the link cells, built once for both (as the pool keeps them)
+                hand_hits_points(hand, T[:1], gts[:1], q[:1], pts, kd, margin, cells)
+                old_s, new_s = [], []
+                for _ in range(repeats):  # interleaved
+                    t0 = time.perf_counter()
+                    old = hand_hits_points_numpy(hand, T, gts, q, pts, kd, margin, cells)
+                    t1 = time.perf_counter()
+                    new = hand_hits_points(hand, T, gts, q, pts, kd, margin, cells)
+                    t2 = time.perf_counter()
+                    assert np.array_equal(old, new), (G, gt, margin)
+                    old_s.append(t1 - t0)
+                    new_s.append(t2 - t1)
+                a, b = 1000 * statistics.median(old_s), 1000 * statistics.median(new_s)
+                print(
+                    f"| {G} | {gt} | {margin} | {a:.1f} | {b:.1f} | {a / b:.0f}x | "
+                    f"{int(new.sum())} | True |"
+                )
 
 
 def main() -> None:
@@ -135,8 +186,15 @@ def main() -> None:
         f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}\n"
     )
     hand = Hand.load()
+    t0 = time.perf_counter()
+    collision_kernels.warm_up()
+    print(
+        f"collision kernels, first call (numba import + cache load or compile): "
+        f"{time.perf_counter() - t0:.2f} s\n"
+    )
     pool_table(a.points, a.repeats, hand, a.other_interval)
     collision_table(a.points, hand)
+    kernel_table(a.points, max(a.repeats, 5), hand)
 
 
 if __name__ == "__main__":

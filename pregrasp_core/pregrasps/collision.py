@@ -19,6 +19,7 @@ from ..tolerances import GEOM_EPS
 
 if TYPE_CHECKING:
     from ..hand import Hand
+    from .collision_kernels import PointGrid
 
 CELL_SEAM: float = 1e-12
 """Metres: cells of a link box are grown by this so that round-off at their shared seams
@@ -127,6 +128,61 @@ def link_cells(hand: Hand, q: np.ndarray, margin: float = 0.0) -> tuple[np.ndarr
     return np.concatenate(Ts), np.concatenate(hs)
 
 
+VOXEL: float = 0.005
+"""Metres: side of the voxels of the cloud's grid in :func:`hand_hits_points` (only a matter of
+speed: the answers do not depend on it)."""
+
+
+def _preshape_cells(
+    hand: Hand, q: np.ndarray, margin: float, cells: CellCache | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`link_cells` of the preshape ``q`` (J,) with ``margin``, from ``cells`` when it has
+    them (and put there when not)."""
+    key = (q.tobytes(), float(margin))
+    if cells is None or key not in cells:
+        cell = link_cells(hand, q, margin)
+        if cells is not None:
+            cells[key] = cell
+        return cell
+    return cells[key]
+
+
+def _preshape_parts(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(part (P,), first (K,))``: the rows of ``q`` (P, J), P >= 1, grouped by their bytes
+    (one preshape per group, every row of a group equal to its ``first`` row to the bit);
+    ``part[i]`` is the group of row i. (Faster than :func:`_by_preshape`'s
+    ``unique(axis=0)``: one look when every row is the first, as for the paper's types.)"""
+    Q = np.ascontiguousarray(q, dtype=np.float64).reshape(len(q), -1)
+    b = Q.view(np.int64)
+    if (b == b[0]).all():
+        return np.zeros(len(Q), dtype=np.int64), np.zeros(1, dtype=np.int64)
+    rows = Q.view(np.dtype((np.void, Q.shape[1] * 8))).reshape(-1)
+    _, first, inv = np.unique(rows, return_index=True, return_inverse=True)
+    return inv.reshape(-1).astype(np.int64), first
+
+
+_GRID: list[tuple[cKDTree, np.ndarray, float, PointGrid]] = []
+"""The last (k-d tree, points, voxel, grid) of :func:`hand_hits_points` (one entry): the calls
+of one pool share the cloud and its tree, and build its grid once."""
+
+
+def _point_grid(pts: np.ndarray, kd: cKDTree | None) -> PointGrid:
+    """The voxel grid of ``pts`` (:func:`.collision_kernels.point_grid`, voxel :data:`VOXEL`),
+    the one kept in :data:`_GRID` when ``kd`` and ``pts`` are the very objects it was built for
+    (``kd`` is the caller's tree of these points, as the numpy version assumes)."""
+    from . import collision_kernels as ck
+
+    if kd is not None and _GRID:
+        # the same objects (held here, so that no other object can take their ids), same voxel
+        k, p, h, grid = _GRID[0]
+        if k is kd and p is pts and h == VOXEL:
+            return grid
+    grid = ck.point_grid(pts, VOXEL)
+    if kd is not None:
+        _GRID[:] = [(kd, pts, VOXEL, grid)]
+    return grid
+
+
 def hand_hits_points(
     hand: Hand,
     T_world_hand: np.ndarray,
@@ -141,11 +197,57 @@ def hand_hits_points(
     at least one of ``points`` (N, 3) inside a link's collision box grown by ``margin``: the
     same answer as ``Hand.hands_hit_points`` (a test checks it), faster for a pool.
 
+    Each link box is cut into near-cubic cells (:func:`link_cells`); a compiled kernel
+    (:mod:`.collision_kernels`) puts the points in a uniform grid of voxels of side
+    :data:`VOXEL` and, per hand and cell, tests exactly (``abs(local) <= half + CELL_SEAM``, the
+    operations of :func:`hand_hits_points_numpy` in their order) the points of the voxels that
+    meet the cell's world bounding box; a hand's first hit ends it. The answers are those of
+    :func:`hand_hits_points_numpy` (tests check it). ``kd``: when given, the tree of
+    ``points`` (the same objects over the calls of a pool): the grid is built once for them and
+    kept with them until a call with others. ``cells``: an optional dict caching
+    :func:`link_cells` per preshape across calls. Memory is O(P + N + cells + voxels), whatever
+    P and N (at most 8 voxels a point)."""
+    from . import collision_kernels as ck
+
+    pts = as_points(points)
+    P = len(T_world_hand)
+    if P == 0 or len(pts) == 0:
+        return np.zeros(P, dtype=bool)
+    part, first = _preshape_parts(q)
+    Ts, hs = [], []
+    for i in first:  # loop over the distinct preshapes
+        cell = _preshape_cells(hand, q[i], margin, cells)
+        Ts.append(cell[0])
+        hs.append(cell[1])
+    cell_lo = np.concatenate([[0], np.cumsum([len(t) for t in Ts])])
+    return ck.hits(
+        T_world_hand,
+        part,
+        cell_lo,
+        np.concatenate(Ts),
+        np.concatenate(hs),
+        CELL_SEAM,
+        _point_grid(pts, kd),
+    )
+
+
+def hand_hits_points_numpy(
+    hand: Hand,
+    T_world_hand: np.ndarray,
+    grasp_type: np.ndarray,
+    q: np.ndarray,
+    points: np.ndarray,
+    kd: cKDTree | None = None,
+    margin: float = 0.0,
+    cells: CellCache | None = None,
+) -> np.ndarray:
+    """:func:`hand_hits_points` in numpy (the version before the compiled kernel, kept as the
+    reference of its tests and benchmark).
+
     Each link box is cut into near-cubic cells (:func:`link_cells`); one nearest-point query
     per cell decides most cells (no point within its circumscribed sphere: free; a point within
     its inscribed sphere: hit); the undecided cells get the exact point-in-box test on the points
-    of their circumscribed sphere. Hands already hit skip their remaining cells. ``cells``: an
-    optional dict caching :func:`link_cells` per preshape across calls.
+    of their circumscribed sphere. Hands already hit skip their remaining cells.
 
     Memory is bounded whatever P and N: the hands go in batches of :data:`HAND_BATCH` and the
     exact test in batches of about :data:`PAIR_BATCH` (cell, point) pairs."""
@@ -157,13 +259,7 @@ def hand_hits_points(
     kd = cKDTree(pts) if kd is None else kd
     parts: list[tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]] = []  # (hands, their cells)
     for every in _by_preshape(q):  # loop over the distinct preshapes (a few)
-        key = (q[every[0]].tobytes(), float(margin))
-        if cells is None or key not in cells:
-            cell = link_cells(hand, q[every[0]], margin)
-            if cells is not None:
-                cells[key] = cell
-        else:
-            cell = cells[key]
+        cell = _preshape_cells(hand, q[every[0]], margin, cells)
         parts += [(every[s : s + HAND_BATCH], cell) for s in range(0, len(every), HAND_BATCH)]
     # consecutive parts in batches of at most HAND_BATCH hands (the pinches adapt their
     # preshape to the part: many preshapes of a few hands each, tested together)
@@ -182,10 +278,10 @@ def hand_hits_points(
 def _batch_hits(
     parts: list[tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]], pts: np.ndarray, kd: cKDTree
 ) -> np.ndarray:
-    """(G,) bool: :func:`hand_hits_points` for the hands of ``parts`` one after the other, each
-    part ``(T_world_hand (G_p, 4, 4), the cells of their preshape)``. Every (hand, cell) row
-    gets the operations it got when each preshape was tested on its own (the same einsums per
-    part, then row by row): the same answers."""
+    """(G,) bool: :func:`hand_hits_points_numpy` for the hands of ``parts`` one after the
+    other, each part ``(T_world_hand (G_p, 4, 4), the cells of their preshape)``. Every (hand,
+    cell) row gets the operations it got when each preshape was tested on its own (the same
+    einsums per part, then row by row): the same answers."""
     rows_c, rows_out, rows_in, rows_hand, rows_cell = [], [], [], [], []
     G = 0
     for T, (T_cell, half) in parts:  # loop over the parts (a few preshapes)

@@ -626,8 +626,8 @@ def test_the_memory_estimate_bounds_the_measured_peak(hand, default_object, monk
 
 
 def test_collision_memory_is_bounded_by_its_batches(hand, monkeypatch):
-    """Many hands at the largest margin: the peak stays under one batch's bound, far below what
-    the same hands take in one batch."""
+    """The numpy version, many hands at the largest margin: the peak stays under one batch's
+    bound, far below what the same hands take in one batch."""
     rng = np.random.default_rng(8)
     pts = rng.normal(scale=0.03, size=(20000, 3))
     G = 2048
@@ -644,7 +644,7 @@ def test_collision_memory_is_bounded_by_its_batches(hand, monkeypatch):
         monkeypatch.setattr(collision, "PAIR_BATCH", pb)
         tracemalloc.start()
         try:
-            hits.append(hand_hits_points(hand, T, gts, q, pts, kd, margin=0.02))
+            hits.append(collision.hand_hits_points_numpy(hand, T, gts, q, pts, kd, margin=0.02))
             peaks.append(tracemalloc.get_traced_memory()[1])
         finally:
             tracemalloc.stop()
@@ -672,6 +672,9 @@ def test_collision_batches_give_the_unbatched_answer(hand, monkeypatch, margin):
     monkeypatch.setattr(collision, "PAIR_BATCH", 64)
     ours = hand_hits_points(hand, T, gts, q, pts, margin=margin)
     assert np.array_equal(ours, ref) and 10 < ours.sum() < G - 10
+    assert np.array_equal(
+        collision.hand_hits_points_numpy(hand, T, gts, q, pts, margin=margin), ref
+    )
 
 
 @pytest.mark.parametrize(
@@ -729,5 +732,7 @@ def test_collision_of_many_preshapes_in_one_batch_gives_the_hand_models_answer(
     ref = np.array([hand.hands_hit_points(pts, T[i : i + 1], q[i], 0.004)[0] for i in range(G)])
     monkeypatch.setattr(collision, "HAND_BATCH", hand_batch)
     monkeypatch.setattr(collision, "PAIR_BATCH", 256)
-    ours = hand_hits_points(hand, T, np.full(G, "spherical"), q, pts, margin=0.004)
+    gts = np.full(G, "spherical")
+    ours = hand_hits_points(hand, T, gts, q, pts, margin=0.004)
     assert np.array_equal(ours, ref) and 10 < ours.sum() < G - 10
+    assert np.array_equal(collision.hand_hits_points_numpy(hand, T, gts, q, pts, margin=0.004), ref)
