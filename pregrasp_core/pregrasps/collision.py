@@ -79,9 +79,50 @@ def _by_preshape(q: np.ndarray) -> list[np.ndarray]:
     return [np.flatnonzero(inv == g) for g in np.argsort(first)]
 
 
+_HAND_POSES: weakref.WeakKeyDictionary[Hand, dict[bytes, tuple[np.ndarray, np.ndarray]]] = (
+    weakref.WeakKeyDictionary()
+)
+
+HAND_POSES_KEPT: int = 256
+"""Preshapes whose link box poses and corners :func:`preshape_box_poses` keeps per hand (then it
+starts again)."""
+
+
+def _pose_entry(hand: Hand, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(box poses (L, 4, 4), corners (8 L, 3))`` of the preshape ``q`` (J,), both read-only,
+    computed once per hand and preshape (by its bytes)."""
+    Q = np.asarray(q, dtype=np.float64)
+    cache = _HAND_POSES.get(hand)
+    if cache is None or len(cache) > HAND_POSES_KEPT:
+        cache = {}
+        _HAND_POSES[hand] = cache
+    key = Q.tobytes()
+    got = cache.get(key)
+    if got is None:
+        Tb = hand.box_poses(Q)  # (L, 4, 4)
+        corners = box_corners(Tb, hand.link_box_half)
+        Tb.setflags(write=False)
+        corners.setflags(write=False)
+        got = cache[key] = (Tb, corners)
+    return got
+
+
+def preshape_box_poses(hand: Hand, q: np.ndarray) -> np.ndarray:
+    """``hand.box_poses(q)`` (L, 4, 4) of one preshape ``q`` (J,), read-only: computed once per
+    hand and preshape (kept per hand, by the preshape's bytes), the same array for the pinch's
+    self-collision check, :func:`hand_corners` and :func:`link_cells` (the pinches adapt their
+    preshape to the part: one forward kinematics per preshape instead of three)."""
+    return _pose_entry(hand, q)[0]
+
+
 def hand_corners(hand: Hand, q: np.ndarray) -> np.ndarray:
     """(8 L, 3) corners of all the links' collision boxes at configuration ``q`` (J,), hand
-    frame."""
+    frame (a fresh copy of the corners kept per preshape, :func:`preshape_box_poses`)."""
+    return _pose_entry(hand, q)[1].copy()
+
+
+def _hand_corners_reference(hand: Hand, q: np.ndarray) -> np.ndarray:
+    """:func:`hand_corners` without the cache (the version before it, kept for its tests)."""
     Tb = hand.box_poses(np.asarray(q, dtype=np.float64))  # (L, 4, 4)
     return box_corners(Tb, hand.link_box_half)
 
@@ -99,7 +140,7 @@ def hand_min_height(
     hands are grouped by preshape (the pinches adapt theirs to the part)."""
     out = np.zeros(len(T_world_hand))
     for sel in _by_preshape(q):  # loop over the distinct preshapes (a few)
-        corners = hand_corners(hand, q[sel[0]])  # (C, 3) hand frame
+        corners = _pose_entry(hand, q[sel[0]])[1]  # (C, 3) hand frame, kept per preshape
         T = T_world_hand[sel]  # (m, 4, 4)
         up_hand = np.einsum("mji,j->mi", T[:, :3, :3], support.normal)  # (m, 3) up in hand frames
         h = corners @ up_hand.T + (T[:, :3, 3] @ support.normal)[None, :]  # (C, m) heights
@@ -107,12 +148,66 @@ def hand_min_height(
     return out
 
 
+_LINK_GRIDS: weakref.WeakKeyDictionary[
+    Hand, dict[float, list[tuple[np.ndarray, np.ndarray]]]
+] = weakref.WeakKeyDictionary()
+
+
+def _link_grids(hand: Hand, margin: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per link of ``hand``, ``(offs (c, 3), half (c, 3))``: the centres of its box's cells in
+    the box frame and their half sides, for ``margin`` (a function of the hand and the margin
+    only, not of the preshape: built once per hand and margin, read-only)."""
+    per_hand = _grids_of(hand)
+    got = per_hand.get(float(margin))
+    if got is None:
+        half = np.asarray(hand.link_box_half, dtype=np.float64) + margin  # (L, 3)
+        got = []
+        for l in range(len(half)):  # loop over the ~10 links
+            n = np.maximum(np.ceil(half[l] / max(half[l].min(), GEOM_EPS) - 1e-9), 1).astype(int)
+            h = half[l] / n  # (3,) half sides of the cells
+            grids = [(np.arange(k) + 0.5) * 2 * hh - k * hh for k, hh in zip(n, h, strict=True)]
+            offs = np.stack(np.meshgrid(*grids, indexing="ij"), axis=-1).reshape(-1, 3)  # (c, 3)
+            hs = np.tile(h, (len(offs), 1))
+            offs.setflags(write=False)
+            hs.setflags(write=False)
+            got.append((offs, hs))
+        if len(per_hand) > HAND_CELLS_KEPT:
+            per_hand.clear()
+        per_hand[float(margin)] = got
+    return got
+
+
+def _grids_of(hand: Hand) -> dict[float, list[tuple[np.ndarray, np.ndarray]]]:
+    """The hand's :func:`_link_grids` per margin."""
+    got = _LINK_GRIDS.get(hand)
+    if got is None:
+        got = _LINK_GRIDS[hand] = {}
+    return got
+
+
 def link_cells(hand: Hand, q: np.ndarray, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """The links' collision boxes at ``q`` (J,), grown by ``margin`` and cut into near-cubic
     cells (a box's side / its shortest side cells per axis, rounded up).
 
     Returns ``(T_hand_cell (C, 4, 4), half (C, 3))``: the cells tile the boxes exactly, so a point
-    lies in a link box iff it lies in one of its cells."""
+    lies in a link box iff it lies in one of its cells. The box poses come from
+    :func:`preshape_box_poses` and the cells' layout in each box (a function of the hand and
+    the margin only) is kept per hand: per preshape only the cells' poses are computed, with
+    the operations of :func:`_link_cells_reference` (the same numbers, a test checks it)."""
+    Tb = preshape_box_poses(hand, q)  # (L, 4, 4)
+    Ts, hs = [], []
+    for l, (offs, h) in enumerate(_link_grids(hand, margin)):  # loop over the ~10 links
+        T = np.tile(Tb[l], (len(offs), 1, 1))
+        T[:, :3, 3] += offs @ Tb[l, :3, :3].T
+        Ts.append(T)
+        hs.append(h)
+    return np.concatenate(Ts), np.concatenate(hs)
+
+
+def _link_cells_reference(
+    hand: Hand, q: np.ndarray, margin: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`link_cells` as it was before its caches (kept as the reference of its tests)."""
     Tb = hand.box_poses(np.asarray(q, dtype=np.float64))  # (L, 4, 4)
     half = np.asarray(hand.link_box_half, dtype=np.float64) + margin  # (L, 3)
     Ts, hs = [], []

@@ -42,6 +42,7 @@ import numpy as np
 from ..box import OrientedBox
 from ..facemask import FACE_NORMAL, SupportPlane
 from ..geometry import box_corners
+from .collision import preshape_box_poses
 from .params import SamplingParams
 from .surfaces import SURFACES, centred_grid, grid_sizes
 
@@ -177,7 +178,8 @@ def pinch_preshape(hand: Hand, kind: str, half_width: float) -> tuple[np.ndarray
                 return None
         q[list(f.flex_index)] = flex
     q = np.asarray(hand.clamp(q), dtype=np.float64)
-    return None if hand.self_collision(q) else (q, depth)
+    # the box poses kept per preshape: the pool's height and collision tests reuse them
+    return None if hand.self_collisions(q, preshape_box_poses(hand, q)) else (q, depth)
 
 
 _HAND_PINCHES: weakref.WeakKeyDictionary[Hand, dict[tuple[str, float | None], Any]] = (
@@ -312,6 +314,143 @@ def _placed(
 ) -> list[tuple[np.ndarray, np.ndarray, str, float, float]]:
     """The pinches of one kind across ``c_dir`` (hand y), ``x_dir`` (hand x) and approach
     ``-d``, both rolls, at positions along the part (tip) or about its centre (tripod).
+
+    With a ``floor`` (a table under the part, pinches from above) the fingertips start at the
+    part's middle height (or higher, when the fingers are too short for it) and the approach
+    is unlimited (it ends on the part or the table); without one (across a thin part) they
+    start ``standoff`` outside the part's near side and go at most to its middle, so that the
+    fingertips close on the part and not on what lies beyond it. ``points`` (N, 3), the part's
+    points: the three-finger tip from above opens for the part's width under its fingers at
+    each position (not the box's), when given (:class:`_NearFingers`: the same numbers as
+    :func:`_placed_reference`, which tests every point at every position)."""
+    out: list[tuple[np.ndarray, np.ndarray, str, float, float]] = []
+    if kind == "tripod":  # the tripod encloses the whole cross-section (its diagonal)
+        width = float(np.hypot(width, length))
+    gt, spread = KINDS[kind]
+    c = _center(hand, kind)
+    if kind == "tip":
+        half_run = max(0.5 * length - 0.5 * TIP_MIN_LENGTH, 0.0)
+        offsets = centred_grid(half_run, params.interval)  # along the hand's x, symmetric
+    else:
+        offsets = np.zeros(1)
+    local = kind == "tip" and floor is not None and points is not None and len(points) > 0
+    if local:  # the fingers' x positions relative to the thumb's plane, and their bands
+        assert points is not None
+        fx = np.array([hand.flexion_plane(f, 0.0).origin[0] - c[0] for f in FINGERS])
+        band = 0.5 * hand.finger("thumb").width  # the slice a finger closes on
+    centre = box.center - (box.center @ d) * d  # the box centre projected on d = 0
+    if local:
+        assert points is not None
+        near = _NearFingers(points, centre, x_dir, fx, band)
+    for sign in (1.0, -1.0):  # both rolls: thumb on either side
+        R = np.stack([sign * x_dir, sign * c_dir, -d], axis=1)  # columns = hand axes
+        for off in offsets:  # a few positions along the part
+            half = 0.5 * width
+            if local:
+                # the part's half width under the three fingers at this position (the toy
+                # car between its wheels is narrower than its box)
+                got_half = near.half_width(sign, float(off), c_dir)
+                if got_half is None:
+                    continue
+                half = got_half
+            got = _preshape(hand, kind, half)
+            if got is None:
+                continue
+            q_pinch, depth = got
+            if floor is not None:
+                z_tip = max(0.5 * (z_top + z_bottom), z_top + params.standoff - depth)
+                limit = np.inf
+            else:
+                z_tip = z_top + params.standoff
+                limit = params.standoff + min(0.5 * (z_top - z_bottom), 0.5 * float(box.extents[2]))
+            p_c = centre + off * sign * x_dir + z_tip * d  # where the tips' centre goes
+            T = np.eye(4)
+            T[:3, :3] = R
+            T[:3, 3] = p_c - R @ np.array([c[0], c[1], depth])
+            out.append((T, q_pinch, gt, spread, limit))
+    return out
+
+
+PROJECTION_SLACK: float = 1e-9
+"""Metres: a point whose sorted projection (:class:`_NearFingers`) lies this close to the edge
+of a finger's band is decided by the exact expressions of :func:`_placed_reference` (the
+rounding of either is below 1e-15 m on parts a metre across)."""
+
+
+class _NearFingers:
+    """The part's points under the three fingers of a tip from above, at every position and
+    roll of :func:`_placed`, from their projections on the hand's x axis sorted once.
+
+    :func:`_placed_reference` computes, per position, ``rel = points - p`` (N, 3) and
+    ``xs = rel @ (sign x_dir)`` and keeps the points with ``|xs - fx_k| <= band`` for some
+    finger k, then ``max |rel[under] @ c_dir|``. Here ``xs`` is
+    ``sign (points - centre) . x_dir - off |x_dir|^2`` up to rounding, so each finger's band
+    is an interval of the sorted projections (two binary searches); when no projection lies
+    within :data:`PROJECTION_SLACK` of an interval's ends the set is exactly the reference's
+    and the width is computed from its rows with the reference's expressions (the same rows
+    in the same order: the same numbers); otherwise that position takes the reference's
+    full computation."""
+
+    def __init__(
+        self, points: np.ndarray, centre: np.ndarray, x_dir: np.ndarray, fx: np.ndarray, band: float
+    ) -> None:
+        self.points, self.centre, self.x_dir, self.fx, self.band = points, centre, x_dir, fx, band
+        proj = (points - centre) @ x_dir  # (N,)
+        self.order = np.argsort(proj, kind="stable")
+        self.sorted = proj[self.order]
+        self.xx = float(x_dir @ x_dir)
+
+    def _exact(self, sign: float, off: float, c_dir: np.ndarray) -> float | None:
+        """The reference's expressions (every point)."""
+        rel = self.points - (self.centre + off * sign * self.x_dir)  # (N, 3)
+        xs = rel @ (sign * self.x_dir)
+        under = np.abs(xs - self.fx[0]) <= self.band
+        for x_f in self.fx[1:]:
+            under |= np.abs(xs - x_f) <= self.band
+        if not under.any():
+            return None
+        return float(np.max(np.abs(rel[under] @ c_dir)))
+
+    def half_width(self, sign: float, off: float, c_dir: np.ndarray) -> float | None:
+        """``max |(p - position) . c_dir|`` over the points under a finger at offset ``off``
+        with roll ``sign`` (None: no point under any finger)."""
+        sb, eps = self.sorted, PROJECTION_SLACK
+        lo = np.empty(len(self.fx))
+        hi = np.empty(len(self.fx))
+        for k, x_f in enumerate(self.fx):  # the three fingers' bands as projection intervals
+            a, b = off * self.xx + x_f - self.band, off * self.xx + x_f + self.band
+            lo[k], hi[k] = (a, b) if sign > 0 else (-b, -a)
+        ends = np.concatenate([lo, hi])
+        near = np.searchsorted(sb, ends - eps, "left") != np.searchsorted(sb, ends + eps, "right")
+        if near.any():  # a point at a band's edge: the exact expressions decide
+            return self._exact(sign, off, c_dir)
+        i0, i1 = np.searchsorted(sb, lo, "left"), np.searchsorted(sb, hi, "right")
+        if not (i1 > i0).any():
+            return None
+        under = np.zeros(len(sb), dtype=bool)
+        for a, b in zip(i0, i1, strict=True):  # the three fingers
+            under[self.order[a:b]] = True
+        rel = self.points[under] - (self.centre + off * sign * self.x_dir)  # rel[under]
+        return float(np.max(np.abs(rel @ c_dir)))
+
+
+def _placed_reference(
+    hand: Hand,
+    box: OrientedBox,
+    kind: str,
+    width: float,
+    length: float,
+    c_dir: np.ndarray,
+    x_dir: np.ndarray,
+    d: np.ndarray,
+    z_top: float,
+    z_bottom: float,
+    floor: float | None,
+    params: SamplingParams,
+    points: np.ndarray | None,
+) -> list[tuple[np.ndarray, np.ndarray, str, float, float]]:
+    """:func:`_placed` as it was before the sorted projections (every position tests every
+    point of the part; kept as the reference of its tests and benchmark).
 
     With a ``floor`` (a table under the part, pinches from above) the fingertips start at the
     part's middle height (or higher, when the fingers are too short for it) and the approach

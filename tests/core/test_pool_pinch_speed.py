@@ -1,0 +1,186 @@
+"""The pool stage's caches and shortcuts (issue 15, session 14): each gives, to the bit, what the
+code it replaced gave.
+
+- the box poses and link corners kept per preshape (``collision.preshape_box_poses``,
+  ``hand_corners``) against the forward kinematics of every call;
+- the link cells built from the kept poses and the cells' layout kept per margin
+  (``collision.link_cells``) against ``_link_cells_reference``;
+- ``hand_min_height`` against its version with fresh corners;
+- the pinches' local widths from sorted projections (``pinch._placed``) against the
+  full-array version (``pinch._placed_reference``);
+
+on random preshapes and poses and on every call the demo objects' pools make.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from pregrasp_core.facemask import SupportPlane
+from pregrasp_core.hand import load_hand
+from pregrasp_core.io import load_point_cloud
+from pregrasp_core.paths import demo_objects
+from pregrasp_core.pipeline import PipelineParams, run_pipeline
+from pregrasp_core.pregrasps import collision, pinch
+from pregrasp_core.pregrasps.collision import hand_corners, hand_min_height, link_cells
+from pregrasp_core.geometry import box_corners
+
+
+@pytest.fixture(scope="module")
+def hand():
+    return load_hand()
+
+
+def _random_q(hand, rng, n: int) -> np.ndarray:
+    lo, hi = np.asarray(hand.lower), np.asarray(hand.upper)
+    return rng.uniform(lo, hi, (n, len(lo)))
+
+
+def _min_height_reference(hand, T, q, support) -> np.ndarray:
+    """``hand_min_height`` with the corners of every preshape computed afresh (the version
+    before the kept corners)."""
+    out = np.zeros(len(T))
+    for sel in collision._by_preshape(q):
+        corners = collision._hand_corners_reference(hand, q[sel[0]])
+        Ts = T[sel]
+        up_hand = np.einsum("mji,j->mi", Ts[:, :3, :3], support.normal)
+        h = corners @ up_hand.T + (Ts[:, :3, 3] @ support.normal)[None, :]
+        out[sel] = h.min(axis=0) - support.height
+    return out
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+def test_kept_poses_corners_and_cells_equal_fresh_ones_on_random_preshapes(hand):
+    rng = np.random.default_rng(11)
+    for q in _random_q(hand, rng, 60):
+        Tb = collision.preshape_box_poses(hand, q)
+        assert _same(Tb, hand.box_poses(q))
+        assert not Tb.flags.writeable
+        assert collision.preshape_box_poses(hand, q.copy()) is Tb  # kept by the bytes
+        c = hand_corners(hand, q)
+        assert _same(c, box_corners(hand.box_poses(q), hand.link_box_half))
+        assert _same(c, collision._hand_corners_reference(hand, q))
+        c[:] = 0.0  # a copy: the kept corners are not touched
+        assert _same(hand_corners(hand, q), collision._hand_corners_reference(hand, q))
+        for margin in (0.0, 0.002, 0.005):
+            got, ref = link_cells(hand, q, margin), collision._link_cells_reference(hand, q, margin)
+            assert _same(got[0], ref[0]) and _same(got[1], ref[1])
+
+
+def test_a_changed_preshape_is_not_served_the_kept_poses_of_another(hand):
+    q = np.asarray(hand.preshape("spherical"), dtype=np.float64).copy()
+    a = collision.preshape_box_poses(hand, q)
+    q[0] = np.nextafter(q[0], np.inf)
+    b = collision.preshape_box_poses(hand, q)
+    assert b is not a and _same(b, hand.box_poses(q))
+
+
+def test_min_height_equals_fresh_corners_on_random_hands(hand):
+    rng = np.random.default_rng(12)
+    Q = _random_q(hand, rng, 7)
+    P = 400
+    q = Q[rng.integers(0, len(Q), P)]
+    T = np.tile(np.eye(4), (P, 1, 1))
+    T[:, :3, :3] = Rotation.random(P, random_state=4).as_matrix()
+    T[:, :3, 3] = rng.uniform(-0.2, 0.2, (P, 3))
+    n = rng.normal(size=3)
+    support = SupportPlane(n / np.linalg.norm(n), 0.013)
+    got = hand_min_height(hand, T, np.full(P, "spherical"), q, support)
+    assert _same(got, _min_height_reference(hand, T, q, support))
+
+
+def _same_pinches(a: list, b: list) -> bool:
+    return len(a) == len(b) and all(
+        _same(x[0], y[0]) and _same(np.asarray(x[1]), np.asarray(y[1])) and x[2:] == y[2:]
+        for x, y in zip(a, b, strict=True)
+    )
+
+
+def test_placed_equals_the_reference_on_random_parts_and_at_band_edges(hand):
+    """Random boxes, directions and clouds, and clouds with points put on the fingers' band
+    edges (where the exact expressions must decide)."""
+    from pregrasp_core.box import OrientedBox
+    from pregrasp_core.pregrasps import SamplingParams
+
+    rng = np.random.default_rng(13)
+    params = SamplingParams()
+    c = pinch._center(hand, "tip")
+    fx = np.array([hand.flexion_plane(f, 0.0).origin[0] - c[0] for f in pinch.FINGERS])
+    band = 0.5 * hand.finger("thumb").width
+    checked = edges = 0
+    for trial in range(80):
+        R = Rotation.random(random_state=trial).as_matrix()
+        ext = np.sort(rng.uniform(0.01, 0.16, 3))[::-1].copy()
+        box = OrientedBox(center=rng.uniform(-0.2, 0.2, 3), rotation=R, extents=ext)
+        n = int(rng.integers(1, 3000))
+        pts = box.center + (rng.uniform(-0.5, 0.5, (n, 3)) * ext) @ R.T
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        c_dir = np.cross(d, rng.normal(size=3))
+        c_dir /= np.linalg.norm(c_dir)
+        x_dir = np.cross(c_dir, -d)
+        centre = box.center - (box.center @ d) * d
+        if trial % 2:  # points exactly on band edges at the offsets the tip will use
+            length = float(rng.uniform(0.04, 0.16))
+            half_run = max(0.5 * length - 0.5 * pinch.TIP_MIN_LENGTH, 0.0)
+            offs = pinch.centred_grid(half_run, params.interval)
+            k = min(len(pts), 12)
+            for j in range(k):
+                off, sign = float(offs[j % len(offs)]), (1.0, -1.0)[j % 2]
+                edge = fx[j % 3] + (band if j % 4 < 2 else -band)
+                pts[j] = centre + off * sign * x_dir + sign * edge * x_dir + 0.01 * c_dir
+            edges += 1
+        else:
+            length = float(ext[0])
+        heights = pts @ d
+        z_top, z_bottom = float(heights.max()), float(heights.min())
+        for floor in (z_bottom - 0.001, None):
+            args = (hand, box, "tip", float(ext[1]), length, c_dir, x_dir, d, z_top, z_bottom,
+                    floor, params, pts)  # fmt: skip
+            got, ref = pinch._placed(*args), pinch._placed_reference(*args)
+            assert _same_pinches(got, ref), trial
+            checked += len(ref)
+    assert checked > 100 and edges > 10
+
+
+@pytest.mark.parametrize("path", demo_objects(), ids=lambda p: p.stem)
+def test_every_pool_call_equals_its_reference(hand, path, monkeypatch):
+    """Every ``_placed``, ``hand_min_height`` and ``link_cells`` call of the demo objects' pools
+    (20,000 points, the pipeline's defaults) gives the reference's bits."""
+    calls = {"placed": 0, "height": 0, "cells": 0}
+    placed, height, cells = pinch._placed, collision.hand_min_height, collision.link_cells
+
+    def check_placed(*a):
+        got = placed(*a)
+        assert _same_pinches(got, pinch._placed_reference(*a))
+        calls["placed"] += 1
+        return got
+
+    def check_height(hand_, T, gt, q, support):
+        got = height(hand_, T, gt, q, support)
+        assert _same(got, _min_height_reference(hand_, T, q, support))
+        calls["height"] += 1
+        return got
+
+    def check_cells(hand_, q, margin=0.0):
+        got = cells(hand_, q, margin)
+        ref = collision._link_cells_reference(hand_, q, margin)
+        assert _same(got[0], ref[0]) and _same(got[1], ref[1])
+        calls["cells"] += 1
+        return got
+
+    from pregrasp_core.pregrasps import build
+
+    monkeypatch.setattr(pinch, "_placed", check_placed)
+    monkeypatch.setattr(build, "hand_min_height", check_height)
+    monkeypatch.setattr(collision, "link_cells", check_cells)
+    collision.hand_cell_cache(hand).clear()  # every preshape's cells are built (and checked)
+    cloud = load_point_cloud(path, n_points=20000, seed=0)
+    r = run_pipeline(cloud, PipelineParams(), hand, until="pool")
+    assert len(r.pool) > 0
+    assert calls["placed"] > 0 and calls["height"] > 0 and calls["cells"] > 0
