@@ -148,9 +148,9 @@ def hand_min_height(
     return out
 
 
-_LINK_GRIDS: weakref.WeakKeyDictionary[
-    Hand, dict[float, list[tuple[np.ndarray, np.ndarray]]]
-] = weakref.WeakKeyDictionary()
+_LINK_GRIDS: weakref.WeakKeyDictionary[Hand, dict[float, list[tuple[np.ndarray, np.ndarray]]]] = (
+    weakref.WeakKeyDictionary()
+)
 
 
 def _link_grids(hand: Hand, margin: float) -> list[tuple[np.ndarray, np.ndarray]]:

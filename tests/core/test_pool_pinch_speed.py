@@ -19,13 +19,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from pregrasp_core.facemask import SupportPlane
+from pregrasp_core.geometry import box_corners
 from pregrasp_core.hand import load_hand
 from pregrasp_core.io import load_point_cloud
 from pregrasp_core.paths import demo_objects
 from pregrasp_core.pipeline import PipelineParams, run_pipeline
 from pregrasp_core.pregrasps import collision, pinch
 from pregrasp_core.pregrasps.collision import hand_corners, hand_min_height, link_cells
-from pregrasp_core.geometry import box_corners
 
 
 @pytest.fixture(scope="module")
@@ -125,15 +125,23 @@ def test_placed_equals_the_reference_on_random_parts_and_at_band_edges(hand):
         c_dir /= np.linalg.norm(c_dir)
         x_dir = np.cross(c_dir, -d)
         centre = box.center - (box.center @ d) * d
-        if trial % 2:  # points exactly on band edges at the offsets the tip will use
+        if trial % 2:
+            # a part 1 cm wide across c_dir, with points on the fingers' band edges (within
+            # rounding) that stick out further across: whether each is under a finger decides
+            # the width, so a misjudged edge changes the pinch
             length = float(rng.uniform(0.04, 0.16))
+            u = rng.uniform(-0.5, 0.5, (n, 3)) * [length, 0.01, 0.03]
+            pts = centre + u[:, :1] * x_dir + u[:, 1:2] * c_dir + u[:, 2:] * d
             half_run = max(0.5 * length - 0.5 * pinch.TIP_MIN_LENGTH, 0.0)
             offs = pinch.centred_grid(half_run, params.interval)
-            k = min(len(pts), 12)
+            k = 40
+            e = np.empty((k, 3))
             for j in range(k):
-                off, sign = float(offs[j % len(offs)]), (1.0, -1.0)[j % 2]
-                edge = fx[j % 3] + (band if j % 4 < 2 else -band)
-                pts[j] = centre + off * sign * x_dir + sign * edge * x_dir + 0.01 * c_dir
+                off, sign = float(offs[j % len(offs)]), (1.0, -1.0)[(j // len(offs)) % 2]
+                edge = fx[j % 3] + (band if (j // 3) % 2 else -band)
+                e[j] = centre + off * sign * x_dir + sign * edge * x_dir
+                e[j] += (0.006 + 1e-4 * j) * c_dir * (1.0 if j % 2 else -1.0)
+            pts = np.concatenate([pts, e])[rng.permutation(n + k)]
             edges += 1
         else:
             length = float(ext[0])
