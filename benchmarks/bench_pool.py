@@ -15,7 +15,13 @@ on the same poses, the pool's collision test before and after its compiled kerne
 and cell; its grid kept for the cloud), interleaved, ``--repeats`` (at least 5) times each,
 medians, the link cells built beforehand for both; the answers must be equal. The time
 of the kernels' first call in the process (numba imported, the kernels loaded from its cache or
-compiled) is printed first.
+compiled) is printed first. A fourth table (issue 15, the pool's pinches and heights) times, on
+every call the default object's pool makes, the functions the pool's caches and the pinches'
+sorted projections changed against the versions they replaced (kept as the tests'
+references): ``pinch._placed`` against ``_placed_reference``, ``collision.link_cells`` against
+``_link_cells_reference``, ``hand_min_height`` against its version with fresh corners, the new
+ones both with the preshape caches kept (a re-plan) and emptied before each call (a preshape
+seen for the first time); interleaved, medians; the results must be equal to the bit.
 
     .venv/bin/python benchmarks/bench_pool.py [--points 20000] [--repeats 3]
 
@@ -48,7 +54,13 @@ from pregrasp_core.hand import Hand  # noqa: E402
 from pregrasp_core.io import load_point_cloud  # noqa: E402
 from pregrasp_core.paths import demo_objects  # noqa: E402
 from pregrasp_core.pipeline import STAGES, PipelineParams, run_pipeline  # noqa: E402
-from pregrasp_core.pregrasps import collision_kernels, hand_hits_points  # noqa: E402
+from pregrasp_core.pregrasps import (  # noqa: E402
+    build,
+    collision,
+    collision_kernels,
+    hand_hits_points,
+    pinch,
+)
 from pregrasp_core.pregrasps.collision import hand_hits_points_numpy  # noqa: E402
 
 POOL_STAGES = STAGES[: STAGES.index("pool") + 1]
@@ -173,6 +185,103 @@ def kernel_table(points: int, repeats: int, hand: Hand) -> None:
                 )
 
 
+def _min_height_reference(hand: Hand, T, q, support) -> np.ndarray:
+    """``hand_min_height`` with each preshape's corners computed afresh (before issue 15)."""
+    out = np.zeros(len(T))
+    for sel in collision._by_preshape(q):
+        corners = collision._hand_corners_reference(hand, q[sel[0]])
+        Ts = T[sel]
+        up_hand = np.einsum("mji,j->mi", Ts[:, :3, :3], support.normal)
+        h = corners @ up_hand.T + (Ts[:, :3, 3] @ support.normal)[None, :]
+        out[sel] = h.min(axis=0) - support.height
+    return out
+
+
+def _bits(x: object) -> object:
+    """``x`` (arrays, tuples, lists, floats, strings) as something equal iff equal to the bit."""
+    if isinstance(x, np.ndarray):
+        return (x.dtype.str, x.shape, x.tobytes())
+    if isinstance(x, (list, tuple)):
+        return tuple(_bits(v) for v in x)
+    if isinstance(x, float):
+        return float(x).hex()
+    return x
+
+
+def _forget_preshapes(hand: Hand) -> None:
+    """Empty the cache a preshape seen for the first time misses (its box poses and corners;
+    the cells' layout in the boxes is the hand's and the margin's, kept from the first call)."""
+    collision._HAND_POSES.pop(hand, None)
+
+
+def pinch_table(points: int, repeats: int, hand: Hand) -> None:
+    """Old against new on every call of the changed functions in the default object's pool."""
+    cloud = load_point_cloud(demo_objects()[0].parent / "mug_handle.obj", n_points=points, seed=0)
+    calls: dict[str, list] = {"placed": [], "height": [], "cells": []}
+    placed, height, cells = pinch._placed, collision.hand_min_height, collision.link_cells
+
+    def rec_placed(*a):  # type: ignore[no-untyped-def]
+        calls["placed"].append(a)
+        return placed(*a)
+
+    def rec_height(*a):  # type: ignore[no-untyped-def]
+        calls["height"].append(a)
+        return height(*a)
+
+    def rec_cells(*a):  # type: ignore[no-untyped-def]
+        calls["cells"].append(a)
+        return cells(*a)
+
+    pinch._placed, build.hand_min_height, collision.link_cells = rec_placed, rec_height, rec_cells
+    try:
+        collision.hand_cell_cache(hand).clear()
+        run_pipeline(cloud, PipelineParams(), hand, until="pool")
+    finally:
+        pinch._placed, build.hand_min_height, collision.link_cells = placed, height, cells
+
+    def run_all(fn, args_list, forget: bool) -> tuple[float, list]:  # type: ignore[no-untyped-def]
+        out, total = [], 0.0
+        for a in args_list:
+            if forget:
+                _forget_preshapes(hand)
+            t0 = time.perf_counter()
+            out.append(fn(*a))
+            total += time.perf_counter() - t0
+        return total, out
+
+    rows = [
+        ("pinch._placed", "placed", pinch._placed_reference, pinch._placed),
+        ("collision.link_cells", "cells", collision._link_cells_reference, collision.link_cells),
+        (
+            "collision.hand_min_height",
+            "height",
+            lambda h, T, g, q, s: _min_height_reference(h, T, q, s),
+            collision.hand_min_height,
+        ),
+    ]
+    print(
+        "\n| function (every call of the default pool) | calls | old ms | new ms, caches kept "
+        "| new ms, caches emptied | speed-up (kept / emptied) | equal |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for name, key, old_fn, new_fn in rows:
+        args = calls[key]
+        old_s, kept_s, cold_s = [], [], []
+        for _ in range(repeats):  # interleaved
+            t_old, ref = run_all(old_fn, args, False)
+            t_cold, got_cold = run_all(new_fn, args, True)
+            t_kept, got = run_all(new_fn, args, False)
+            assert _bits(ref) == _bits(got) == _bits(got_cold), name
+            old_s.append(t_old)
+            kept_s.append(t_kept)
+            cold_s.append(t_cold)
+        a, b, c = (1000 * statistics.median(x) for x in (old_s, kept_s, cold_s))
+        print(
+            f"| {name} | {len(args)} | {a:.2f} | {b:.2f} | {c:.2f} | {a / b:.1f}x / {a / c:.1f}x "
+            "| True |"
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, default=20000)
@@ -195,6 +304,7 @@ def main() -> None:
     pool_table(a.points, a.repeats, hand, a.other_interval)
     collision_table(a.points, hand)
     kernel_table(a.points, max(a.repeats, 5), hand)
+    pinch_table(a.points, max(a.repeats, 5), hand)
 
 
 if __name__ == "__main__":
