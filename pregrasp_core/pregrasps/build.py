@@ -15,7 +15,6 @@ from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..box import OrientedBox
 from ..decomposition import BoxNode, BoxTree
@@ -26,6 +25,7 @@ from ..hand import grasp_type_name
 from ..shape import GRASP_TYPES, NodeShape, ShapeParams
 from .collision import (
     CellCache,
+    cloud_grid,
     collision_batch_bytes,
     hand_cell_cache,
     hand_hits_points,
@@ -39,6 +39,7 @@ from .traversal import Traversal, grip_width, traverse
 
 if TYPE_CHECKING:
     from ..hand import Hand
+    from .collision_kernels import PointGrid
 
 logger = logging.getLogger(__name__)
 
@@ -69,7 +70,7 @@ def _concat_pools(pools: list[PreGraspPool], joint_names: Sequence[str]) -> PreG
 def estimate_pool_bytes(n_samples: int, n_points: int = 0) -> int:
     """Bytes of peak memory the pool stage needs for ``n_samples`` samples in one pass on a
     cloud of ``n_points`` (an upper bound, checked against tracemalloc by the tests):
-    :data:`POOL_BYTES_PER_SAMPLE` per sample, 64 per point (the cloud's k-d tree) and the
+    :data:`POOL_BYTES_PER_SAMPLE` per sample, 64 per point (the cloud's voxel grid) and the
     collision test's bounded batch (:func:`~.collision.collision_batch_bytes`)."""
     return int(n_samples) * POOL_BYTES_PER_SAMPLE + 64 * int(n_points) + collision_batch_bytes()
 
@@ -142,7 +143,9 @@ def build_pool(
         traversal = traverse(tree, shapes, hand, params, shape_params)
     joint_names = tuple(hand.joint_names)
     dropped = {r: 0 for r in DROP_REASONS}
-    kd = cKDTree(pts) if len(pts) else None
+    # the cloud's voxel grid for every collision test of this pool (no k-d tree: the compiled
+    # test needs only the grid, and building a tree of the cloud took longer than the grid)
+    grid = cloud_grid(pts) if len(pts) else None
     # the types each candidate may use, in order: its own, then (fallback) the others that fit
     queue: dict[int, list[str]] = {}
     for i in traversal.candidates:
@@ -165,7 +168,7 @@ def build_pool(
         check_pool_size([(nd.box, gt) for nd, gt in jobs], params, max_samples, pinch_boxes)
         pools = [_node_pool(nd, gt, masks, hand, params, dropped, max_samples) for nd, gt in jobs]
         got = _clear_the_hand(
-            _concat_pools(pools, joint_names), hand, pts, kd, masks.support, params, dropped
+            _concat_pools(pools, joint_names), hand, pts, grid, masks.support, params, dropped
         )
         kept.append(got)
         placed = set(np.unique(got.node).tolist())
@@ -176,7 +179,7 @@ def build_pool(
             break
     if params.pinch:
         pinches = _pinch_pool(pts, tree, traversal.candidates, masks, hand, params, dropped)
-        kept.append(_clear_the_hand(pinches, hand, pts, kd, masks.support, params, dropped))
+        kept.append(_clear_the_hand(pinches, hand, pts, grid, masks.support, params, dropped))
     pool = _concat_pools(kept, joint_names)
     order = np.lexsort((np.arange(len(pool)), pool.node))  # group by node, stable
     pool = replace(
@@ -278,7 +281,7 @@ def _clear_the_hand(
     pool: PreGraspPool,
     hand: Hand,
     points: np.ndarray,
-    kd: cKDTree | None,
+    grid: PointGrid | None,
     support: SupportPlane | None,
     params: SamplingParams,
     dropped: dict[str, int],
@@ -312,7 +315,15 @@ def _clear_the_hand(
         T = pool.T_world_hand[idx].copy()
         T[:, :3, 3] -= levels[k] * pool.approach[idx]
         return hand_hits_points(
-            hand, T, pool.grasp_type[idx], pool.q[idx], points, kd, params.collision_margin, cells
+            hand,
+            T,
+            pool.grasp_type[idx],
+            pool.q[idx],
+            points,
+            None,
+            params.collision_margin,
+            cells,
+            grid,
         )
 
     # levels in the order 0, then the last (to drop hopeless ones at once), then 1, 2, ...

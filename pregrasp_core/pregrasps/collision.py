@@ -278,6 +278,15 @@ def _point_grid(pts: np.ndarray, kd: cKDTree | None) -> PointGrid:
     return grid
 
 
+def cloud_grid(points: np.ndarray) -> PointGrid:
+    """The voxel grid :func:`hand_hits_points` tests ``points`` (N, 3), N >= 1, in (voxel
+    :data:`VOXEL`), for a caller that makes many calls on one cloud (the pool: built once per
+    pool, with no k-d tree)."""
+    from . import collision_kernels as ck
+
+    return ck.point_grid(as_points(points), VOXEL)
+
+
 def hand_hits_points(
     hand: Hand,
     T_world_hand: np.ndarray,
@@ -287,6 +296,7 @@ def hand_hits_points(
     kd: cKDTree | None = None,
     margin: float = 0.0,
     cells: CellCache | None = None,
+    grid: PointGrid | None = None,
 ) -> np.ndarray:
     """(P,) bool: the open hand at ``T_world_hand`` (P, 4, 4) with preshape ``q`` (P, J) holds
     at least one of ``points`` (N, 3) inside a link's collision box grown by ``margin``: the
@@ -300,8 +310,9 @@ def hand_hits_points(
     :func:`hand_hits_points_numpy` (tests check it). ``kd``: when given, the tree of
     ``points`` (the same objects over the calls of a pool): the grid is built once for them and
     kept with them until a call with others. ``cells``: an optional dict caching
-    :func:`link_cells` per preshape across calls. Memory is O(P + N + cells + voxels), whatever
-    P and N (at most 8 voxels a point)."""
+    :func:`link_cells` per preshape across calls. ``grid``: :func:`cloud_grid` of ``points``
+    when the caller has it (then ``kd`` is not used). Memory is O(P + N + cells + voxels),
+    whatever P and N (at most 8 voxels a point)."""
     from . import collision_kernels as ck
 
     pts = as_points(points)
@@ -322,7 +333,7 @@ def hand_hits_points(
         np.concatenate(Ts),
         np.concatenate(hs),
         CELL_SEAM,
-        _point_grid(pts, kd),
+        grid if grid is not None else _point_grid(pts, kd),
     )
 
 
@@ -335,9 +346,10 @@ def hand_hits_points_numpy(
     kd: cKDTree | None = None,
     margin: float = 0.0,
     cells: CellCache | None = None,
+    grid: PointGrid | None = None,
 ) -> np.ndarray:
     """:func:`hand_hits_points` in numpy (the version before the compiled kernel, kept as the
-    reference of its tests and benchmark).
+    reference of its tests and benchmark; ``grid`` is not used, ``kd`` is built when None).
 
     Each link box is cut into near-cubic cells (:func:`link_cells`); one nearest-point query
     per cell decides most cells (no point within its circumscribed sphere: free; a point within
