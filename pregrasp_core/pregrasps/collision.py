@@ -107,6 +107,29 @@ def _pose_entry(hand: Hand, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return got
 
 
+def preshape_box_poses_many(hand: Hand, Q: np.ndarray) -> np.ndarray:
+    """(B, L, 4, 4): :func:`preshape_box_poses` of each row of ``Q`` (B, J), B >= 1, the rows
+    not kept yet by one batched forward kinematics (``hand.box_poses`` of them together, which
+    gives each row the bits of its own call: tests check it on random preshapes and every call
+    of the demo objects' pools), then kept like those of :func:`preshape_box_poses`."""
+    Qa = np.asarray(Q, dtype=np.float64)
+    cache = _HAND_POSES.get(hand)
+    if cache is None or len(cache) + len(Qa) > HAND_POSES_KEPT:
+        cache = {}
+        _HAND_POSES[hand] = cache
+    keys = [row.tobytes() for row in Qa]
+    new = [i for i, k in enumerate(keys) if k not in cache]
+    if new:
+        Tb_new = hand.box_poses(Qa[new])  # (n, L, 4, 4)
+        for i, Tb in zip(new, Tb_new, strict=True):  # loop over the new preshapes
+            Tb = Tb.copy()
+            corners = box_corners(Tb, hand.link_box_half)
+            Tb.setflags(write=False)
+            corners.setflags(write=False)
+            cache[keys[i]] = (Tb, corners)
+    return np.stack([cache[k][0] for k in keys])
+
+
 def preshape_box_poses(hand: Hand, q: np.ndarray) -> np.ndarray:
     """``hand.box_poses(q)`` (L, 4, 4) of one preshape ``q`` (J,), read-only: computed once per
     hand and preshape (kept per hand, by the preshape's bytes), the same array for the pinch's

@@ -42,7 +42,7 @@ import numpy as np
 from ..box import OrientedBox
 from ..facemask import FACE_NORMAL, SupportPlane
 from ..geometry import box_corners
-from .collision import preshape_box_poses
+from .collision import preshape_box_poses, preshape_box_poses_many
 from .params import SamplingParams
 from .surfaces import SURFACES, centred_grid, grid_sizes
 
@@ -135,6 +135,17 @@ def pinch_preshape(hand: Hand, kind: str, half_width: float) -> tuple[np.ndarray
     other fingers bend to bring their tips up to it (two-link inverse kinematics in the
     flexion plane). ``None`` when a finger cannot reach its point within its joint limits or
     the preshape collides with itself."""
+    got = _pinch_flexions(hand, kind, half_width)
+    if got is None:
+        return None
+    q, depth = got
+    # the box poses kept per preshape: the pool's height and collision tests reuse them
+    return None if hand.self_collisions(q, preshape_box_poses(hand, q)) else (q, depth)
+
+
+def _pinch_flexions(hand: Hand, kind: str, half_width: float) -> tuple[np.ndarray, float] | None:
+    """:func:`pinch_preshape` before its self-collision check: the clamped preshape and the
+    depth, ``None`` when a finger cannot reach its point within its joint limits."""
     spread = KINDS[kind][1]
     c = _center(hand, kind)
     q = np.zeros(len(hand.joint_names))
@@ -177,9 +188,7 @@ def pinch_preshape(hand: Hand, kind: str, half_width: float) -> tuple[np.ndarray
             if flex is None:
                 return None
         q[list(f.flex_index)] = flex
-    q = np.asarray(hand.clamp(q), dtype=np.float64)
-    # the box poses kept per preshape: the pool's height and collision tests reuse them
-    return None if hand.self_collisions(q, preshape_box_poses(hand, q)) else (q, depth)
+    return np.asarray(hand.clamp(q), dtype=np.float64), depth
 
 
 _HAND_PINCHES: weakref.WeakKeyDictionary[Hand, dict[tuple[str, float | None], Any]] = (
@@ -222,6 +231,32 @@ def _preshape(hand: Hand, kind: str, half_width: float) -> tuple[np.ndarray, flo
             got[0].setflags(write=False)
         cache[key] = got
     return cache[key]
+
+
+def _preshapes(
+    hand: Hand, kind: str, halves: Sequence[float]
+) -> list[tuple[np.ndarray, float] | None]:
+    """:func:`_preshape` of each half width of ``halves``, those not kept yet together: their
+    preshapes one by one (:func:`_pinch_flexions`), their box poses by one batched forward
+    kinematics (kept per preshape, :func:`~.collision.preshape_box_poses_many`) and one batched
+    self-collision check (``Hand.self_collisions_many``: each verdict that of its own
+    ``self_collisions``), the same values as :func:`_preshape` of each."""
+    cache = _pinch_cache(hand)
+    keys = [(kind, float(h)) for h in halves]
+    found = []
+    for key in dict.fromkeys(k for k in keys if k not in cache):  # new half widths, once each
+        got = _pinch_flexions(hand, kind, float(key[1]))
+        if got is None:
+            cache[key] = None
+        else:
+            found.append((key, got))
+    if found:
+        Q = np.stack([g[0] for _, g in found])
+        hits = hand.self_collisions_many(Q, preshape_box_poses_many(hand, Q))
+        for (key, (q, depth)), hit in zip(found, hits, strict=True):
+            q.setflags(write=False)
+            cache[key] = None if hit else (q, depth)
+    return [cache[k] for k in keys]
 
 
 @dataclass(frozen=True)
@@ -342,8 +377,8 @@ def _placed(
     if local:
         assert points is not None
         near = _NearFingers(points, centre, x_dir, fx, band)
+    spots = []  # (sign, offset, half width) of every position, both rolls, in order
     for sign in (1.0, -1.0):  # both rolls: thumb on either side
-        R = np.stack([sign * x_dir, sign * c_dir, -d], axis=1)  # columns = hand axes
         for off in offsets:  # a few positions along the part
             half = 0.5 * width
             if local:
@@ -353,21 +388,25 @@ def _placed(
                 if got_half is None:
                     continue
                 half = got_half
-            got = _preshape(hand, kind, half)
-            if got is None:
-                continue
-            q_pinch, depth = got
-            if floor is not None:
-                z_tip = max(0.5 * (z_top + z_bottom), z_top + params.standoff - depth)
-                limit = np.inf
-            else:
-                z_tip = z_top + params.standoff
-                limit = params.standoff + min(0.5 * (z_top - z_bottom), 0.5 * float(box.extents[2]))
-            p_c = centre + off * sign * x_dir + z_tip * d  # where the tips' centre goes
-            T = np.eye(4)
-            T[:3, :3] = R
-            T[:3, 3] = p_c - R @ np.array([c[0], c[1], depth])
-            out.append((T, q_pinch, gt, spread, limit))
+            spots.append((sign, off, half))
+    # the preshapes of every position at once (the new half widths' checks batched)
+    shapes = _preshapes(hand, kind, [h for _, _, h in spots])
+    for (sign, off, _), got in zip(spots, shapes, strict=True):  # loop over the positions
+        if got is None:
+            continue
+        R = np.stack([sign * x_dir, sign * c_dir, -d], axis=1)  # columns = hand axes
+        q_pinch, depth = got
+        if floor is not None:
+            z_tip = max(0.5 * (z_top + z_bottom), z_top + params.standoff - depth)
+            limit = np.inf
+        else:
+            z_tip = z_top + params.standoff
+            limit = params.standoff + min(0.5 * (z_top - z_bottom), 0.5 * float(box.extents[2]))
+        p_c = centre + off * sign * x_dir + z_tip * d  # where the tips' centre goes
+        T = np.eye(4)
+        T[:3, :3] = R
+        T[:3, 3] = p_c - R @ np.array([c[0], c[1], depth])
+        out.append((T, q_pinch, gt, spread, limit))
     return out
 
 

@@ -51,6 +51,12 @@ def _min_height_reference(hand, T, q, support) -> np.ndarray:
     return out
 
 
+def _forget(hand) -> None:
+    """Empty the caches of pinch preshapes and of box poses per preshape."""
+    pinch._HAND_PINCHES.pop(hand, None)
+    collision._HAND_POSES.pop(hand, None)
+
+
 def _same(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
 
@@ -70,6 +76,39 @@ def test_kept_poses_corners_and_cells_equal_fresh_ones_on_random_preshapes(hand)
         for margin in (0.0, 0.002, 0.005):
             got, ref = link_cells(hand, q, margin), collision._link_cells_reference(hand, q, margin)
             assert _same(got[0], ref[0]) and _same(got[1], ref[1])
+
+
+def test_batched_box_poses_and_preshapes_equal_one_by_one(hand):
+    """The batched forward kinematics of new preshapes gives each row the bits of its own call,
+    and the batched pinch preshapes (one self-collision check for all) those of
+    ``pinch_preshape``, whatever the batch and the rows already kept."""
+    rng = np.random.default_rng(14)
+    for trial in range(60):
+        _forget(hand)
+        Q = _random_q(hand, rng, int(rng.integers(1, 30)))
+        if trial % 3 == 0:  # some rows kept before, one repeated
+            collision.preshape_box_poses(hand, Q[len(Q) // 2])
+            Q = np.concatenate([Q, Q[:1]])
+        Tb = collision.preshape_box_poses_many(hand, Q)
+        for b, q in enumerate(Q):
+            ref = hand.box_poses(q)
+            assert _same(Tb[b], ref) and _same(collision.preshape_box_poses(hand, q), ref)
+            assert _same(hand_corners(hand, q), collision._hand_corners_reference(hand, q))
+    seen = {True: 0, False: 0}
+    for kind in ("tip", "tripod"):
+        for _ in range(20):
+            _forget(hand)
+            halves = list(rng.uniform(-0.01, 0.09, int(rng.integers(1, 12))))
+            halves += halves[:2]  # repeated half widths
+            got = pinch._preshapes(hand, kind, halves)
+            _forget(hand)
+            for h, g in zip(halves, got, strict=True):
+                ref = pinch.pinch_preshape(hand, kind, h)
+                seen[ref is None] += 1
+                assert (g is None) == (ref is None)
+                if ref is not None:
+                    assert _same(g[0], ref[0]) and g[1] == ref[1]
+    assert seen[True] > 5 and seen[False] > 20
 
 
 def test_a_changed_preshape_is_not_served_the_kept_poses_of_another(hand):
@@ -150,7 +189,10 @@ def test_placed_equals_the_reference_on_random_parts_and_at_band_edges(hand):
         for floor in (z_bottom - 0.001, None):
             args = (hand, box, "tip", float(ext[1]), length, c_dir, x_dir, d, z_top, z_bottom,
                     floor, params, pts)  # fmt: skip
-            got, ref = pinch._placed(*args), pinch._placed_reference(*args)
+            _forget(hand)
+            got = pinch._placed(*args)
+            _forget(hand)  # the reference computes every preshape afresh
+            ref = pinch._placed_reference(*args)
             assert _same_pinches(got, ref), trial
             checked += len(ref)
     assert checked > 100 and edges > 10
@@ -165,6 +207,7 @@ def test_every_pool_call_equals_its_reference(hand, path, monkeypatch):
 
     def check_placed(*a):
         got = placed(*a)
+        _forget(a[0])  # the reference computes every preshape afresh
         assert _same_pinches(got, pinch._placed_reference(*a))
         calls["placed"] += 1
         return got
