@@ -225,6 +225,32 @@ def _pca_normals(points: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.nd
     return normals, np.clip(evals[:, 0], 0.0, None) / total
 
 
+def _plain_pca(
+    points: np.ndarray, k: int, threads: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The k nearest neighbours of every point (itself first; distances (N, k), ids (N, k)) and
+    :func:`_pca_normals` of them, the normals of the ``reference`` and ``viewpoint`` rules: one
+    k-d tree, its queries and the PCA in row chunks on ``threads`` threads (0: the usable CPUs;
+    the tree's queries and numpy's ``eigh`` run without the GIL). Each row is computed from the
+    same inputs by the same operations whatever its chunk, so the result does not depend on
+    the threads, to the bit (a test checks it against one call over all rows)."""
+    n = len(points)
+    tree = cKDTree(points)
+    dist = np.empty((n, k))
+    nbr = np.empty((n, k), dtype=np.intp)
+    normals = np.empty((n, 3))
+    curvature = np.empty(n)
+
+    def rows(a: int, b: int) -> None:
+        d, i = tree.query(points[a:b], k=k)
+        dist[a:b] = np.reshape(d, (b - a, k))
+        nbr[a:b] = np.reshape(i, (b - a, k))
+        normals[a:b], curvature[a:b] = _pca_normals(points, nbr[a:b])
+
+    _run_rows(rows, n, threads)
+    return dist, nbr, normals, curvature
+
+
 def _orient_propagate(
     points: np.ndarray,
     normals: np.ndarray,
@@ -581,8 +607,7 @@ def estimate_normals(
     if mode == "reference" and ref is None:
         raise ValueError("orient='reference' needs reference normals")
     if mode in ("reference", "viewpoint"):
-        dist, nbr = cKDTree(pts).query(pts, k=params.k)  # (N, k), itself first
-        normals, curvature = _pca_normals(pts, nbr)
+        dist, nbr, normals, curvature = _plain_pca(pts, params.k, threads)
     else:  # no normals to orient by: scale-selected PCA (thin rims), compiled kernels
         normals, curvature, dist, nbr, order = _scale_selected(pts, params.k, threads)
     if mode == "reference":

@@ -422,6 +422,36 @@ def test_normals_do_not_depend_on_the_threads():
     assert np.array_equal(i1[:, 0], np.arange(len(pts)))
 
 
+@pytest.mark.parametrize("orient", ["reference", "viewpoint"])
+def test_plain_pca_normals_do_not_depend_on_the_threads(orient):
+    """The rules with a sign given (the mesh's normals, a camera) compute their PCA in row
+    chunks on threads: the same bits as one k-d tree query and one PCA over all rows (the code
+    before the chunks), on 1, 2 and 3 threads, the signs from the mesh's normals (or facing the
+    camera), and no thread left running."""
+    from scipy.spatial import cKDTree
+
+    from pregrasp_core.io import load_point_cloud
+    from pregrasp_core.normals import _pca_normals
+    from pregrasp_core.paths import DEFAULT_OBJECT
+
+    cloud = load_point_cloud(DEFAULT_OBJECT, n_points=6000, seed=3)
+    pts, ref = np.asarray(cloud.points), np.asarray(cloud.normals)
+    eye = np.array([0.4, -0.3, 0.5])
+    params = NormalParams(orient=orient, viewpoint=tuple(eye) if orient == "viewpoint" else None)
+    _, nbr = cKDTree(pts).query(pts, k=params.k)
+    plain, variation = _pca_normals(pts, nbr)
+    alive = threading.active_count()
+    runs = [estimate_normals(pts, params, reference=ref, threads=t) for t in (1, 2, 3)]
+    assert threading.active_count() == alive
+    toward = ref if orient == "reference" else eye - pts
+    for cn in runs:
+        assert cn.orient == orient
+        assert np.array_equal(np.abs(cn.normals), np.abs(plain))
+        assert np.array_equal(cn.curvature, variation)
+        assert np.all(np.einsum("ij,ij->i", cn.normals, toward) >= 0.0)
+        assert np.array_equal(cn.normals, runs[0].normals)
+
+
 @pytest.mark.parametrize("shape", [(40, 40, 2), (12, 12, 4)])
 def test_grid_neighbours_break_ties_by_index(shape):
     """Points on a lattice (many equal distances): each row is the point itself, then the
