@@ -92,13 +92,12 @@ def _pose_entry(hand: Hand, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(box poses (L, 4, 4), corners (8 L, 3))`` of the preshape ``q`` (J,), both read-only,
     computed once per hand and preshape (by its bytes)."""
     Q = np.asarray(q, dtype=np.float64)
-    cache = _HAND_POSES.get(hand)
-    if cache is None or len(cache) > HAND_POSES_KEPT:
-        cache = {}
-        _HAND_POSES[hand] = cache
+    cache = _HAND_POSES.setdefault(hand, {})
     key = Q.tobytes()
     got = cache.get(key)
     if got is None:
+        if len(cache) >= HAND_POSES_KEPT:  # full: start again (a kept preshape stays kept)
+            cache.clear()
         Tb = hand.box_poses(Q)  # (L, 4, 4)
         corners = box_corners(Tb, hand.link_box_half)
         Tb.setflags(write=False)
@@ -113,12 +112,12 @@ def preshape_box_poses_many(hand: Hand, Q: np.ndarray) -> np.ndarray:
     gives each row the bits of its own call: tests check it on random preshapes and every call
     of the demo objects' pools), then kept like those of :func:`preshape_box_poses`."""
     Qa = np.asarray(Q, dtype=np.float64)
-    cache = _HAND_POSES.get(hand)
-    if cache is None or len(cache) + len(Qa) > HAND_POSES_KEPT:
-        cache = {}
-        _HAND_POSES[hand] = cache
+    cache = _HAND_POSES.setdefault(hand, {})
     keys = [row.tobytes() for row in Qa]
     new = [i for i, k in enumerate(keys) if k not in cache]
+    if new and len(cache) + len(new) > HAND_POSES_KEPT:  # full: start again
+        cache.clear()
+        new = list(range(len(keys)))
     if new:
         Tb_new = hand.box_poses(Qa[new])  # (n, L, 4, 4)
         for i, Tb in zip(new, Tb_new, strict=True):  # loop over the new preshapes

@@ -61,6 +61,30 @@ def _same(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
 
 
+def test_a_full_pose_cache_keeps_what_it_holds_and_starts_again_for_a_new_preshape(hand):
+    """The cache of box poses is bounded (``HAND_POSES_KEPT``): a preshape it holds is found even
+    when it is full (the same array), a new one empties it first; the batched version keeps the
+    same bound. (A hit on a full cache used to empty it: the test above failed when earlier
+    tests had filled the shared hand's cache.)"""
+    _forget(hand)
+    rng = np.random.default_rng(5)
+    Q = _random_q(hand, rng, collision.HAND_POSES_KEPT + 3)
+    kept = [collision.preshape_box_poses(hand, q) for q in Q[: collision.HAND_POSES_KEPT]]
+    assert len(collision._HAND_POSES[hand]) == collision.HAND_POSES_KEPT
+    assert collision.preshape_box_poses(hand, Q[0].copy()) is kept[0]  # full, and found
+    fresh = collision.preshape_box_poses(hand, Q[-1])  # full, and new: starts again
+    assert len(collision._HAND_POSES[hand]) == 1 and _same(fresh, hand.box_poses(Q[-1]))
+    many = collision.preshape_box_poses_many(hand, Q[: collision.HAND_POSES_KEPT + 2])
+    assert len(collision._HAND_POSES[hand]) == collision.HAND_POSES_KEPT + 2  # one batch, whole
+    for Tb, q in zip(many, Q, strict=False):
+        assert _same(Tb, hand.box_poses(q))
+    collision.preshape_box_poses_many(hand, Q[1:3])  # held: nothing to start again for
+    assert len(collision._HAND_POSES[hand]) == collision.HAND_POSES_KEPT + 2
+    collision.preshape_box_poses_many(hand, Q[:1] + 1e-3)  # new, over the bound: starts again
+    assert len(collision._HAND_POSES[hand]) == 1
+    _forget(hand)
+
+
 def test_kept_poses_corners_and_cells_equal_fresh_ones_on_random_preshapes(hand):
     rng = np.random.default_rng(11)
     for q in _random_q(hand, rng, 60):
