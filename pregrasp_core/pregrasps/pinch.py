@@ -332,6 +332,38 @@ def _face_pinches(
     return out
 
 
+def _kind_setup(
+    hand: Hand,
+    kind: str,
+    width: float,
+    length: float,
+    floor: float | None,
+    points: np.ndarray | None,
+    params: SamplingParams,
+) -> tuple[float, str, float, np.ndarray, np.ndarray, np.ndarray | None, float]:
+    """What the placements of one kind start from (:func:`_placed`): ``(width, grasp type,
+    spread, tips' centre, offsets along the part, fx, band)``. The tripod encloses the whole
+    cross-section (its diagonal is its width); the tip goes to positions along the part
+    (the hand's x, symmetric), the tripod about its centre. ``fx`` (3,), the fingers' x
+    positions relative to the thumb's plane, and ``band``, the half width of the slice a finger
+    closes on, only for a tip from above given the part's points (``fx`` None otherwise)."""
+    if kind == "tripod":
+        width = float(np.hypot(width, length))
+    gt, spread = KINDS[kind]
+    c = _center(hand, kind)
+    if kind == "tip":
+        half_run = max(0.5 * length - 0.5 * TIP_MIN_LENGTH, 0.0)
+        offsets = centred_grid(half_run, params.interval)
+    else:
+        offsets = np.zeros(1)
+    fx: np.ndarray | None = None
+    band = 0.0
+    if kind == "tip" and floor is not None and points is not None and len(points) > 0:
+        fx = np.array([hand.flexion_plane(f, 0.0).origin[0] - c[0] for f in FINGERS])
+        band = 0.5 * hand.finger("thumb").width
+    return width, gt, spread, c, offsets, fx, band
+
+
 def _placed(
     hand: Hand,
     box: OrientedBox,
@@ -359,23 +391,13 @@ def _placed(
     each position (not the box's), when given (:class:`_NearFingers`: the same numbers as
     :func:`_placed_reference`, which tests every point at every position)."""
     out: list[tuple[np.ndarray, np.ndarray, str, float, float]] = []
-    if kind == "tripod":  # the tripod encloses the whole cross-section (its diagonal)
-        width = float(np.hypot(width, length))
-    gt, spread = KINDS[kind]
-    c = _center(hand, kind)
-    if kind == "tip":
-        half_run = max(0.5 * length - 0.5 * TIP_MIN_LENGTH, 0.0)
-        offsets = centred_grid(half_run, params.interval)  # along the hand's x, symmetric
-    else:
-        offsets = np.zeros(1)
-    local = kind == "tip" and floor is not None and points is not None and len(points) > 0
-    if local:  # the fingers' x positions relative to the thumb's plane, and their bands
-        assert points is not None
-        fx = np.array([hand.flexion_plane(f, 0.0).origin[0] - c[0] for f in FINGERS])
-        band = 0.5 * hand.finger("thumb").width  # the slice a finger closes on
+    width, gt, spread, c, offsets, fx, band = _kind_setup(
+        hand, kind, width, length, floor, points, params
+    )
+    local = fx is not None
     centre = box.center - (box.center @ d) * d  # the box centre projected on d = 0
     if local:
-        assert points is not None
+        assert points is not None and fx is not None
         near = _NearFingers(points, centre, x_dir, fx, band)
     spots = []  # (sign, offset, half width) of every position, both rolls, in order
     for sign in (1.0, -1.0):  # both rolls: thumb on either side
@@ -504,26 +526,17 @@ def _placed_reference(
     points: the three-finger tip from above opens for the part's width under its fingers at
     each position (not the box's), when given."""
     out: list[tuple[np.ndarray, np.ndarray, str, float, float]] = []
-    if kind == "tripod":  # the tripod encloses the whole cross-section (its diagonal)
-        width = float(np.hypot(width, length))
-    gt, spread = KINDS[kind]
-    c = _center(hand, kind)
-    if kind == "tip":
-        half_run = max(0.5 * length - 0.5 * TIP_MIN_LENGTH, 0.0)
-        offsets = centred_grid(half_run, params.interval)  # along the hand's x, symmetric
-    else:
-        offsets = np.zeros(1)
-    local = kind == "tip" and floor is not None and points is not None and len(points) > 0
-    if local:  # the fingers' x positions relative to the thumb's plane, and their bands
-        assert points is not None
-        fx = np.array([hand.flexion_plane(f, 0.0).origin[0] - c[0] for f in FINGERS])
-        band = 0.5 * hand.finger("thumb").width  # the slice a finger closes on
+    width, gt, spread, c, offsets, fx, band = _kind_setup(
+        hand, kind, width, length, floor, points, params
+    )
+    local = fx is not None
     centre = box.center - (box.center @ d) * d  # the box centre projected on d = 0
     for sign in (1.0, -1.0):  # both rolls: thumb on either side
         R = np.stack([sign * x_dir, sign * c_dir, -d], axis=1)  # columns = hand axes
         for off in offsets:  # a few positions along the part
             half = 0.5 * width
             if local:
+                assert points is not None and fx is not None
                 # the part's half width under the three fingers at this position (the toy
                 # car between its wheels is narrower than its box)
                 rel = points - (centre + off * sign * x_dir)  # (N, 3)
