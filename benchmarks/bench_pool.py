@@ -12,12 +12,12 @@ session 14 the compiled kernel below); both must give the same answer. A third t
 on the same poses, the pool's collision test before and after its compiled kernel (issue 15):
 ``collision.hand_hits_points_numpy`` (the numpy version, ``_batch_hits``) against
 ``hand_hits_points`` (``collision_kernels``: a voxel grid of the cloud, the exact test per hand
-and cell; its grid kept for the cloud), interleaved, ``--repeats`` (at least 5) times each,
-medians, the link cells built beforehand for both; the answers must be equal. The time
-of the kernels' first call in the process (numba imported, the kernels loaded from its cache or
-compiled) is printed first. A fourth table (issue 15, the pool's pinches and heights) times, on
-every call the default object's pool makes, the functions the pool's caches and the pinches'
-sorted projections changed against the versions they replaced (kept as the tests'
+and cell; the cloud's grid built once, as the pool does), interleaved, ``--repeats`` (at least
+5) times each, medians, the link cells built beforehand for both; the answers must be equal.
+The time of the kernels' first call in the process (numba imported, the kernels loaded from its
+cache or compiled) is printed first. A fourth table (issue 15, the pool's pinches and heights)
+times, on every call the default object's pool makes, the functions the pool's caches and the
+pinches' sorted projections changed against the versions they replaced (kept as the tests'
 references): ``pinch._placed`` against ``_placed_reference``, ``collision.link_cells`` against
 ``_link_cells_reference``, ``hand_min_height`` against its version with fresh corners, the new
 ones both with the preshape caches kept (a re-plan) and emptied before each call (a preshape
@@ -61,7 +61,7 @@ from pregrasp_core.pregrasps import (  # noqa: E402
     hand_hits_points,
     pinch,
 )
-from pregrasp_core.pregrasps.collision import hand_hits_points_numpy  # noqa: E402
+from pregrasp_core.pregrasps.collision import cloud_grid, hand_hits_points_numpy  # noqa: E402
 
 POOL_STAGES = STAGES[: STAGES.index("pool") + 1]
 
@@ -130,7 +130,7 @@ def collision_table(points: int, hand: Hand) -> None:
         "hits | same answer |"
     )
     print("|---|---|---|---|---|---|")
-    kd = cKDTree(pts)
+    grid = cloud_grid(pts)  # once per cloud, as the pool builds it
     centre = pts.mean(axis=0)
     for G in (1000, 4000):
         T = _hand_poses(G, centre, rng)
@@ -139,7 +139,7 @@ def collision_table(points: int, hand: Hand) -> None:
             t0 = time.perf_counter()
             ref = hand.hands_hit_points(pts, T, q[0], 0.0)
             t1 = time.perf_counter()
-            ours = hand_hits_points(hand, T, np.full(G, gt), q, pts, kd)
+            ours = hand_hits_points(hand, T, np.full(G, gt), q, pts, grid=grid)
             t2 = time.perf_counter()
             print(
                 f"| {G} | {gt} | {1000 * (t1 - t0):.0f} | {1000 * (t2 - t1):.0f} | "
@@ -153,7 +153,7 @@ def kernel_table(points: int, repeats: int, hand: Hand) -> None:
     cloud = load_point_cloud(demo_objects()[0].parent / "mug_handle.obj", n_points=points, seed=0)
     pts = cloud.points
     rng = np.random.default_rng(0)
-    kd = cKDTree(pts)
+    kd, grid = cKDTree(pts), cloud_grid(pts)  # each version's index of the cloud, built once
     centre = pts.mean(axis=0)
     print(
         "\n| hands | grasp type | margin | numpy (_batch_hits) ms | kernel ms | speed-up | hits "
@@ -167,13 +167,13 @@ def kernel_table(points: int, repeats: int, hand: Hand) -> None:
             gts = np.full(G, gt)
             for margin in (0.0, 0.005):
                 cells: dict = {}  # the link cells, built once for both (as the pool keeps them)
-                hand_hits_points(hand, T[:1], gts[:1], q[:1], pts, kd, margin, cells)
+                hand_hits_points(hand, T[:1], gts[:1], q[:1], pts, margin, cells, grid)
                 old_s, new_s = [], []
                 for _ in range(repeats):  # interleaved
                     t0 = time.perf_counter()
-                    old = hand_hits_points_numpy(hand, T, gts, q, pts, kd, margin, cells)
+                    old = hand_hits_points_numpy(hand, T, gts, q, pts, margin, cells, kd=kd)
                     t1 = time.perf_counter()
-                    new = hand_hits_points(hand, T, gts, q, pts, kd, margin, cells)
+                    new = hand_hits_points(hand, T, gts, q, pts, margin, cells, grid)
                     t2 = time.perf_counter()
                     assert np.array_equal(old, new), (G, gt, margin)
                     old_s.append(t1 - t0)
@@ -183,18 +183,6 @@ def kernel_table(points: int, repeats: int, hand: Hand) -> None:
                     f"| {G} | {gt} | {margin} | {a:.1f} | {b:.1f} | {a / b:.0f}x | "
                     f"{int(new.sum())} | True |"
                 )
-
-
-def _min_height_reference(hand: Hand, T, q, support) -> np.ndarray:
-    """``hand_min_height`` with each preshape's corners computed afresh (before issue 15)."""
-    out = np.zeros(len(T))
-    for sel in collision._by_preshape(q):
-        corners = collision._hand_corners_reference(hand, q[sel[0]])
-        Ts = T[sel]
-        up_hand = np.einsum("mji,j->mi", Ts[:, :3, :3], support.normal)
-        h = corners @ up_hand.T + (Ts[:, :3, 3] @ support.normal)[None, :]
-        out[sel] = h.min(axis=0) - support.height
-    return out
 
 
 def _bits(x: object) -> object:
@@ -255,7 +243,7 @@ def pinch_table(points: int, repeats: int, hand: Hand) -> None:
         (
             "collision.hand_min_height",
             "height",
-            lambda h, T, g, q, s: _min_height_reference(h, T, q, s),
+            lambda h, T, g, q, s: collision._hand_min_height_reference(h, T, q, s),
             collision.hand_min_height,
         ),
     ]

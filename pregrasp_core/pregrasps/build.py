@@ -315,15 +315,7 @@ def _clear_the_hand(
         T = pool.T_world_hand[idx].copy()
         T[:, :3, 3] -= levels[k] * pool.approach[idx]
         return hand_hits_points(
-            hand,
-            T,
-            pool.grasp_type[idx],
-            pool.q[idx],
-            points,
-            None,
-            params.collision_margin,
-            cells,
-            grid,
+            hand, T, pool.grasp_type[idx], pool.q[idx], points, params.collision_margin, cells, grid
         )
 
     # levels in the order 0, then the last (to drop hopeless ones at once), then 1, 2, ...

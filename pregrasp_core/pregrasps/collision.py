@@ -8,6 +8,7 @@ pool's filters; :func:`hand_corners` and :func:`link_cells` give the links' boxe
 from __future__ import annotations
 
 import weakref
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -160,9 +161,27 @@ def hand_min_height(
     of each open hand at ``T_world_hand`` (P, 4, 4) with preshape ``q`` (P, J), one preshape
     per row (negative: the hand reaches below the plane). ``grasp_type`` (P,) is not used: the
     hands are grouped by preshape (the pinches adapt theirs to the part)."""
+    return _min_height(T_world_hand, q, support, lambda qi: _pose_entry(hand, qi)[1])
+
+
+def _hand_min_height_reference(
+    hand: Hand, T_world_hand: np.ndarray, q: np.ndarray, support: SupportPlane
+) -> np.ndarray:
+    """:func:`hand_min_height` with each preshape's corners computed afresh (the version before
+    the kept corners, the reference of its tests and benchmark)."""
+    return _min_height(T_world_hand, q, support, lambda qi: _hand_corners_reference(hand, qi))
+
+
+def _min_height(
+    T_world_hand: np.ndarray,
+    q: np.ndarray,
+    support: SupportPlane,
+    corners_of: Callable[[np.ndarray], np.ndarray],
+) -> np.ndarray:
+    """:func:`hand_min_height` with the corners (8 L, 3) of a preshape from ``corners_of``."""
     out = np.zeros(len(T_world_hand))
     for sel in _by_preshape(q):  # loop over the distinct preshapes (a few)
-        corners = _pose_entry(hand, q[sel[0]])[1]  # (C, 3) hand frame, kept per preshape
+        corners = corners_of(q[sel[0]])  # (C, 3) hand frame
         T = T_world_hand[sel]  # (m, 4, 4)
         up_hand = np.einsum("mji,j->mi", T[:, :3, :3], support.normal)  # (m, 3) up in hand frames
         h = corners @ up_hand.T + (T[:, :3, 3] @ support.normal)[None, :]  # (C, m) heights
@@ -278,28 +297,6 @@ def _preshape_parts(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return inv.reshape(-1).astype(np.int64), first
 
 
-_GRID: list[tuple[cKDTree, np.ndarray, float, PointGrid]] = []
-"""The last (k-d tree, points, voxel, grid) of :func:`hand_hits_points` (one entry): the calls
-of one pool share the cloud and its tree, and build its grid once."""
-
-
-def _point_grid(pts: np.ndarray, kd: cKDTree | None) -> PointGrid:
-    """The voxel grid of ``pts`` (:func:`.collision_kernels.point_grid`, voxel :data:`VOXEL`),
-    the one kept in :data:`_GRID` when ``kd`` and ``pts`` are the very objects it was built for
-    (``kd`` is the caller's tree of these points, as the numpy version assumes)."""
-    from . import collision_kernels as ck
-
-    if kd is not None and _GRID:
-        # the same objects (held here, so that no other object can take their ids), same voxel
-        k, p, h, grid = _GRID[0]
-        if k is kd and p is pts and h == VOXEL:
-            return grid
-    grid = ck.point_grid(pts, VOXEL)
-    if kd is not None:
-        _GRID[:] = [(kd, pts, VOXEL, grid)]
-    return grid
-
-
 def cloud_grid(points: np.ndarray) -> PointGrid:
     """The voxel grid :func:`hand_hits_points` tests ``points`` (N, 3), N >= 1, in (voxel
     :data:`VOXEL`), for a caller that makes many calls on one cloud (the pool: built once per
@@ -315,7 +312,6 @@ def hand_hits_points(
     grasp_type: np.ndarray,
     q: np.ndarray,
     points: np.ndarray,
-    kd: cKDTree | None = None,
     margin: float = 0.0,
     cells: CellCache | None = None,
     grid: PointGrid | None = None,
@@ -329,11 +325,10 @@ def hand_hits_points(
     :data:`VOXEL` and, per hand and cell, tests exactly (``abs(local) <= half + CELL_SEAM``, the
     operations of :func:`hand_hits_points_numpy` in their order) the points of the voxels that
     meet the cell's world bounding box; a hand's first hit ends it. The answers are those of
-    :func:`hand_hits_points_numpy` (tests check it). ``kd``: when given, the tree of
-    ``points`` (the same objects over the calls of a pool): the grid is built once for them and
-    kept with them until a call with others. ``cells``: an optional dict caching
-    :func:`link_cells` per preshape across calls. ``grid``: :func:`cloud_grid` of ``points``
-    when the caller has it (then ``kd`` is not used). Memory is O(P + N + cells + voxels),
+    :func:`hand_hits_points_numpy` (tests check it). ``cells``: an optional dict caching
+    :func:`link_cells` per preshape across calls. ``grid``: :func:`cloud_grid` of ``points``,
+    for a caller that makes many calls on one cloud (the pool builds it once); built here when
+    None. Memory is O(P + N + cells + voxels),
     whatever P and N (at most 8 voxels a point)."""
     from . import collision_kernels as ck
 
@@ -355,7 +350,7 @@ def hand_hits_points(
         np.concatenate(Ts),
         np.concatenate(hs),
         CELL_SEAM,
-        grid if grid is not None else _point_grid(pts, kd),
+        grid if grid is not None else cloud_grid(pts),
     )
 
 
@@ -365,13 +360,14 @@ def hand_hits_points_numpy(
     grasp_type: np.ndarray,
     q: np.ndarray,
     points: np.ndarray,
-    kd: cKDTree | None = None,
     margin: float = 0.0,
     cells: CellCache | None = None,
     grid: PointGrid | None = None,
+    kd: cKDTree | None = None,
 ) -> np.ndarray:
     """:func:`hand_hits_points` in numpy (the version before the compiled kernel, kept as the
-    reference of its tests and benchmark; ``grid`` is not used, ``kd`` is built when None).
+    reference of its tests and benchmark, called with the same arguments: ``grid`` is not
+    used; ``kd``, the k-d tree of ``points``, is built when None).
 
     Each link box is cut into near-cubic cells (:func:`link_cells`); one nearest-point query
     per cell decides most cells (no point within its circumscribed sphere: free; a point within

@@ -114,9 +114,7 @@ def test_random_poses_give_the_hand_models_answer(hand, margin):
         q = np.tile(hand.preshape(gt), (G, 1))
         ours = hand_hits_points(hand, T, np.full(G, gt), q, pts, margin=margin)
         assert np.array_equal(ours, hand.hands_hit_points(pts, T, q[0], margin))
-        assert np.array_equal(
-            ours, hand_hits_points_numpy(hand, T, np.full(G, gt), q, pts, None, margin)
-        )
+        assert np.array_equal(ours, hand_hits_points_numpy(hand, T, np.full(G, gt), q, pts, margin))
         assert 20 < ours.sum() < G - 20
 
 
@@ -290,25 +288,19 @@ def test_warm_up_compiles_every_kernel_for_the_pools_arrays(hand):
     assert after == before
 
 
-def test_a_pools_calls_share_one_grid_and_a_new_cloud_gets_its_own(hand):
-    """The grid is kept for the very (tree, points) objects of the last call: a pool's calls
-    build it once; another cloud (or the same points without a tree) gets a new one, with the
-    answers of the fresh grid."""
-    from scipy.spatial import cKDTree
-
+def test_a_grid_given_once_gives_the_answers_of_a_grid_built_per_call(hand):
+    """The pool builds the cloud's grid once (``cloud_grid``) and passes it to every call: the
+    answers are those of a call that builds its own, and of the hand model, on two clouds."""
     rng = np.random.default_rng(7)
     a, b = rng.uniform(-0.1, 0.1, (2000, 3)), rng.uniform(-0.1, 0.1, (2000, 3)) + 0.02
-    kd_a, kd_b = cKDTree(a), cKDTree(b)
     G = 100
     T = _poses(rng, G, spread=0.2)
     q = np.tile(hand.preshape("spherical"), (G, 1))
     gts = np.full(G, "spherical")
-    ga = collision._point_grid(a, kd_a)
-    assert collision._point_grid(a, kd_a) is ga
-    assert collision._point_grid(a, None) is not ga
-    assert collision._point_grid(a.copy(), kd_a) is not ga
-    for pts, kd in ((a, kd_a), (b, kd_b), (a, kd_a), (b, None)):
-        ours = hand_hits_points(hand, T, gts, q, pts, kd)
+    for pts in (a, b):
+        grid = collision.cloud_grid(pts)
+        ours = hand_hits_points(hand, T, gts, q, pts, grid=grid)
+        assert np.array_equal(ours, hand_hits_points(hand, T, gts, q, pts))
         assert np.array_equal(ours, hand.hands_hit_points(pts, T, q[0]))
         assert 10 < ours.sum() < G - 10
 

@@ -38,19 +38,6 @@ def _random_q(hand, rng, n: int) -> np.ndarray:
     return rng.uniform(lo, hi, (n, len(lo)))
 
 
-def _min_height_reference(hand, T, q, support) -> np.ndarray:
-    """``hand_min_height`` with the corners of every preshape computed afresh (the version
-    before the kept corners)."""
-    out = np.zeros(len(T))
-    for sel in collision._by_preshape(q):
-        corners = collision._hand_corners_reference(hand, q[sel[0]])
-        Ts = T[sel]
-        up_hand = np.einsum("mji,j->mi", Ts[:, :3, :3], support.normal)
-        h = corners @ up_hand.T + (Ts[:, :3, 3] @ support.normal)[None, :]
-        out[sel] = h.min(axis=0) - support.height
-    return out
-
-
 def _forget(hand) -> None:
     """Empty the caches of pinch preshapes and of box poses per preshape."""
     pinch._HAND_PINCHES.pop(hand, None)
@@ -154,7 +141,7 @@ def test_min_height_equals_fresh_corners_on_random_hands(hand):
     n = rng.normal(size=3)
     support = SupportPlane(n / np.linalg.norm(n), 0.013)
     got = hand_min_height(hand, T, np.full(P, "spherical"), q, support)
-    assert _same(got, _min_height_reference(hand, T, q, support))
+    assert _same(got, collision._hand_min_height_reference(hand, T, q, support))
 
 
 def _same_pinches(a: list, b: list) -> bool:
@@ -238,7 +225,7 @@ def test_every_pool_call_equals_its_reference(hand, path, monkeypatch):
 
     def check_height(hand_, T, gt, q, support):
         got = height(hand_, T, gt, q, support)
-        assert _same(got, _min_height_reference(hand_, T, q, support))
+        assert _same(got, collision._hand_min_height_reference(hand_, T, q, support))
         calls["height"] += 1
         return got
 

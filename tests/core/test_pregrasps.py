@@ -644,7 +644,7 @@ def test_collision_memory_is_bounded_by_its_batches(hand, monkeypatch):
         monkeypatch.setattr(collision, "PAIR_BATCH", pb)
         tracemalloc.start()
         try:
-            hits.append(collision.hand_hits_points_numpy(hand, T, gts, q, pts, kd, margin=0.02))
+            hits.append(collision.hand_hits_points_numpy(hand, T, gts, q, pts, margin=0.02, kd=kd))
             peaks.append(tracemalloc.get_traced_memory()[1])
         finally:
             tracemalloc.stop()
