@@ -254,29 +254,25 @@ def _run_auto(
     limit), the pool and the planner again with ``completed``, reusing the stages before the
     pool (and the normals) of the first run. A ``previous`` auto result of the very same
     parameters that fell back goes straight to ``completed`` (all its stages reused)."""
+
+    def stages(mode: str, hand: Hand | None, base: PipelineResult | None) -> PipelineResult:
+        """The stages with the hidden space as ``mode`` says, from ``base``'s results."""
+        return _run_stages(
+            cloud, params, hand, last, base, progress, limits, background, planner, mode=mode
+        )
+
     if (
         prev is not None
         and prev.params == params
         and prev.occluded_used == "completed"
         and prev.grasps is not None
     ):
-        res = _run_stages(
-            cloud, params, hand, last, prev, progress, limits, background, planner,
-            mode="completed",
-        )  # fmt: skip
-        return dataclasses.replace(res, fallback=prev.fallback)
+        return dataclasses.replace(stages("completed", hand, prev), fallback=prev.fallback)
     try:
-        first = _run_stages(
-            cloud, params, hand, last, prev, progress, limits, background, planner,
-            mode="occupied",
-        )  # fmt: skip
+        first = stages("occupied", hand, prev)
     except _HiddenSpaceLimit as exc:
         logger.info("occluded auto: %s; planning with the completed back", exc)
-        res = _run_stages(
-            cloud, params, hand, last, prev, progress, limits, background, planner,
-            mode="completed",
-        )  # fmt: skip
-        return dataclasses.replace(res, fallback="work_limit")
+        return dataclasses.replace(stages("completed", hand, prev), fallback="work_limit")
     assert first.grasps is not None
     if first.grasps.best is not None:
         return first
@@ -292,10 +288,7 @@ def _run_auto(
         and _normals_reusable(prev, params)
     ):
         base = prev
-    res = _run_stages(
-        cloud, params, first.hand, last, base, progress, limits, background, planner,
-        mode="completed",
-    )  # fmt: skip
+    res = stages("completed", first.hand, base)
     timings = dict(res.timings)
     for name in before_pool + ("normals",):  # computed (or reused) by the first run
         if name in first.timings:
