@@ -18,10 +18,16 @@ measured against the mesh the view was cast from (``pregrasp_core.sensor.truth``
 Targets (issue 13): force closure on >= 80 % of the views, penetration <= 2 mm, contacts within
 3 mm, parts within 1 on >= 80 %.
 
+With ``--simulate K`` the best grasp and the first K of the ranking are also lifted in MuJoCo
+(``pregrasp_core.simulate``, the protocol of ``docs/simulation.md``) with the TRUE mesh as the
+object on the view's support plane: columns ``lift`` (the best grasp lifted it) and ``top``
+(how many of the K did); ``--json FILE`` writes every row.
+
 Usage: .venv/bin/python scripts/make_views.py /tmp/pregrasp_views   (once)
        PYTHONPATH=. .venv/bin/python benchmarks/bench_partial_grasps.py [VIEWS] [--all]
                                                [--clearance D] [--no-smooth]
                                                [--occluded auto completed occupied]
+                                               [--simulate K] [--json FILE]
 
 ``--occluded`` with several settings plans each view with each of them in turn (interleaved, one
 run) and prints one table per setting; ``kept`` is the number of kept grasps (the tables add
@@ -39,6 +45,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
+import json  # noqa: E402
 import platform  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -47,6 +54,7 @@ import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 from _timing import views_manifest  # noqa: E402
 
+from pregrasp_core import pipeline  # noqa: E402
 from pregrasp_core.decomposition import decompose  # noqa: E402
 from pregrasp_core.hand import Hand  # noqa: E402
 from pregrasp_core.io import load_point_cloud  # noqa: E402
@@ -78,6 +86,20 @@ class Row:
     cpu: float = 0.0
     mode: str = "completed"
     used: str = "completed"
+    fallback: str | None = None
+    eps: float = 0.0
+    camera: int = 0
+    lift: bool | None = None
+    top_lifts: int = 0
+    top_n: int = 0
+
+
+def lifts(res, indices: list[int], hand: Hand, mesh: trimesh.Trimesh) -> list[bool]:
+    """Whether each grasp (indices into ``res.grasps``) lifts the true ``mesh`` in MuJoCo, on
+    the support plane the view's table gave (one scene for all of them)."""
+    from pregrasp_core.simulate import simulate_grasps
+
+    return [s.success for s in simulate_grasps(res, indices, hand, mesh=mesh)]
 
 
 def main() -> int:
@@ -102,7 +124,20 @@ def main() -> int:
         "--occluded-carve", type=float, default=None, metavar="D",
         help="OccludedParams.carve of the occupied setting (default: its default)",
     )  # fmt: skip
+    parser.add_argument(
+        "--simulate", type=int, default=0, metavar="K",
+        help="also lift the best grasp and the first K of the ranking in MuJoCo with the TRUE "
+        "mesh as the object (pregrasp_core.simulate; columns lift and top-K)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--auto-min-epsilon", type=float, default=None, metavar="F",
+        help="pipeline.AUTO_MIN_EPSILON, the weak-force-closure floor of auto (default: its "
+        "default, 0 = off)",
+    )  # fmt: skip
+    parser.add_argument("--json", type=Path, default=None, help="write every row to this file")
     args = parser.parse_args()
+    if args.auto_min_epsilon is not None:
+        pipeline.AUTO_MIN_EPSILON = args.auto_min_epsilon
     for name in ("margin", "carve"):
         value = getattr(args, f"occluded_{name}")
         if value is not None:
@@ -126,16 +161,18 @@ def main() -> int:
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {len(manifest)} views, "
           f"one BLAS thread, assumed_clearance {params.planner.assumed_clearance * 1e3:.1f} mm, "
           f"smoothing {'off' if args.no_smooth else 'on'}, "
-          f"occluded {' / '.join(args.occluded)} (margin "
+          f"occluded {' / '.join(args.occluded)} (auto's epsilon floor "
+          f"{pipeline.AUTO_MIN_EPSILON:g}, margin "
           f"{occluded.DEFAULT_OCCLUDED.margin * 1e3:.0f} mm, carve "
           f"{occluded.DEFAULT_OCCLUDED.carve * 1e3:.0f} mm), load "
           f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}; {' '.join(sys.argv[1:])}")  # fmt: skip
     print(
         f"{'object':<12} {'cam':>3} {'noise':>5} {'occluded':<9} {'kept':>4} {'fc':>4} {'eps':>6} "
         f"{'pen mm':>6} {'link':<13} {'cont mm':>7} {'assumed':>7} {'parts':>7} {'copy mm':>7} "
-        f"{'s':>5} {'cpu s':>5}"
+        f"{'s':>5} {'cpu s':>5}" + (f" {'lift':>4} {'top':>5}" if args.simulate else "")
     )
     truths: dict[str, MeshDistance] = {}
+    meshes: dict[str, trimesh.Trimesh] = {}
     full_parts: dict[str, int] = {}
     rows: list[Row] = []
     runs = [(e, mode) for e in manifest for mode in args.occluded]
@@ -151,13 +188,16 @@ def main() -> int:
         if name not in truths:
             mesh = trimesh.load(args.views / e["true_mesh"], force="mesh")
             truths[name] = MeshDistance(mesh)
+            meshes[name] = mesh
             if not args.no_parts:
                 full = load_point_cloud(args.views / e["true_mesh"]).points
                 full_parts[name] = len(decompose(full).leaves())
         parts = len(res.tree.leaves())
         row = Row(name, float(e["noise_m"]), parts, full_parts.get(name, -1))
         row.kept, row.cpu, row.mode, row.used = len(gs.ranking), cpu, mode, res.occluded_used
+        row.fallback = res.fallback
         row.pool = len(res.pool) if res.pool is not None else 0
+        row.camera = int(e["camera"])
         best = gs.best
         if best is None and len(gs.ranking):
             best = int(gs.ranking[0])
@@ -172,7 +212,7 @@ def main() -> int:
             ch = check_grasp(g, hand, truths[name])
             n_ass = sum(c.assumed for c in g.contacts)
             row.found, row.fc = True, g.epsilon > 0.0
-            row.pen, row.cont = ch.penetration, ch.worst_contact
+            row.pen, row.cont, row.eps = ch.penetration, ch.worst_contact, float(g.epsilon)
             line += (f"{g.epsilon:>6.3f} {ch.penetration * 1e3:>6.1f} {ch.link:<13} "
                      f"{ch.worst_contact * 1e3:>7.1f} {n_ass:>3}/{g.n_contacts:<3}")  # fmt: skip
         done = cloud.sensor.completion if cloud.sensor is not None else None
@@ -182,6 +222,11 @@ def main() -> int:
             )
         line += f" {parts:>3}/{full_parts.get(name, -1):<3} {row.copy * 1e3:>+7.1f} {dt:>5.1f}"
         line += f" {cpu:>5.1f}"
+        if args.simulate and best is not None:
+            lifted = lifts(res, [best, *gs.ranking[: args.simulate]], hand, meshes[name])
+            row.lift = lifted[0]
+            row.top_lifts, row.top_n = sum(lifted[1:]), len(lifted) - 1
+            line += f" {'yes' if row.lift else 'no':>4} {row.top_lifts:>2}/{row.top_n:<2}"
         rows.append(row)
         print(line, flush=True)
 
@@ -205,20 +250,26 @@ def main() -> int:
         kept = np.array([r.kept for r in rs])
         pool = np.array([r.pool for r in rs])
         cpu = np.array([r.cpu for r in rs])
+        sim = [r for r in ok if r.lift is not None]
+        lifted = (f" {sum(r.lift for r in sim)}/{n} | "
+                  f"{sum(r.top_lifts for r in sim)}/{sum(r.top_n for r in sim)} |"
+                  if args.simulate else "")  # fmt: skip
         return (f"| {label} | {fc}/{n} | {med(pm)} | {pen}/{n} | {med(cm)} | {cont}/{n} | "
                 f"{both}/{n} | {parts}/{n} | {lean} | {pool.sum()} | "
                 f"{int(np.median(kept))} / {kept.sum()} | "
-                f"{np.median(cpu):.2f} / {cpu.max():.2f} |")  # fmt: skip
+                f"{np.median(cpu):.2f} / {cpu.max():.2f} |{lifted}")  # fmt: skip
 
     for mode in args.occluded:
         mine = [r for r in rows if r.mode == mode]
         print()
+        why = {f: sum(r.fallback == f for r in mine) for f in {r.fallback for r in mine} if f}
         fell = sum(r.used == "completed" for r in mine)
         print(
             f"occluded = {mode}:"
             + (
-                f" {fell} of {len(mine)} views planned with the back "
-                "completed (no force closure with it occupied)"
+                f" {fell} of {len(mine)} views planned with the back completed ("
+                + ", ".join(f"{k} {v}" for k, v in sorted(why.items()))
+                + ")"
                 if mode == "auto"
                 else ""
             )
@@ -229,13 +280,16 @@ def main() -> int:
             "all three | parts within 1 | copies' median signed distance: median / median abs "
             "/ worst abs (mm) | pre-grasps in the pool (sum) | grasps kept median / sum | "
             "CPU s per view median / worst |"
+            + (" best grasp lifts the true mesh | top grasps that lift |" if args.simulate else "")
         )
-        print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+        print("| --- " * (14 if args.simulate else 12) + "|")
         for name in sorted({r.object for r in mine}):
             print(summary(name, [r for r in mine if r.object == name]))
         for noise in sorted({r.noise for r in mine}):
             print(summary(f"noise {noise * 1000:.0f} mm", [r for r in mine if r.noise == noise]))
         print(summary("all", mine))
+    if args.json is not None:
+        args.json.write_text(json.dumps([dataclasses.asdict(r) for r in rows], default=float))
     print(f"# load at the end {' '.join(f'{x:.2f}' for x in os.getloadavg())}, "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")  # fmt: skip
     return 0

@@ -311,6 +311,58 @@ def test_auto_falls_back_to_the_completed_plan_without_force_closure(
         read_result_file(json.dumps(to_jsonable(doc)).encode(), "bad.json", auto.hand)
 
 
+def test_auto_takes_the_completed_plan_when_the_occupied_one_is_weak(
+    make_views, tmp_path: Path, monkeypatch
+) -> None:
+    """The mug from camera 0 without noise (measured: the occupied plan's best grasp is force
+    closure with epsilon 0.009; the completed plan's best has 0.16): with the floor
+    ``AUTO_MIN_EPSILON`` at 0.01 (off by default) ``auto`` returns the completed plan, grasp for
+    grasp, and says why; with the default it is the occupied plan."""
+    cloud = load_point_cloud(_view_pcd(make_views, "mug", 0, 0.0, tmp_path / "m.pcd"))
+    occ = run_pipeline(cloud, PipelineParams(occluded="occupied"), until="grasps")
+    assert occ.grasps is not None and occ.grasps.best is not None
+    weak = occ.grasps.grasps[occ.grasps.best].epsilon
+    assert 0.0 < weak
+    assert weak < 0.01 and pipeline.AUTO_MIN_EPSILON == 0.0
+    default = run_pipeline(cloud, PipelineParams(), until="grasps")
+    assert default.occluded_used == "occupied" and default.fallback is None
+    assert default.grasps is not None and _key(default.grasps) == _key(occ.grasps)
+    com = run_pipeline(cloud, PipelineParams(occluded="completed"), until="grasps")
+    assert com.grasps is not None and com.grasps.best is not None
+    assert com.grasps.grasps[com.grasps.best].epsilon > weak
+    monkeypatch.setattr(pipeline, "AUTO_MIN_EPSILON", 0.01)
+    auto = run_pipeline(cloud, PipelineParams(), until="grasps")
+    assert auto.occluded_used == "completed" and auto.fallback == "weak_force_closure"
+    assert auto.grasps is not None and _key(auto.grasps) == _key(com.grasps)
+    assert "best epsilon was below 0.01" in pipeline.occluded_note(auto)
+
+
+def test_auto_keeps_a_weak_occupied_plan_when_the_completed_one_is_no_better(
+    make_views, tmp_path: Path, monkeypatch
+) -> None:
+    """The default object from camera 0 without noise (measured: occupied best epsilon 0.047,
+    completed 0.006): with the floor raised above 0.047 the completed plan is made and, being
+    weaker, left; ``auto`` is the occupied plan, grasp for grasp."""
+    cloud = load_point_cloud(_view_pcd(make_views, "mug_handle", 0, 0.0, tmp_path / "h.pcd"))
+    occ = run_pipeline(cloud, PipelineParams(occluded="occupied"), until="grasps")
+    com = run_pipeline(cloud, PipelineParams(occluded="completed"), until="grasps")
+    assert occ.grasps is not None and occ.grasps.best is not None and com.grasps is not None
+    eps_occ = occ.grasps.grasps[occ.grasps.best].epsilon
+    assert com.grasps.best is not None and com.grasps.grasps[com.grasps.best].epsilon < eps_occ
+    monkeypatch.setattr(pipeline, "AUTO_MIN_EPSILON", eps_occ + 0.01)
+    plans: list[str] = []
+    real = pipeline._run_stages
+    monkeypatch.setattr(
+        pipeline,
+        "_run_stages",
+        lambda *a, mode, **k: plans.append(mode) or real(*a, mode=mode, **k),
+    )
+    auto = run_pipeline(cloud, PipelineParams(), until="grasps")
+    assert plans == ["occupied", "completed"]
+    assert auto.occluded_used == "occupied" and auto.fallback is None
+    assert auto.grasps is not None and _key(auto.grasps) == _key(occ.grasps)
+
+
 def test_auto_falls_back_when_the_hidden_space_passes_its_work_limit(
     make_views, tmp_path: Path, monkeypatch
 ) -> None:
