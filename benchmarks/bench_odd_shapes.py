@@ -5,8 +5,9 @@ The shapes: a standing torus, an L of two boxes, a cone, a hexagonal prism and a
 (trimesh primitives, standing on the table). Two views each, with the camera and table of
 ``scripts/make_views.py``: azimuth 40 degrees without noise and 200 degrees at 2 mm of range
 noise, elevation 35. Per setting: the one used, grasps kept, whether the best is force closure,
-its epsilon, its penetration of the true mesh (mm; negative = clear of it) and its worst
-contact's distance to the true surface (mm).
+its epsilon, its penetration of the true mesh (mm; negative = clear of it), its worst
+contact's distance to the true surface (mm), and whether it lifts the TRUE mesh in MuJoCo
+(``pregrasp_core.simulate``, ``docs/simulation.md``'s protocol on the view's support plane).
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_odd_shapes.py
 """
@@ -28,6 +29,7 @@ from pregrasp_core.io import load_point_cloud  # noqa: E402
 from pregrasp_core.pipeline import PipelineParams, run_pipeline  # noqa: E402
 from pregrasp_core.sensor.synthetic import LABEL_OBJECT, orbit_camera, render_view  # noqa: E402
 from pregrasp_core.sensor.truth import MeshDistance, check_grasp  # noqa: E402
+from pregrasp_core.simulate import simulate_grasps  # noqa: E402
 
 _spec = importlib.util.spec_from_file_location("make_views", REPO / "scripts" / "make_views.py")
 assert _spec is not None and _spec.loader is not None
@@ -64,8 +66,8 @@ def main() -> None:
     out = Path(tempfile.mkdtemp(prefix="pregrasp_odd_"))
     rng = np.random.default_rng(0)
     print("| shape | azimuth | noise mm | setting | used | kept | best FC | epsilon "
-          "| penetration mm | worst contact mm |")  # fmt: skip
-    print("|---|---:|---:|---|---|---:|---|---:|---:|---:|")
+          "| penetration mm | worst contact mm | lifts the true mesh |")  # fmt: skip
+    print("|---|---:|---:|---|---|---:|---|---:|---:|---:|---|")
     for name, mesh in shapes().items():
         truth = MeshDistance(mesh)
         for az, noise in VIEWS:
@@ -86,14 +88,17 @@ def main() -> None:
                 assert gs is not None and res.hand is not None
                 row = f"| {name} | {az:.0f} | {1000 * noise:.0f} | {setting} | {res.occluded_used}"
                 if len(gs.ranking) == 0:
-                    print(row + " | 0 | - | - | - | - |")
+                    print(row + " | 0 | - | - | - | - | - |")
                     continue
-                g = gs.grasps[gs.best if gs.best is not None else gs.ranking[0]]
+                best = gs.best if gs.best is not None else int(gs.ranking[0])
+                g = gs.grasps[best]
                 check = check_grasp(g, res.hand, truth)
+                sim = simulate_grasps(res, [best], res.hand, mesh=mesh)[0]
                 print(
                     f"{row} | {len(gs.ranking)} | {'yes' if gs.best is not None else 'no'} "
                     f"| {g.epsilon:.4f} | {1000 * check.penetration:.1f} "
-                    f"| {1000 * check.worst_contact:.1f} |"
+                    f"| {1000 * check.worst_contact:.1f} "
+                    f"| {'yes' if sim.success else sim.outcome} |"
                 )
 
 
