@@ -94,14 +94,6 @@ class Row:
     top_n: int = 0
 
 
-def lifts(res, indices: list[int], hand: Hand, mesh: trimesh.Trimesh) -> list[bool]:
-    """Whether each grasp (indices into ``res.grasps``) lifts the true ``mesh`` in MuJoCo, on
-    the support plane the view's table gave (one scene for all of them)."""
-    from pregrasp_core.simulate import simulate_grasps
-
-    return [s.success for s in simulate_grasps(res, indices, hand, mesh=mesh)]
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("views", nargs="?", default="/tmp/pregrasp_views", type=Path)
@@ -172,7 +164,6 @@ def main() -> int:
         f"{'s':>5} {'cpu s':>5}" + (f" {'lift':>4} {'top':>5}" if args.simulate else "")
     )
     truths: dict[str, MeshDistance] = {}
-    meshes: dict[str, trimesh.Trimesh] = {}
     full_parts: dict[str, int] = {}
     rows: list[Row] = []
     runs = [(e, mode) for e in manifest for mode in args.occluded]
@@ -188,7 +179,6 @@ def main() -> int:
         if name not in truths:
             mesh = trimesh.load(args.views / e["true_mesh"], force="mesh")
             truths[name] = MeshDistance(mesh)
-            meshes[name] = mesh
             if not args.no_parts:
                 full = load_point_cloud(args.views / e["true_mesh"]).points
                 full_parts[name] = len(decompose(full).leaves())
@@ -222,8 +212,13 @@ def main() -> int:
             )
         line += f" {parts:>3}/{full_parts.get(name, -1):<3} {row.copy * 1e3:>+7.1f} {dt:>5.1f}"
         line += f" {cpu:>5.1f}"
-        if args.simulate and best is not None:
-            lifted = lifts(res, [best, *gs.ranking[: args.simulate]], hand, meshes[name])
+        if args.simulate and best is not None:  # one MuJoCo scene (the true mesh) for them all
+            from pregrasp_core.simulate import simulate_grasps
+
+            sims = simulate_grasps(
+                res, [best, *gs.ranking[: args.simulate]], hand, mesh=truths[name].mesh
+            )
+            lifted = [s.success for s in sims]
             row.lift = lifted[0]
             row.top_lifts, row.top_n = sum(lifted[1:]), len(lifted) - 1
             line += f" {'yes' if row.lift else 'no':>4} {row.top_lifts:>2}/{row.top_n:<2}"

@@ -290,12 +290,10 @@ def _run_auto(
     except _HiddenSpaceLimit as exc:
         logger.info("occluded auto: %s; planning with the completed back", exc)
         return dataclasses.replace(stages("completed", hand, prev), fallback="work_limit")
-    assert first.grasps is not None
-    best = first.grasps.best
-    eps = 0.0 if best is None else float(first.grasps.grasps[best].epsilon)
-    if best is not None and eps >= AUTO_MIN_EPSILON:
+    eps = _best_epsilon(first)
+    if eps > 0.0 and eps >= AUTO_MIN_EPSILON:
         return first
-    reason = "no_force_closure" if best is None else "weak_force_closure"
+    reason = "no_force_closure" if eps == 0.0 else "weak_force_closure"
     logger.info("occluded auto: %s with the hidden space occupied", reason)
     # the completed plan from the stages before the pool of the first run; a previous
     # completed result whose stages the first run reused also lends its pool and grasps
@@ -309,6 +307,8 @@ def _run_auto(
     ):
         base = prev
     res = stages("completed", first.hand, base)
+    if eps > 0.0 and _best_epsilon(res) <= eps:  # the weak occupied grasp is still the better
+        return first  # one: keep the safer plan
     timings = dict(res.timings)
     for name in before_pool + ("normals",):  # computed (or reused) by the first run
         if name in first.timings:
@@ -317,12 +317,14 @@ def _run_auto(
         first.timings.get(s, 0.0) for s in ("pool", "grasps") if s not in first.reused
     )
     reused = tuple(s for s in res.reused if s not in before_pool or s in first.reused)
-    assert res.grasps is not None
-    if best is not None and (
-        res.grasps.best is None or res.grasps.grasps[res.grasps.best].epsilon <= eps
-    ):  # the weak occupied grasp is still the better one: keep the safer plan
-        return first
     return dataclasses.replace(res, timings=timings, reused=reused, fallback=reason)
+
+
+def _best_epsilon(result: PipelineResult) -> float:
+    """Epsilon of the result's best grasp (``GraspSet.best``, force closure), 0 without one."""
+    gs = result.grasps
+    assert gs is not None
+    return 0.0 if gs.best is None else float(gs.grasps[gs.best].epsilon)
 
 
 def _normals_reusable(prev: PipelineResult | None, params: PipelineParams) -> bool:
