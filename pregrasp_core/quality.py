@@ -382,7 +382,8 @@ LEVEL_EXACT: int = 2
 QUALITY_BOUNDS: tuple[str, ...] = ("directions", "half cones")
 """``GraspQuality.bound`` of the bounded scores of level 0 and 1 ('' = exact), see
 docs/quality.md: 'directions' = epsilon bounded by the support values along fixed directions
-(0 when force closure is disproved), the volume by the wrenches' principal box; 'half cones' =
+and, for force closure, along where :func:`walk_bound` ends (0 when force closure is
+disproved), the volume by the wrenches' principal box; 'half cones' =
 both bounded through the hull of every other cone edge. Force closure is exact in both."""
 
 EPS_BOUND_TOL: float = 1e-9
@@ -439,12 +440,128 @@ def direction_bound(wrenches: np.ndarray, frame: np.ndarray | None = None) -> fl
     support function over every unit direction (the distance to the nearest facet), so each
     direction's value bounds it; a value <= 0 proves the origin is not strictly inside
     (epsilon 0, see :data:`NOT_CLOSURE_BOUND`)."""
+    return _best_direction(wrenches, frame)[0]
+
+
+def _best_direction(
+    wrenches: np.ndarray, frame: np.ndarray | None = None
+) -> tuple[float, np.ndarray]:
+    """``(value, u)``: :func:`direction_bound` and the direction (6,) that gives it."""
     w = np.asarray(wrenches, dtype=np.float64)
     u = BOUND_DIRECTIONS
     if frame is not None:
         r = np.asarray(frame, dtype=np.float64)
         u = np.vstack([r @ u[:3], r @ u[3:]])
-    return float((w @ u).max(axis=0).min())
+    s = (w @ u).max(axis=0)
+    j = int(s.argmin())
+    return float(s[j]), u[:, j]
+
+
+WALK_STEPS: int = 40
+"""The most steps of :func:`walk_bound`'s walk (the demo objects' sets take 13-19, median)."""
+
+
+def _walk_loop(w: np.ndarray, u0: np.ndarray, max_steps: int) -> np.ndarray:
+    """The direction (6,) where the walk of :func:`walk_bound` ends, from ``u0`` (unit, with a
+    positive support value). Compiled by numba (:data:`_WALK`)."""
+    m, d = w.shape
+    h = -np.inf
+    for i in range(m):
+        h = max(h, w[i] @ u0)
+    y = u0 / h  # on the boundary of the polar set {y : w y <= 1}
+    act = np.empty(d, dtype=np.int64)
+    wy = w @ y
+    act[0] = int(np.argmax(wy))
+    na = 1
+    g = np.empty((d, d))
+    lo = np.empty((d, d))
+    for _ in range(max_steps):
+        # the projection of y on the span of the active rows: (N N^T) c = N y by Cholesky
+        for a in range(na):
+            for b in range(na):
+                g[a, b] = w[act[a]] @ w[act[b]]
+        ok = True
+        for a in range(na):
+            s = g[a, a]
+            for k in range(a):
+                s -= lo[a, k] * lo[a, k]
+            if not s > 1e-24 * g[a, a]:
+                ok = False
+                break
+            lo[a, a] = np.sqrt(s)
+            for b in range(a + 1, na):
+                t = g[b, a]
+                for k in range(a):
+                    t -= lo[b, k] * lo[a, k]
+                lo[b, a] = t / lo[a, a]
+        if not ok:
+            break
+        c = np.empty(na)
+        for a in range(na):  # forward then back substitution
+            t = w[act[a]] @ y
+            for k in range(a):
+                t -= lo[a, k] * c[k]
+            c[a] = t / lo[a, a]
+        for a in range(na - 1, -1, -1):
+            t = c[a]
+            for k in range(a + 1, na):
+                t -= lo[k, a] * c[k]
+            c[a] = t / lo[a, a]
+        dv = y.copy()
+        for a in range(na):
+            dv -= c[a] * w[act[a]]
+        if dv @ dv <= 1e-18 * (y @ y):
+            # y in the cone of the active rows: a local maximum of |y|, else drop a row
+            j = int(np.argmin(c))
+            if c[j] >= 0.0:
+                break
+            for a in range(j, na - 1):
+                act[a] = act[a + 1]
+            na -= 1
+            continue
+        if na == d:
+            break
+        wd = w @ dv
+        wy = w @ y
+        tol = 1e-12 * np.sqrt(dv @ dv)
+        best, jb = np.inf, -1
+        for i in range(m):
+            inside = False
+            for a in range(na):
+                if act[a] == i:
+                    inside = True
+            if not inside and wd[i] > tol:
+                t = (1.0 - wy[i]) / wd[i]
+                if t < best:
+                    best, jb = t, i
+        if jb < 0:
+            break
+        y = y + max(best, 0.0) * dv
+        act[na] = jb
+        na += 1
+    return y / np.sqrt(y @ y)
+
+
+_WALK = Lazy(lambda: njit(_walk_loop))
+
+
+def walk_bound(wrenches: np.ndarray, u0: np.ndarray, max_steps: int = WALK_STEPS) -> float:
+    """An upper bound of epsilon for 6D wrenches (M, 6) whose hull holds the origin: the support
+    value along the direction where a walk on the polar set ``{y : w y <= 1}`` ends, started
+    at the direction ``u0`` (unit, e.g. :func:`direction_bound`'s). The polar set's vertices
+    are the hull's facets (a vertex ``y`` is the facet ``{x : y . x = 1}``, at distance
+    ``1 / |y|`` from the origin), so the walk moves ``y`` along its own direction projected on
+    the rows it touches (``|y|`` grows), from face to edge to vertex, drops a row whose
+    multiplier is negative, and stops where ``y`` lies in the cone of the rows it touches: a
+    local maximum of ``|y|``, a facet that is locally the nearest (often the nearest: on the
+    demo objects' force-closure grasps the value is epsilon itself on about 60 %, median ratio
+    1.000, against 6.9 for the directions' bound, docs/quality.md). Whatever the walk does, the
+    value returned is the support value of a unit direction, so it bounds epsilon."""
+    w = np.ascontiguousarray(wrenches, dtype=np.float64)
+    u = _WALK.get()(w, np.ascontiguousarray(u0, dtype=np.float64), int(max_steps))
+    if not np.all(np.isfinite(u)):
+        return np.inf
+    return float((w @ u).max())
 
 
 def box_volume_bound(wrenches: np.ndarray, centred: np.ndarray | None = None) -> float:
@@ -560,9 +677,11 @@ def _cheap_bounds(
     """``(epsilon upper bound, volume upper bound, force closure or None, epsilon lower bound)``
     of full-rank 6D wrenches ``w`` from the fixed directions, the principal box and the
     closure certificate (:func:`wrench_quality`'s cheapest level)."""
-    upper = direction_bound(w, wrench_frame(w, n_edges))
+    upper, u = _best_direction(w, wrench_frame(w, n_edges))
     vol = box_volume_bound(w, centred)
     closure, lower = (False, 0.0) if upper <= NOT_CLOSURE_BOUND else closure_certificate(w)
+    if closure:
+        upper = min(upper, walk_bound(w, u))
     return upper, vol, closure, lower
 
 

@@ -26,6 +26,7 @@ from pregrasp_core.planner.rank import (
     settle_exact,
 )
 from pregrasp_core.quality import (
+    BOUND_DIRECTIONS,
     LEVEL_CHEAPEST,
     LEVEL_EXACT,
     LEVEL_HALF_CONES,
@@ -36,6 +37,7 @@ from pregrasp_core.quality import (
     grasp_quality,
     half_cone_bounds,
     hull_quality,
+    walk_bound,
     wrench_frame,
 )
 from tests.core.test_quality import origin_strictly_inside_lp
@@ -121,6 +123,53 @@ def test_half_cone_hull_sandwiches_epsilon_and_volume():
         assert ConvexHull(sub).volume <= vol * (1 + 1e-9) and vol_upper >= vol * (1 - 1e-9)
         checked += 1
     assert checked > 40
+
+
+def test_walk_bound_bounds_epsilon_and_finds_the_nearest_facet_of_a_box():
+    """The walk on the polar set (:func:`walk_bound`): on the 64 corners of a turned 6D box with
+    half-widths ``a`` (its facets at the distances ``a``, epsilon ``min(a)``) it ends on a facet
+    from any start direction, on the nearest one when started near its normal, to rounding
+    (every facet of a box is a local minimum of the distance: the walk is a local search); on
+    random force-closure contact sets its value
+    is >= qhull's epsilon (the merged hull, another computation), <= the directions' bound it
+    starts from, and equal to epsilon on some of them (the walk is a local search)."""
+    rng = np.random.default_rng(11)
+    corners = np.array(np.meshgrid(*[[-1.0, 1.0]] * 6, indexing="ij")).reshape(6, -1).T
+    for _ in range(20):
+        a = rng.uniform(0.2, 2.0, size=6)
+        rot = Rotation.random(random_state=rng).as_matrix()
+        q6 = np.zeros((6, 6))
+        q6[:3, :3], q6[3:, 3:] = rot, rot  # a rotation of wrench space
+        w = (corners * a) @ q6.T
+        u0 = rng.normal(size=6)
+        u0 /= np.linalg.norm(u0)
+        value = walk_bound(w, u0)
+        # it ends on a facet (a vertex of the polar set), no farther than where it started
+        assert np.abs(a - value).min() <= 1e-12 * value
+        assert value <= float((w @ u0).max()) * (1 + 1e-12)
+        # started inside the nearest facet's cone, it ends on that facet
+        near = q6[:, int(a.argmin())] + 0.1 * u0
+        assert walk_bound(w, near / np.linalg.norm(near)) == pytest.approx(a.min(), rel=1e-12)
+    on_facet = 0
+    checked = 0
+    for _ in range(200):
+        p, n, t, c, r = _contact_set(rng, int(rng.integers(3, 7)), spread=0.4)
+        prm = QualityParams()
+        w = contact_wrenches(p, n, prm, tangents=t, center=c, radius=r)
+        if hull_quality(w)[2]:
+            continue
+        true_eps = float((-ConvexHull(w, qhull_options="Qt").equations[:, -1]).min())
+        if true_eps <= 1e-9:
+            continue
+        frame = wrench_frame(w, prm.n_edges)
+        start = direction_bound(w, frame)
+        u = np.vstack([frame @ BOUND_DIRECTIONS[:3], frame @ BOUND_DIRECTIONS[3:]])
+        u0 = u[:, int((w @ u).max(axis=0).argmin())]
+        value = walk_bound(w, u0)
+        assert true_eps - 1e-12 <= value <= start + 1e-15
+        on_facet += value <= true_eps * (1 + 1e-9)
+        checked += 1
+    assert checked > 60 and on_facet > checked // 4, (checked, on_facet)
 
 
 @settings(max_examples=60, deadline=None)
