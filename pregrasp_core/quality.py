@@ -440,10 +440,10 @@ def direction_bound(wrenches: np.ndarray, frame: np.ndarray | None = None) -> fl
     support function over every unit direction (the distance to the nearest facet), so each
     direction's value bounds it; a value <= 0 proves the origin is not strictly inside
     (epsilon 0, see :data:`NOT_CLOSURE_BOUND`)."""
-    return _best_direction(wrenches, frame)[0]
+    return best_direction(wrenches, frame)[0]
 
 
-def _best_direction(
+def best_direction(
     wrenches: np.ndarray, frame: np.ndarray | None = None
 ) -> tuple[float, np.ndarray]:
     """``(value, u)``: :func:`direction_bound` and the direction (6,) that gives it."""
@@ -530,6 +530,7 @@ def _walk_loop(w: np.ndarray, u0: np.ndarray, max_steps: int) -> np.ndarray:
             for a in range(na):
                 if act[a] == i:
                     inside = True
+                    break
             if not inside and wd[i] > tol:
                 t = (1.0 - wy[i]) / wd[i]
                 if t < best:
@@ -677,7 +678,7 @@ def _cheap_bounds(
     """``(epsilon upper bound, volume upper bound, force closure or None, epsilon lower bound)``
     of full-rank 6D wrenches ``w`` from the fixed directions, the principal box and the
     closure certificate (:func:`wrench_quality`'s cheapest level)."""
-    upper, u = _best_direction(w, wrench_frame(w, n_edges))
+    upper, u = best_direction(w, wrench_frame(w, n_edges))
     vol = box_volume_bound(w, centred)
     closure, lower = (False, 0.0) if upper <= NOT_CLOSURE_BOUND else closure_certificate(w)
     if closure:

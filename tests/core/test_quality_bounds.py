@@ -26,12 +26,12 @@ from pregrasp_core.planner.rank import (
     settle_exact,
 )
 from pregrasp_core.quality import (
-    BOUND_DIRECTIONS,
     LEVEL_CHEAPEST,
     LEVEL_EXACT,
     LEVEL_HALF_CONES,
     QUALITY_BOUNDS,
     QualityParams,
+    best_direction,
     contact_wrenches,
     direction_bound,
     grasp_quality,
@@ -130,9 +130,8 @@ def test_walk_bound_bounds_epsilon_and_finds_the_nearest_facet_of_a_box():
     half-widths ``a`` (its facets at the distances ``a``, epsilon ``min(a)``) it ends on a facet
     from any start direction, on the nearest one when started near its normal, to rounding
     (every facet of a box is a local minimum of the distance: the walk is a local search); on
-    random force-closure contact sets its value
-    is >= qhull's epsilon (the merged hull, another computation), <= the directions' bound it
-    starts from, and equal to epsilon on some of them (the walk is a local search)."""
+    random force-closure contact sets its value is >= qhull's epsilon (the merged hull, another
+    computation), <= the directions' bound it starts from, and equal to epsilon on some."""
     rng = np.random.default_rng(11)
     corners = np.array(np.meshgrid(*[[-1.0, 1.0]] * 6, indexing="ij")).reshape(6, -1).T
     for _ in range(20):
@@ -161,10 +160,7 @@ def test_walk_bound_bounds_epsilon_and_finds_the_nearest_facet_of_a_box():
         true_eps = float((-ConvexHull(w, qhull_options="Qt").equations[:, -1]).min())
         if true_eps <= 1e-9:
             continue
-        frame = wrench_frame(w, prm.n_edges)
-        start = direction_bound(w, frame)
-        u = np.vstack([frame @ BOUND_DIRECTIONS[:3], frame @ BOUND_DIRECTIONS[3:]])
-        u0 = u[:, int((w @ u).max(axis=0).argmin())]
+        start, u0 = best_direction(w, wrench_frame(w, prm.n_edges))
         value = walk_bound(w, u0)
         assert true_eps - 1e-12 <= value <= start + 1e-15
         on_facet += value <= true_eps * (1 + 1e-9)
