@@ -8,9 +8,9 @@ is a worker process of one thread, started as a new interpreter (``subprocess``:
 the server) once, when the app starts, and warmed up in the background; the controller sends it
 each plan's inputs and it runs ``plan_grasps`` there, which forks its copy and plans on both
 cores. :meth:`PlannerProcess.plan` takes ``plan_grasps``'s arguments and returns its
-``GraspSet`` (pickled, which keeps every float's bits: the grasps are those of the in-process
-planner), so the pipeline's grasps stage calls it in place of ``plan_grasps``
-(``run_pipeline(..., planner=...)``).
+``GraspSet`` (packed, ``pregrasp_core/planner/packing.py``, and pickled, which keeps every
+float's bits: the grasps are those of the in-process planner), so the pipeline's grasps stage
+calls it in place of ``plan_grasps`` (``run_pipeline(..., planner=...)``).
 
 - Progress: the worker reports each chunk (``("progress", job, done, total)``) and the caller's
   ``progress`` is called with it (the progress bar; a superseded request raises there).
@@ -432,6 +432,10 @@ class PlannerProcess:
         gc.disable()  # a GraspSet is ~10^4 small objects: no collection of the server's heap
         try:  # in the middle of them (one took 0.1 s of a 15 ms unpickling)
             msg = pickle.loads(data)
+            if msg[0] == "done":  # the grasps packed by the worker (planner/packing.py)
+                from pregrasp_core.planner.packing import unpack_grasp_set
+
+                msg = (*msg[:2], unpack_grasp_set(msg[2]))
         finally:
             if collect:
                 gc.enable()
@@ -529,6 +533,8 @@ def worker_main(r_req: int, w_ans: int, urdf_path: str, warm: bool) -> None:
         return
     conn.send(("ready", os.getpid()))
     plan_grasps = _planner()
+    from pregrasp_core.planner.packing import pack_grasp_set
+
     while True:
         try:
             msg = conn.recv()
@@ -567,7 +573,7 @@ def worker_main(r_req: int, w_ans: int, urdf_path: str, warm: bool) -> None:
                 progress=progress,
                 assumed=kw["assumed"],
             )
-            reply = ("done", job, gs)
+            reply = ("done", job, pack_grasp_set(gs))
         except _Cancelled:
             reply = ("cancelled", job, *reached)
         except (_Stop, EOFError, BrokenPipeError):

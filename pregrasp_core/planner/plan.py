@@ -28,6 +28,7 @@ from ..quality import LEVEL_EXACT, GraspQuality
 from .approach import Prepared, prepare
 from .assumed import assumed_mask, obstacle_points
 from .context import Context
+from .packing import pack_grasps, unpack_grasps
 from .rank import (
     Qualities,
     QualityJob,
@@ -304,7 +305,8 @@ def _serve_copy(
     requests: int,
 ) -> None:
     """The work of a forked copy: plan the chunks it takes from ``queue``, sending each one's
-    grasps as soon as they are planned (``("chunk", index, grasps)``), then
+    grasps as soon as they are planned (``("chunk", index, packed grasps)``,
+    :func:`~pregrasp_core.planner.packing.pack_grasps`), then
     ``("done", phase clocks)`` (or ``("error", exception)``); then score the quality jobs the
     parent sends (:func:`_shared_qualities`) until it closes the pipe."""
     taken: list[int] = []
@@ -318,7 +320,7 @@ def _serve_copy(
     sent = [0]
 
     def send_chunk(done: int, total: int) -> None:  # called after each chunk
-        _send(answers, ("chunk", taken[-1], out[sent[0] : done]))
+        _send(answers, ("chunk", taken[-1], pack_grasps(out[sent[0] : done])))
         sent[0] = done
 
     try:
@@ -401,14 +403,14 @@ def _plan_forked(
     this one and ``n_proc - 1`` forked copies of it (all of the context inherited, nothing
     rebuilt). The chunks (:func:`_fork_chunks`) are taken one by one from a shared queue by
     whichever process is free; each copy sends back the grasps of each chunk as soon as it is
-    planned (pickled, which keeps every float's bits; this process reads them between its own
-    chunks), then its phase clocks, and ``grasps`` gets every chunk in pool order; the copies
-    then score their share of the exact settling's quality jobs (:func:`_shared_qualities`).
-    Every pre-grasp is planned independently of its chunk, and every quality job is the same
-    call wherever it runs, so the grasps are those of a single process, bit for bit. The
-    chunks of a copy that dies without an answer are planned here; an exception in a copy is
-    raised here. Returns the call that lets the copies go (:func:`_reap`; they leave as this
-    returns, and free their memory while the caller ranks the grasps)."""
+    planned (packed, ``planner/packing.py``, and pickled, which keeps every float's bits; this
+    process reads them between its own chunks), then its phase clocks, and ``grasps`` gets every
+    chunk in pool order; the copies then score their share of the exact settling's quality jobs
+    (:func:`_shared_qualities`). Every pre-grasp is planned independently of its chunk, and
+    every quality job is the same call wherever it runs, so the grasps are those of a single
+    process, bit for bit. The chunks of a copy that dies without an answer are planned here; an
+    exception in a copy is raised here. Returns the call that lets the copies go (:func:`_reap`;
+    they leave as this returns, and free their memory while the caller ranks the grasps)."""
     chunks = _fork_chunks(P, n_proc)
     queue = _ChunkQueue()
     copies: list[_Copy] = []
@@ -447,7 +449,7 @@ def _plan_forked(
                     if msg is None:  # the copy ended
                         c.working = c.alive = False
                     elif msg[0] == "chunk":
-                        _split_chunks(msg[2], [msg[1]], chunks, by_chunk)
+                        _split_chunks(unpack_grasps(msg[2]), [msg[1]], chunks, by_chunk)
                     elif msg[0] == "done":
                         c.working = False
                         for k, v in msg[1].items():
