@@ -1,6 +1,7 @@
 """Normals with orientation of a cloud without normals: this code against the code before
 issue 15 (commit fe74cdf) and before its threaded kernels (commit 55c2563), loaded from git into
-the same process, side by side.
+the same process, side by side; then the clouds with normals (mesh samples) against ce739ef,
+before their neighbours came from the grid search.
 
     .venv/bin/python benchmarks/bench_normals.py [--repeats 7]
 
@@ -38,6 +39,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # this checkout's pregrasp_core, not an installed one
 OLD_COMMIT = "fe74cdf"  # before issue 15
 PREV_COMMIT = "55c2563"  # before the threaded kernels (issue 15, session 6)
+REF_COMMIT = "ce739ef"  # the reference rule's k-d tree, before its grid search (session 18)
 
 
 def _git_show(commit: str, path: str) -> str:
@@ -75,8 +77,9 @@ def old_normals_module(commit: str = OLD_COMMIT) -> types.ModuleType:
     if "from . import normal_kernels" in src:
         kernels = f"normal_kernels_{commit}"
         _module_from_source(kernels, _git_show(commit, "pregrasp_core/normal_kernels.py"))
+        src = src.replace("from . import normal_kernels as nk", f"from . import {kernels} as nk")
         src = src.replace(
-            "from . import normal_kernels", f"from . import {kernels} as normal_kernels"
+            "from . import normal_kernels\n", f"from . import {kernels} as normal_kernels\n"
         )
     return _module_from_source(f"normals_{commit}", src)
 
@@ -109,6 +112,48 @@ def first_call_seconds() -> tuple[float, float]:
             )
             out.append(float(r.stdout.strip().splitlines()[-1]))
     return out[0], out[1]
+
+
+def _with_reference(mod: types.ModuleType, pts: np.ndarray, nrm: np.ndarray, threads: int):
+    """The call of ``mod``'s ``estimate_normals`` on ``pts`` signed by ``nrm``."""
+    return lambda: mod.estimate_normals(pts, mod.NormalParams(), reference=nrm, threads=threads)
+
+
+def reference_rule(clouds: dict, repeats: int, cpus: int) -> None:
+    """The clouds WITH normals (mesh samples: the sign from the mesh's normals, what every mesh
+    input and the default object take): :data:`REF_COMMIT`'s k-d tree against this code's grid
+    search, the PCA alike, interleaved; and whether the normals are equal to the bit."""
+    from pregrasp_core import normals as new
+
+    ref_old = old_normals_module(REF_COMMIT)
+    print(
+        f"\n# clouds with normals (the reference rule), CPU ms / wall ms\n"
+        f"| points | {REF_COMMIT}, 1 thread | now, 1 thread | {REF_COMMIT}, {cpus} threads "
+        f"| now, {cpus} threads | equal to the bit |\n|---:|---:|---:|---:|---:|---|"
+    )
+    for n, cloud in clouds.items():  # loop over the 3 sizes
+        pts, nrm = np.asarray(cloud.points), np.asarray(cloud.normals)
+        runs = {
+            "old1": _with_reference(ref_old, pts, nrm, 1),
+            "new1": _with_reference(new, pts, nrm, 1),
+            "old": _with_reference(ref_old, pts, nrm, 0),
+            "new": _with_reference(new, pts, nrm, 0),
+        }
+        res: dict[str, list[tuple[float, float]]] = {k: [] for k in runs}
+        for _ in range(repeats):  # interleaved
+            for k, fn in runs.items():
+                res[k].append(timed(fn, 1))
+        med = {k: np.median(np.array(v), axis=0) * 1e3 for k, v in res.items()}
+        same = all(
+            np.array_equal(a, b)
+            for a, b in zip(
+                (runs["old"]().normals, runs["old"]().curvature),
+                (runs["new"]().normals, runs["new"]().curvature),
+                strict=True,
+            )
+        )
+        cells = [f"{med[k][0]:.0f} / {med[k][1]:.0f}" for k in runs]
+        print(f"| {n:,} | " + " | ".join(cells) + f" | {same} |")
 
 
 def main() -> None:
@@ -196,6 +241,7 @@ def main() -> None:
         print(f"agreement with the mesh normals, {label}: {100 * agree:.2f} %")
     same = np.array_equal(got["now"].normals, got[f"before threads ({PREV_COMMIT})"].normals)
     print(f"normals now equal to {PREV_COMMIT}'s to the bit: {same}")
+    reference_rule(clouds, args.repeats, cpus)
     compile_s, load_s = first_call_seconds()
     print(
         f"first call of the kernels: {compile_s:.1f} s compiling (empty cache), "

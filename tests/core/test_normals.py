@@ -425,9 +425,9 @@ def test_normals_do_not_depend_on_the_threads():
 @pytest.mark.parametrize("orient", ["reference", "viewpoint"])
 def test_plain_pca_normals_do_not_depend_on_the_threads(orient):
     """The rules with a sign given (the mesh's normals, a camera) compute their PCA in row
-    chunks on threads: the same bits as one k-d tree query and one PCA over all rows (the code
-    before the chunks), on 1, 2 and 3 threads, the signs from the mesh's normals (or facing the
-    camera), and no thread left running."""
+    chunks on threads: the same bits as one query of scipy's k-d tree and one PCA over all rows
+    (the code before the chunks and the grid search), on 1, 2 and 3 threads, the signs from
+    the mesh's normals (or facing the camera), and no thread left running."""
     from scipy.spatial import cKDTree
 
     from pregrasp_core.io import load_point_cloud
