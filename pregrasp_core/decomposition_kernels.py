@@ -420,6 +420,9 @@ def kernels() -> Kernels:
 
 def _build() -> Kernels:
     """Import numba and wrap the kernels (compiled lazily, on their first call)."""
+    from .jit import import_numba
+
+    import_numba()
     from numba.core.extending import intrinsic
 
     @intrinsic

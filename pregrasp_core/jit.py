@@ -12,10 +12,27 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
+from types import ModuleType
 from typing import Generic, Literal, TypeVar, cast
 
 T = TypeVar("T")
 F = TypeVar("F", bound=Callable[..., object])
+
+_NUMBA_IMPORT = threading.Lock()
+
+
+def import_numba() -> ModuleType:
+    """numba, imported by one thread at a time: numba's own modules import each other in a
+    circle, so a thread that imports one of them (``numba.core.extending``, say) while another
+    thread is halfway through ``import numba`` finds it half initialised and fails with an
+    ``ImportError`` (seen with the pipeline's normals thread and the decomposition starting
+    their kernels together in a fresh process). Every numba import of the package goes
+    through here."""
+    with _NUMBA_IMPORT:
+        import numba
+        import numba.core.extending  # noqa: F401 - imported whole while the lock is held
+
+    return numba
 
 
 class Lazy(Generic[T]):
@@ -44,7 +61,7 @@ def njit(
     ("python": a float division by zero raises ZeroDivisionError, which puts a branch into
     every division; "numpy": it gives inf or NaN as numpy does, and loops with divisions can
     be vectorised; the same value for every other division)."""
-    import numba
+    numba = import_numba()
 
     return cast(
         F, numba.njit(fn, cache=True, nogil=True, fastmath=fastmath, error_model=error_model)
@@ -56,7 +73,7 @@ def inline_helpers(namespace: dict[str, object], *names: str) -> None:
     numba compilation with ``inline="always"``: the kernels that call it then find a compiled
     function there and numba copies its body into theirs (no call in their loops, the same
     operations in the same order). Call before the kernels' first compilation."""
-    import numba
+    numba = import_numba()
 
     for name in names:
         fn = cast(Callable[..., object], namespace[name])

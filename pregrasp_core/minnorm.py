@@ -37,8 +37,9 @@ def compiled() -> Callable[..., tuple[np.ndarray, np.ndarray, int, bool]]:
     if _COMPILED is None:
         with _LOCK:
             if _COMPILED is None:
-                import numba
+                from .jit import import_numba
 
+                numba = import_numba()
                 _COMPILED = numba.njit(cache=True, nogil=True)(min_norm_point)
     return _COMPILED
 

@@ -23,8 +23,11 @@ from __future__ import annotations
 
 import math
 
-import numba as nb
 import numpy as np
+
+from .jit import import_numba
+
+nb = import_numba()
 
 
 @nb.njit(cache=True, nogil=True, inline="always")

@@ -303,3 +303,34 @@ def test_progress_bar_note_keeps_the_bar_below_it():
     lines = s.getvalue().split("\n")
     assert lines[0].startswith("\r[##..] 1/2 a") and "\rpregrasp plan: error: b: broken" in lines[0]
     assert lines[1].startswith("\r[####] 2/2 b")
+
+
+@pytest.mark.parametrize("kind", ["mesh", "xyz-only PLY"])
+def test_plan_in_a_fresh_process_where_two_threads_start_numba(kind, tmp_path):
+    """``pregrasp plan`` as a user runs it, in a new interpreter (numba not imported yet): the
+    pipeline's normals thread and the decomposition on the main thread start their compiled
+    kernels together, and both import numba. numba's modules import each other in a circle, so
+    two threads importing it at once failed with "cannot import name '_Intrinsic' from
+    partially initialized module" (a PLY without normals failed 2 runs of 3, the default
+    mesh every run once its normals used the grid search); every numba import now goes
+    through ``pregrasp_core.jit.import_numba``. Three fresh processes each."""
+    import subprocess
+    import sys
+
+    if kind == "mesh":
+        path = LEMON
+    else:
+        mesh = trimesh.load(LEMON, force="mesh")
+        pts, _ = trimesh.sample.sample_surface(mesh, 2500, seed=4)
+        path = tmp_path / "lemon_xyz.ply"
+        trimesh.PointCloud(pts).export(path)
+    for k in range(3):  # loop over 3 fresh processes
+        out = tmp_path / f"r{k}.json"
+        run = subprocess.run(
+            [sys.executable, "-m", "app.cli", "plan", str(path), *FAST, "-o", str(out)],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert run.returncode == 0, run.stderr[-2000:]
+        assert json.loads(out.read_text())["pool"], "no result written"
