@@ -21,7 +21,7 @@ ordered and writeable, as pickle's copies are).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -32,6 +32,9 @@ _FORMAT: str = "pregrasp-grasps-1"
 
 _PLAIN: str = "pregrasp-grasps-plain"
 """Tag of a list passed on unpacked (an array field whose rows cannot be stacked)."""
+
+Packed = tuple[object, ...]
+"""Grasps in the packed form: a tag, then the tag's parts (picklable)."""
 
 
 def _stack(rows: list[Any]) -> np.ndarray | None:
@@ -50,7 +53,7 @@ def _stack(rows: list[Any]) -> np.ndarray | None:
     return np.stack(rows)
 
 
-def pack_grasps(grasps: Sequence[Grasp]) -> tuple[Any, ...]:
+def pack_grasps(grasps: Sequence[Grasp]) -> Packed:
     """``grasps`` in the packed form (module docstring), picklable; for :func:`unpack_grasps`."""
     gs = list(grasps)
     if not all(type(g) is Grasp for g in gs):
@@ -91,13 +94,13 @@ def pack_grasps(grasps: Sequence[Grasp]) -> tuple[Any, ...]:
     return (_FORMAT, grasp_rows, finger_rows, contact_rows, stacked)
 
 
-def unpack_grasps(packed: tuple[Any, ...]) -> list[Grasp]:
+def unpack_grasps(packed: Packed) -> list[Grasp]:
     """The grasps that :func:`pack_grasps` packed, equal to them field by field."""
     if packed[0] == _PLAIN:
-        return list(packed[1])
+        return list(cast(list[Grasp], packed[1]))
     if packed[0] != _FORMAT:
         raise ValueError(f"not a packed list of grasps: {packed[0]!r}")
-    _, grasp_rows, finger_rows, contact_rows, s = packed
+    _, grasp_rows, finger_rows, contact_rows, s = cast(tuple[Any, ...], packed)
     T, q, fq = s["T"], s["q"], s["fq"]
     point, normal, tangent = s["point"], s["normal"], s["tangent"]
     fingers = [
@@ -124,12 +127,12 @@ def unpack_grasps(packed: tuple[Any, ...]) -> list[Grasp]:
     return out
 
 
-def pack_grasp_set(gs: GraspSet) -> tuple[Any, ...]:
+def pack_grasp_set(gs: GraspSet) -> Packed:
     """A ``GraspSet`` with its grasps packed (:func:`pack_grasps`), picklable."""
     return (pack_grasps(gs.grasps), gs.ranking, gs.joint_names, gs.rejected, gs.phase_seconds)
 
 
-def unpack_grasp_set(packed: tuple[Any, ...]) -> GraspSet:
+def unpack_grasp_set(packed: Packed) -> GraspSet:
     """The ``GraspSet`` that :func:`pack_grasp_set` packed."""
-    grasps, ranking, joint_names, rejected, phase_seconds = packed
+    grasps, ranking, joint_names, rejected, phase_seconds = cast(tuple[Any, ...], packed)
     return GraspSet(tuple(unpack_grasps(grasps)), ranking, joint_names, rejected, phase_seconds)
