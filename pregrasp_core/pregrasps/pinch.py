@@ -33,7 +33,7 @@ about the line through them free, ``docs/quality.md``), which is why every pinch
 from __future__ import annotations
 
 import weakref
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -400,6 +400,7 @@ def _placed(
         assert points is not None and fx is not None
         near = _NearFingers(points, centre, x_dir, fx, band)
     spots = []  # (sign, offset, half width) of every position, both rolls, in order
+    slices: list[Slices] = []  # of the local positions, in the same order
     for sign in (1.0, -1.0):  # both rolls: thumb on either side
         for off in offsets:  # a few positions along the part
             half = 0.5 * width
@@ -409,7 +410,9 @@ def _placed(
                 got_half = near.half_width(sign, float(off), c_dir)
                 if got_half is None:
                     continue
-                half = got_half
+                half, s_all, thumb = got_half
+                if thumb is not None:  # a hole under the thumb may be there
+                    slices.append((sign, float(off), s_all, thumb))
             spots.append((sign, off, half))
     # the preshapes of every position at once (the new half widths' checks batched)
     shapes = _preshapes(hand, kind, [h for _, _, h in spots])
@@ -429,13 +432,154 @@ def _placed(
         T[:3, :3] = R
         T[:3, 3] = p_c - R @ np.array([c[0], c[1], depth])
         out.append((T, q_pinch, gt, spread, limit))
+    # rim pinches where the thumb's slice has a hole (a ring: the thumb goes into it)
+    out += _rim_pinches(hand, slices, centre, x_dir, c_dir, d, z_top, z_bottom, params)
     return out
+
+
+RIM_MIN_GAP: float = 0.036
+"""Metres: the narrowest hole in the material under the thumb that a rim pinch puts the thumb
+in (:func:`rim_bar`): its thickness (0.02 m) and :data:`PINCH_MARGIN` on either side."""
+
+
+def rim_bar(
+    s_all: np.ndarray, s_thumb: np.ndarray, side: float, min_gap: float = RIM_MIN_GAP
+) -> tuple[float, float] | None:
+    """The bar of material a rim pinch closes on, ``(centre, half width)`` along the closing
+    coordinate, or None. ``s_all`` (n,): the coordinates of the points under the three
+    fingers; ``s_thumb`` (m,): those under the thumb; ``side``: +1 when the thumb lies on the
+    positive side of the pinch centre (f1 and f2 on the negative), -1 the other way. The bar
+    is the material at the fingers' end of the part: from the part's end under any finger
+    (where f1 and f2 close on it from outside) to the edge of the first hole of the thumb's
+    slice counted from that end (a gap between its sorted coordinates wider than
+    ``min_gap``, where the thumb closes on it from inside). None without such a hole."""
+    v = np.sort(np.asarray(s_thumb, dtype=np.float64) * side)  # the thumb's side is now +
+    if len(v) < 2 or len(s_all) == 0:
+        return None
+    gaps = np.flatnonzero(np.diff(v) > min_gap)
+    if not len(gaps):
+        return None
+    inner = float(v[gaps[0]])  # the bar's edge at the hole, where the thumb closes
+    outer = float(np.min(np.asarray(s_all, dtype=np.float64) * side))  # the fingers' end
+    if not inner > outer:
+        return None
+    return side * 0.5 * (inner + outer), 0.5 * (inner - outer)
+
+
+Slices = tuple[float, float, np.ndarray, np.ndarray]
+"""One position of a three-finger tip from above: ``(roll sign, offset, s, thumb)``, with ``s``
+(n,) the coordinates along the closing direction of the part's points under the three fingers
+(relative to the position) and ``thumb`` (n,) bool, which of them are under the thumb."""
+
+HOLE_SLACK: float = 1e-9
+"""Metres: the quick test for a hole under the thumb (:func:`_may_have_hole`) looks for gaps
+this much narrower than :data:`RIM_MIN_GAP`, so that it never misses one that the exact test
+(:func:`rim_bar`) finds in coordinates rounded differently."""
+
+
+def _rim_pinches(
+    hand: Hand,
+    slices: Sequence[Slices],
+    centre: np.ndarray,
+    x_dir: np.ndarray,
+    c_dir: np.ndarray,
+    d: np.ndarray,
+    z_top: float,
+    z_bottom: float,
+    params: SamplingParams,
+) -> list[tuple[np.ndarray, np.ndarray, str, float, float]]:
+    """The rim pinches (:func:`_rim_pinch`) of the positions ``slices``, in their order, with
+    the heights of the pinches from above."""
+
+    def z_tip_of(depth: float) -> float:
+        return max(0.5 * (z_top + z_bottom), z_top + params.standoff - depth)
+
+    found = (
+        _rim_pinch(hand, sign, off, s, thumb, centre, x_dir, c_dir, d, z_tip_of)
+        for sign, off, s, thumb in slices
+    )
+    return [p for p in found if p is not None]
+
+
+def _may_have_hole(v: np.ndarray, min_gap: float) -> bool:
+    """False when the values ``v`` (m,) leave no gap wider than ``min_gap`` between them: a
+    bin of half that width lies inside any such gap, so a histogram with no empty bin proves
+    there is none (a quick test before :func:`rim_bar` sorts them)."""
+    if len(v) < 2:
+        return False
+    lo, hi = float(v.min()), float(v.max())
+    if not hi - lo > min_gap:
+        return False
+    w = 0.5 * min_gap
+    counts = np.bincount(((v - lo) / w).astype(np.int64))
+    return bool((counts == 0).any())
+
+
+def _rim_pinch(
+    hand: Hand,
+    sign: float,
+    off: float,
+    s: np.ndarray,
+    thumb: np.ndarray,
+    centre: np.ndarray,
+    x_dir: np.ndarray,
+    c_dir: np.ndarray,
+    d: np.ndarray,
+    z_tip_of: Callable[[float], float],
+) -> tuple[np.ndarray, np.ndarray, str, float, float] | None:
+    """The rim pinch at one position and roll of a three-finger tip from above
+    (:func:`_placed`; ``s`` and ``thumb`` as in :data:`Slices`): a tip across the bar of
+    material between a hole under the thumb and the part's end at f1 and f2
+    (:func:`rim_bar`), centred on the bar, so that the thumb goes into the hole and closes on
+    the bar from inside (a ring, a frame or a tape roll lying on the table, lifted by its side
+    as a person does: ``docs/pregrasps.md``, 6b). ``z_tip_of``: the fingertips' height for a
+    preshape's depth (as the whole-part pinch's). None without a hole the thumb fits in, or
+    when no preshape reaches the bar."""
+    s_thumb = s[thumb]
+    c = _center(hand, "tip")
+    thumb_y = float(hand.flexion_plane(FINGERS[0], 0.0).origin[1] - c[1])  # hand y
+    bar = rim_bar(s, s_thumb, float(np.sign(sign * thumb_y)))
+    if bar is None:
+        return None
+    shift, half = bar
+    got = _preshape(hand, "tip", half)
+    if got is None:
+        return None
+    q_pinch, depth = got
+    R = np.stack([sign * x_dir, sign * c_dir, -d], axis=1)  # columns = hand axes
+    p_c = centre + off * sign * x_dir + shift * c_dir + z_tip_of(depth) * d
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = p_c - R @ np.array([c[0], c[1], depth])
+    gt, spread = KINDS["tip"]
+    return T, q_pinch, gt, spread, np.inf
 
 
 PROJECTION_SLACK: float = 1e-9
 """Metres: a point whose sorted projection (:class:`_NearFingers`) lies this close to the edge
 of a finger's band is decided by the exact expressions of :func:`_placed_reference` (the
 rounding of either is below 1e-15 m on parts a metre across)."""
+
+
+def _under_fingers(
+    rel: np.ndarray, xs: np.ndarray, fx: np.ndarray, band: float, c_dir: np.ndarray
+) -> tuple[float, np.ndarray, np.ndarray | None] | None:
+    """:meth:`_NearFingers.half_width` by the reference's expressions: ``rel`` (N, 3), the
+    part's points relative to the position, ``xs`` (N,) their coordinates along the hand's x
+    axis, ``fx`` the fingers' x (the thumb's first), ``band`` their slices' half width."""
+    # under one of the three fingers (one pass per finger: an any() along the short axis of
+    # an (N, 3) array cost ten times more)
+    at_thumb = np.abs(xs - fx[0]) <= band
+    under = at_thumb.copy()
+    for x_f in fx[1:]:
+        under |= np.abs(xs - x_f) <= band
+    if not under.any():
+        return None
+    s = rel[under] @ c_dir
+    thumb = at_thumb[under]
+    if not _may_have_hole(s[thumb], RIM_MIN_GAP - HOLE_SLACK):
+        return float(np.max(np.abs(s))), s, None
+    return float(np.max(np.abs(s))), s, thumb
 
 
 class _NearFingers:
@@ -461,21 +605,23 @@ class _NearFingers:
         self.by_coord = np.ascontiguousarray(points.T)  # (3, N)
         self.sorted = proj[self.order]
         self.xx = float(x_dir @ x_dir)
+        self._bins: np.ndarray | None = None  # (N,) the points' bins across, once asked
 
-    def _exact(self, sign: float, off: float, c_dir: np.ndarray) -> float | None:
+    def _exact(
+        self, sign: float, off: float, c_dir: np.ndarray
+    ) -> tuple[float, np.ndarray, np.ndarray | None] | None:
         """The reference's expressions (every point)."""
         rel = self.points - (self.centre + off * sign * self.x_dir)  # (N, 3)
-        xs = rel @ (sign * self.x_dir)
-        under = np.abs(xs - self.fx[0]) <= self.band
-        for x_f in self.fx[1:]:
-            under |= np.abs(xs - x_f) <= self.band
-        if not under.any():
-            return None
-        return float(np.max(np.abs(rel[under] @ c_dir)))
+        return _under_fingers(rel, rel @ (sign * self.x_dir), self.fx, self.band, c_dir)
 
-    def half_width(self, sign: float, off: float, c_dir: np.ndarray) -> float | None:
-        """``max |(p - position) . c_dir|`` over the points under a finger at offset ``off``
-        with roll ``sign`` (None: no point under any finger)."""
+    def half_width(
+        self, sign: float, off: float, c_dir: np.ndarray
+    ) -> tuple[float, np.ndarray, np.ndarray | None] | None:
+        """``(half, s, thumb)``: ``half = max |(p - position) . c_dir|`` over the points p
+        under a finger at offset ``off`` with roll ``sign``, ``s`` those dot products (in the
+        points' order) and ``thumb`` which of them are under the thumb (:data:`Slices`), or
+        None when the thumb's slice leaves no hole a rim pinch could use (:func:`_may_have_hole`);
+        None: no point under any finger."""
         sb, eps = self.sorted, PROJECTION_SLACK
         lo = np.empty(len(self.fx))
         hi = np.empty(len(self.fx))
@@ -497,7 +643,17 @@ class _NearFingers:
         rel = np.empty((len(idx), 3))  # rel[under], by coordinate (a gather and a subtraction
         for k in range(3):  # per column: faster than a boolean row selection of (N, 3))
             np.subtract(self.by_coord[k].take(idx), p[k], out=rel[:, k])
-        return float(np.max(np.abs(rel @ c_dir)))
+        s = rel @ c_dir
+        if self._bins is None:  # bins along c_dir in the sorted order (the quick hole test)
+            across = (self.points - self.centre) @ c_dir  # s up to rounding
+            w = 0.5 * (RIM_MIN_GAP - HOLE_SLACK)
+            self._bins = np.floor(across / w).astype(np.int64)[self.order]
+        b = self._bins[i0[0] : i1[0]]  # the thumb's band (fx[0]): a run of the sorted order
+        if len(b) < 2 or not (np.bincount(b - b.min()) == 0).any():
+            return float(np.max(np.abs(s))), s, None  # no empty bin: no hole (_may_have_hole)
+        at_thumb = np.zeros(len(sb), dtype=bool)
+        at_thumb[self.order[i0[0] : i1[0]]] = True
+        return float(np.max(np.abs(s))), s, at_thumb[idx]
 
 
 def _placed_reference(
@@ -531,6 +687,7 @@ def _placed_reference(
     )
     local = fx is not None
     centre = box.center - (box.center @ d) * d  # the box centre projected on d = 0
+    slices: list[Slices] = []  # of the local positions, in order
     for sign in (1.0, -1.0):  # both rolls: thumb on either side
         R = np.stack([sign * x_dir, sign * c_dir, -d], axis=1)  # columns = hand axes
         for off in offsets:  # a few positions along the part
@@ -540,15 +697,12 @@ def _placed_reference(
                 # the part's half width under the three fingers at this position (the toy
                 # car between its wheels is narrower than its box)
                 rel = points - (centre + off * sign * x_dir)  # (N, 3)
-                xs = rel @ (sign * x_dir)
-                # under one of the three fingers (one pass per finger: an any() along the
-                # short axis of an (N, 3) array cost ten times more)
-                under = np.abs(xs - fx[0]) <= band
-                for x_f in fx[1:]:
-                    under |= np.abs(xs - x_f) <= band
-                if not under.any():
+                got_half = _under_fingers(rel, rel @ (sign * x_dir), fx, band, c_dir)
+                if got_half is None:
                     continue
-                half = float(np.max(np.abs(rel[under] @ c_dir)))
+                half, s_all, thumb = got_half
+                if thumb is not None:  # a hole under the thumb may be there
+                    slices.append((sign, float(off), s_all, thumb))
             got = _preshape(hand, kind, half)
             if got is None:
                 continue
@@ -564,6 +718,7 @@ def _placed_reference(
             T[:3, :3] = R
             T[:3, 3] = p_c - R @ np.array([c[0], c[1], depth])
             out.append((T, q_pinch, gt, spread, limit))
+    out += _rim_pinches(hand, slices, centre, x_dir, c_dir, d, z_top, z_bottom, params)
     return out
 
 
@@ -620,13 +775,15 @@ def pinch_count_bound(
     at each of the K sampling ``intervals`` (nothing allocated), for the pool's size check.
 
     Per box, with n the three-finger tip's positions along the box's longest side: from above,
-    2 closing axes x 2 rolls x n; a thin part adds 4 rim faces x 2 kinds x 2 rolls x n. (The
-    tripod makes one position, the tip at most n; which face is on top is not needed.)"""
+    2 closing axes x 2 rolls x n, twice (a position can also make a rim pinch,
+    :func:`_rim_pinch`); a thin part adds 4 rim faces x 2 kinds x 2 rolls x
+    n. (The tripod makes one position, the tip at most n; which face is on top is not
+    needed.)"""
     iv = np.atleast_1d(np.asarray(intervals, dtype=np.float64))  # (K,)
     if not boxes:
         return np.zeros(len(iv))
     ext = np.array([b.extents for b in boxes], dtype=np.float64)  # (B, 3)
     half_run = np.maximum(0.5 * ext.max(axis=1) - 0.5 * TIP_MIN_LENGTH, 0.0)  # (B,)
     n = grid_sizes(half_run[:, None], iv[None, :])  # (B, K)
-    per_position = 4.0 + 16.0 * (ext[:, 2] <= THIN_PART)  # (B,)
+    per_position = 8.0 + 16.0 * (ext[:, 2] <= THIN_PART)  # (B,)
     return (per_position[:, None] * n).sum(axis=0)

@@ -340,3 +340,67 @@ def test_the_pinch_preshapes_are_computed_once_per_hand_and_equal_fresh_ones(han
             assert got[1] == fresh[1] and not got[0].flags.writeable
         c = pinch._center(hand, kind)
         assert c.tobytes() == pinch.pinch_center(hand, kind).tobytes() and not c.flags.writeable
+
+
+# ------------------------------------------------------- rings wider than the hand's pinch
+
+
+def test_rim_bar_is_the_material_between_the_fingers_end_and_the_hole():
+    """Analytic: a ring's cross-section under the thumb is two intervals with the hole between
+    them; the fingers' slices see more material (they lie off the ring's centre line)."""
+    from pregrasp_core.pregrasps.pinch import RIM_MIN_GAP, rim_bar
+
+    thumb = np.concatenate([np.linspace(-0.065, -0.035, 31), np.linspace(0.035, 0.065, 31)])
+    fingers = np.concatenate([np.linspace(-0.065, -0.02, 46), np.linspace(0.02, 0.065, 46)])
+    every = np.concatenate([thumb, fingers])
+    # thumb on the + side: it goes into the hole, f1 and f2 close on the - end from outside
+    centre, half = rim_bar(every, thumb, 1.0)
+    assert centre == pytest.approx(-0.05) and half == pytest.approx(0.015)
+    centre, half = rim_bar(every, thumb, -1.0)
+    assert centre == pytest.approx(0.05) and half == pytest.approx(0.015)
+    # a solid disc, or a hole too narrow for the thumb: no bar
+    disc = np.linspace(-0.065, 0.065, 131)
+    assert rim_bar(disc, disc, 1.0) is None
+    narrow = np.concatenate([np.linspace(-0.065, -0.01, 56), np.linspace(0.01, 0.065, 56)])
+    assert 0.02 < RIM_MIN_GAP and rim_bar(narrow, narrow, 1.0) is None
+
+
+def _torus_surface_distance(p: np.ndarray, R: float, r: float) -> np.ndarray:
+    """Distance of points (N, 3) to the surface of a torus about the z axis through (0, 0, r)
+    (major radius R, tube radius r)."""
+    rho = np.hypot(p[:, 0], p[:, 1])
+    return np.abs(np.hypot(rho - R, p[:, 2] - r) - r)
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.7])
+def test_a_ring_wider_than_the_pinch_is_lifted_by_its_tube(hand, yaw):
+    """A torus 130 mm across and 30 mm high lying on the table (one part: no split halves its
+    box): no preshape opens across it, so the pinch from above closes on its tube, the thumb in
+    the hole and f1 and f2 outside (docs/pregrasps.md, 6b). The best grasp is force closure,
+    its contacts lie on the true torus (the analytic surface), the thumb's inside the tube's
+    centre circle and the others' outside, and MuJoCo lifts the true mesh with it; under a turn
+    about the vertical too."""
+    from pregrasp_core.pregrasps.pinch import pinch_preshape
+    from pregrasp_core.simulate import simulate_grasps
+
+    R, r = 0.05, 0.015
+    assert pinch_preshape(hand, "tip", R + r) is None  # the whole-ring pinch is out of reach
+    mesh = trimesh.creation.torus(R, r, major_sections=64, minor_sections=24)
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(yaw, UP))
+    cloud = on_table(mesh, n=8000)
+    res = plan(cloud, hand)
+    gs = res.grasps
+    assert gs.best is not None, gs.best_reason
+    best = gs.grasps[gs.best]
+    assert best.epsilon > 0 and best.n_contacts >= 3
+    assert res.pool.surface[best.pregrasp] == PINCH
+    pts = np.array([c.point for c in best.contacts])
+    assert _torus_surface_distance(pts, R, r).max() < 1e-3
+    rho = {c.link: float(np.hypot(*c.point[:2])) for c in best.contacts}
+    assert [k for k in rho if k.startswith("thumb")] and [k for k in rho if k.startswith("f")]
+    assert all(v < R for k, v in rho.items() if k.startswith("thumb"))
+    assert all(v > R for k, v in rho.items() if k.startswith("f"))
+    on_plane = mesh.copy()
+    on_plane.apply_translation([0.0, 0.0, -on_plane.bounds[0, 2]])
+    (sim,) = simulate_grasps(res, [best], hand, mesh=on_plane)
+    assert sim.success, sim.to_dict()
