@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import json
+import math
 import typing
 from dataclasses import dataclass
 from typing import Any
@@ -178,11 +179,17 @@ def _build(cls: Any, d: Any, where: str) -> Any:
         if dataclasses.is_dataclass(cur):
             v = _build(type(cur), v, f"{where}.{f.name}")
         elif isinstance(cur, enum.Enum):
-            v = type(cur)(v)
+            try:
+                v = type(cur)(v)
+            except ValueError as exc:
+                raise _Bad(f"{where}.{f.name}", str(exc)) from None
         elif isinstance(cur, tuple) and isinstance(v, list):
             v = tuple(v)
         elif hints.get(f.name) is float and isinstance(v, int) and not isinstance(v, bool):
-            v = float(v)
+            try:
+                v = float(v)
+            except OverflowError:  # an integer beyond the float range: the field names it
+                v = math.inf
         kw[f.name] = v
     try:
         return cls(**kw)

@@ -16,6 +16,7 @@ Two kinds (each limit, what happens past it and how to change it: ``docs/limits.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -46,6 +47,29 @@ MAX_ASSUMED_CLEARANCE: float = 0.02
 """Metres: upper bound of ``PlannerParams.assumed_clearance``, the distance the hand keeps from
 a completion's assumed points (a finger is about 2 cm wide; more would keep it off the back)."""
 
+MAX_CONTACT_LENGTH: float = 0.05
+"""Metres: upper bound of the planner's contact lengths (``approach_clearance``,
+``closing_margin``, ``contact_distance``, ``penetration_tol``, ``slice_resolution``). A finger
+link is about 2 cm thick: a point 5 cm from a link is not touching it, and with
+``contact_distance`` at 1e30 every link "touched" every point (19 of 34 box grasps in force
+closure with 10 contacts each)."""
+MAX_RETREAT: float = 1.0
+"""Metres: upper bound of ``PlannerParams.max_lift`` (the retreat from the support, in 5 mm
+steps: at most 200)."""
+MAX_CLOSING_STEPS: int = 4096
+"""Upper bound of ``PlannerParams.closing_steps`` (samples of each closing phase): the closing
+tables are ``slice points x (closing_steps + 1)`` per link, 3.7 MB at the bound for a slice of
+114 points; ``10**8`` asked for 85 GiB and ended the run with a ``MemoryError``."""
+MAX_THREADS: int = 1024
+"""Upper bound of ``PlannerParams.threads`` (the planner uses at most 64 workers anyway)."""
+MAX_FRICTION: float = 10.0
+"""Upper bound of ``QualityParams.mu``: rubber on rubber is about 1 to 2; the cone's half-angle
+at 10 is 84 degrees, so a larger value scores the same grasps."""
+MAX_CONE_EDGES: int = 32
+"""Upper bound of ``QualityParams.n_edges`` (edges of each linearised friction cone). The 6D hull
+grows fast with them: 10 contacts take 0.3 s at 8 edges, 1.3 s at 32, 5.1 s at 64 and 34 s at
+128 (one core, 2026-12-06), and epsilon changes by 0.2 % from 32 to 64; ``10**7`` ended the run
+with a ``MemoryError``."""
 MAX_HEIGHT: float = 1.0e6
 """Metres: bound of ``|FaceMaskParams.support_height|`` (finite and far from float overflow)."""
 
@@ -105,6 +129,24 @@ sweeps every candidate)."""
 MAX_REACH: float = 1e12
 """Upper bound of the MVBB's ``active_reach`` (steps): a reach past the cloud's size keeps every
 point in the active sets (the memory stays that of the cloud), so any larger value acts alike."""
+
+MAX_SEED: int = 2**63 - 1
+"""Upper bound of the sensor stages' ``seed`` (numpy's generators take any such integer)."""
+MAX_SIGMAS: float = 100.0
+"""Upper bound of the table segmentation's noise multiples (``band_sigmas``, ``foot_sigmas``):
+100 standard deviations of the fitted plane's noise is already the whole scene."""
+MAX_SPACINGS: float = 1000.0
+"""Upper bound of the factors counted in point spacings (``SegmentParams.neighbour_spacings``,
+``CompletionParams.cell_factor`` and ``edge_factor``)."""
+MIN_CELL_FACTOR: float = 0.05
+"""Lower bound of ``CompletionParams.cell_factor`` (cells of the range image, in point
+spacings): the image has ``1 / cell_factor**2`` cells per point, 400 at the bound; finer cells
+only leave holes between the points' triangles."""
+MAX_NEIGHBOURS: int = 10_000
+"""Upper bound of ``SegmentParams.min_neighbours`` (neighbours a kept point needs)."""
+MAX_RANSAC_ITERATIONS: int = 100_000
+"""Upper bound of ``SegmentParams.iterations`` (plane hypotheses of the RANSAC)."""
+
 
 # ----------------------------------------------------------------------------- work limits
 
@@ -187,6 +229,28 @@ score exact."""
 
 
 # ----------------------------------------------------------------------------- checks
+
+
+def moved_field(obj: object, first: str, second: str) -> str:
+    """Which of two fields of the dataclass ``obj`` a failed check between them should name: the
+    one that differs from its default (``second`` when both or neither do), so that a value the
+    user set is the one the message names."""
+    defaults = {f.name: f.default for f in dataclasses.fields(obj)}  # type: ignore[arg-type]
+    moved_first = getattr(obj, first) != defaults.get(first)
+    moved_second = getattr(obj, second) != defaults.get(second)
+    return first if moved_first and not moved_second else second
+
+
+def real_or_nan(value: object) -> float:
+    """``value`` as a ``float`` when it is a real number (an integer beyond the float range as
+    +-inf), else NaN: a check ``math.isfinite(real_or_nan(v)) and ...`` then refuses ``None``,
+    text, lists and booleans with its own message instead of a ``TypeError``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        return math.nan
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
 
 
 def check_int(name: str, value: object, lo: int, hi: int) -> int:

@@ -62,6 +62,9 @@ from .tolerances import GEOM_EPS, MVBB_DEGENERATE_REL
 logger = logging.getLogger(__name__)
 
 
+_DEFAULT_STEP_MIN = math.radians(0.005)
+
+
 @dataclass(frozen=True)
 class MvbbParams:
     """Parameters of the MVBB search. The defaults meet the targets of ``docs/mvbb.md``."""
@@ -86,7 +89,7 @@ class MvbbParams:
     """Distinct candidates polished by the pattern search (step 3)."""
     step_start: float = math.radians(3.0)
     """First rotation step of the pattern search, radians."""
-    step_min: float = math.radians(0.005)
+    step_min: float = _DEFAULT_STEP_MIN
     """The pattern search stops when its step falls below this, radians."""
     active_reach: float = 4.0
     """The pattern search rebuilds its active point set after moves totalling this many steps
@@ -138,7 +141,21 @@ class MvbbParams:
         start = check_real(
             "step_start", self.step_start, MIN_STEP, MAX_STEP, what="an angle", unit=" rad"
         )
-        stop = check_real("step_min", self.step_min, MIN_STEP, start, what="an angle", unit=" rad")
+        stop = check_real(
+            "step_min", self.step_min, MIN_STEP, MAX_STEP, what="an angle", unit=" rad"
+        )
+        if stop > start:
+            # name the field that was moved: a step_start below the default step_min is
+            # step_start's error, not step_min's
+            if stop == _DEFAULT_STEP_MIN:
+                raise ValueError(
+                    f"step_start must be an angle in [{stop:g}, {MAX_STEP:g}] rad (at least "
+                    f"step_min), got {self.step_start!r}"
+                )
+            raise ValueError(
+                f"step_min must be an angle in [{MIN_STEP:g}, {start:g}] rad (at most "
+                f"step_start), got {self.step_min!r}"
+            )
         snap = check_real(
             "snap_angle", self.snap_angle, 0.0, MAX_STEP, what="an angle", unit=" rad"
         )

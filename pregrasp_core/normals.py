@@ -77,6 +77,7 @@ from scipy.spatial import cKDTree
 
 from .errors import DegenerateGeometryError
 from .geometry import as_points, as_points_like
+from .limits import check_int
 from .tolerances import GEOM_EPS
 
 logger = logging.getLogger(__name__)
@@ -156,14 +157,15 @@ class NormalParams:
     """Visibility orientation: viewpoints on a sphere around the cloud, in [6, 1000]."""
 
     def __post_init__(self) -> None:
-        if int(self.k) != self.k or not 3 <= self.k <= 200:
-            raise ValueError(f"k must be an integer in [3, 200], got {self.k}")
-        if self.orient not in ORIENT_MODES:
+        object.__setattr__(self, "k", check_int("k", self.k, 3, 200))
+        if not isinstance(self.orient, str) or self.orient not in ORIENT_MODES:
             raise ValueError(f"orient must be one of {ORIENT_MODES}, got {self.orient!r}")
-        if int(self.n_views) != self.n_views or not 6 <= self.n_views <= 1000:
-            raise ValueError(f"n_views must be an integer in [6, 1000], got {self.n_views}")
+        object.__setattr__(self, "n_views", check_int("n_views", self.n_views, 6, 1000))
         if self.viewpoint is not None:
-            vp = np.asarray(self.viewpoint, dtype=np.float64)
+            try:
+                vp = np.asarray(self.viewpoint, dtype=np.float64)
+            except (TypeError, ValueError, OverflowError):
+                vp = np.full(0, np.nan)
             if vp.shape != (3,) or not np.all(np.isfinite(vp)):
                 raise ValueError(f"viewpoint must be 3 finite numbers, got {self.viewpoint!r}")
             object.__setattr__(self, "viewpoint", tuple(float(v) for v in vp))

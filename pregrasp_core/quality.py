@@ -47,7 +47,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from .geometry import as_points
 from .jit import Lazy, njit
-from .limits import MAX_EXACT_TOP, check_int
+from .limits import MAX_CONE_EDGES, MAX_EXACT_TOP, MAX_FRICTION, MAX_LENGTH, check_int, check_real
 from .tolerances import GEOM_EPS, HULL_CHECK_TOL, QUALITY_EPS, QUALITY_RANK_TOL
 
 logger = logging.getLogger(__name__)
@@ -87,13 +87,22 @@ class QualityParams:
     same either way)."""
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.mu) and self.mu >= 0.0):
-            raise ValueError(f"mu must be a finite number >= 0, got {self.mu}")
-        if int(self.n_edges) != self.n_edges or self.n_edges < 3:
-            raise ValueError(f"n_edges must be an integer >= 3, got {self.n_edges}")
-        if self.torque_scale is not None and not self.torque_scale > 0.0:
-            raise ValueError(f"torque_scale must be > 0 or None, got {self.torque_scale}")
-        if self.torque_origin not in TORQUE_ORIGINS:
+        # bounds: pregrasp_core.limits and docs/limits.md ("Quality"); each field is named
+        mu = check_real("mu", self.mu, 0.0, MAX_FRICTION, what="a friction coefficient")
+        object.__setattr__(self, "mu", mu)
+        object.__setattr__(self, "n_edges", check_int("n_edges", self.n_edges, 3, MAX_CONE_EDGES))
+        if self.torque_scale is not None:
+            rho = check_real(
+                "torque_scale",
+                self.torque_scale,
+                0.0,
+                MAX_LENGTH,
+                lo_open=True,
+                what="None or a length",
+                unit=" m",
+            )
+            object.__setattr__(self, "torque_scale", rho)
+        if not isinstance(self.torque_origin, str) or self.torque_origin not in TORQUE_ORIGINS:
             raise ValueError(
                 f"torque_origin must be one of {TORQUE_ORIGINS}, got {self.torque_origin!r}"
             )

@@ -9,6 +9,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..limits import (
+    MAX_CLOSING_STEPS,
+    MAX_CONTACT_LENGTH,
+    MAX_LENGTH,
+    MAX_RETREAT,
+    MAX_THREADS,
+    check_int,
+    check_real,
+    moved_field,
+)
 from ..normals import NormalParams
 from ..quality import QualityParams
 from ..tolerances import CONTACT_DISTANCE, PENETRATION_TOL
@@ -71,30 +81,51 @@ class PlannerParams:
     depends on it, never a result."""
 
     def __post_init__(self) -> None:
-        if int(self.threads) != self.threads or self.threads < 0:
-            raise ValueError(f"threads must be an integer >= 0, got {self.threads}")
-        for name in ("approach_clearance", "closing_margin", "penetration_tol"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v >= 0.0):
-                raise ValueError(f"{name} must be a finite length >= 0, got {v}")
-        if not 0.0 <= self.assumed_clearance <= MAX_ASSUMED_CLEARANCE:
-            raise ValueError(f"assumed_clearance must be in [0, {MAX_ASSUMED_CLEARANCE}] m")
-        if not self.max_approach > 0.0:
-            raise ValueError(f"max_approach must be > 0, got {self.max_approach}")
-        if not self.contact_distance >= self.closing_margin:
+        # bounds: pregrasp_core.limits and docs/limits.md ("Planner"); each field is named
+        def length(name: str, hi: float, *, lo_open: bool = False) -> float:
+            v = check_real(name, getattr(self, name), 0.0, hi, lo_open=lo_open, **_METRES)
+            object.__setattr__(self, name, v)
+            return v
+
+        for name in ("approach_clearance", "penetration_tol"):
+            length(name, MAX_CONTACT_LENGTH)
+        margin = length("closing_margin", MAX_CONTACT_LENGTH)
+        length("assumed_clearance", MAX_ASSUMED_CLEARANCE)
+        length("max_approach", MAX_LENGTH, lo_open=True)
+        length("max_lift", MAX_RETREAT)
+        if length("contact_distance", MAX_CONTACT_LENGTH) < margin:
+            if moved_field(self, "closing_margin", "contact_distance") == "contact_distance":
+                raise ValueError(
+                    f"contact_distance must be at least closing_margin ({margin:g} m) so that a "
+                    f"finger stopped by a point touches it, got {self.contact_distance!r}"
+                )
             raise ValueError(
-                f"contact_distance ({self.contact_distance}) must be >= closing_margin "
-                f"({self.closing_margin}) so that a finger stopped by a point touches it"
+                f"closing_margin must be at most contact_distance ({self.contact_distance:g} m) "
+                f"so that a finger stopped by a point touches it, got {margin!r}"
             )
-        if not (np.isfinite(self.slice_resolution) and self.slice_resolution >= 0.0):
-            raise ValueError(f"slice_resolution must be >= 0, got {self.slice_resolution}")
-        if self.slice_resolution * np.sqrt(2.0) > self.closing_margin:
+        if length("slice_resolution", MAX_CONTACT_LENGTH) * np.sqrt(2.0) > margin:
+            if moved_field(self, "closing_margin", "slice_resolution") == "slice_resolution":
+                raise ValueError(
+                    f"slice_resolution must be at most closing_margin / sqrt(2) "
+                    f"({margin / np.sqrt(2.0):.3g} m): a link could touch a dropped point, got "
+                    f"{self.slice_resolution!r}"
+                )
             raise ValueError(
-                f"slice_resolution ({self.slice_resolution}) times sqrt(2) must not exceed "
-                f"closing_margin ({self.closing_margin}): a link could touch a dropped point"
+                f"closing_margin must be at least slice_resolution x sqrt(2) "
+                f"({self.slice_resolution * np.sqrt(2.0):.3g} m): a link could touch a dropped "
+                f"point, got {margin!r}"
             )
-        if int(self.closing_steps) != self.closing_steps or self.closing_steps < 2:
-            raise ValueError(f"closing_steps must be an integer >= 2, got {self.closing_steps}")
+        steps = check_int("closing_steps", self.closing_steps, 2, MAX_CLOSING_STEPS)
+        object.__setattr__(self, "closing_steps", steps)
+        object.__setattr__(self, "threads", check_int("threads", self.threads, 0, MAX_THREADS))
+        for name, kind in (("quality", QualityParams), ("normals", NormalParams)):
+            if not isinstance(getattr(self, name), kind):
+                raise ValueError(
+                    f"{name} must be a {kind.__name__}, got {type(getattr(self, name)).__name__}"
+                )
+
+
+_METRES = {"what": "a length", "unit": " m"}
 
 
 @dataclass(frozen=True)

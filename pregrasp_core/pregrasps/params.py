@@ -4,6 +4,7 @@ bounds that keep the pool's work finite (``docs/limits.md``, "Limits of the pre-
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -104,7 +105,11 @@ class SamplingParams:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
                 raise ValueError(f"{name} must be a number {what}, got {v!r}")
-            if not (np.isfinite(v) and ok(v)):
+            try:
+                finite = math.isfinite(v)
+            except OverflowError:  # an integer beyond the float range
+                finite = False
+            if not (finite and ok(v)):
                 raise ValueError(f"{name} must be {what}, got {v!r}")
             lo, hi = SAMPLING_BOUNDS[name]
             if not lo <= v <= hi:

@@ -65,6 +65,16 @@ from scipy.spatial import ConvexHull, Delaunay, cKDTree
 from ..errors import DegenerateGeometryError
 from ..facemask import SupportPlane
 from ..geometry import as_points
+from ..limits import (
+    MAX_FACTOR,
+    MAX_LENGTH,
+    MAX_MIN_POINTS,
+    MAX_SEED,
+    MAX_SPACINGS,
+    MIN_CELL_FACTOR,
+    check_int,
+    check_real,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -130,17 +140,22 @@ class CompletionParams:
     """Seed of the scoring subset."""
 
     def __post_init__(self) -> None:
-        for name in ("tolerance", "cell_factor", "edge_factor", "family_slack"):
-            v = float(getattr(self, name))
-            if not (np.isfinite(v) and v > 0.0):
-                raise ValueError(f"{name} must be positive, got {v!r}")
+        # bounds: docs/limits.md ("Sensor input"); each refused value names its field
+        def put(name: str, v: float | int) -> None:
             object.__setattr__(self, name, v)
-        g = float(self.gap_max)
-        if not (np.isfinite(g) and g >= 0.0):
-            raise ValueError(f"gap_max must be >= 0, got {self.gap_max!r}")
-        object.__setattr__(self, "gap_max", g)
-        if int(self.score_points) != self.score_points or self.score_points < 10:
-            raise ValueError(f"score_points must be an integer >= 10, got {self.score_points!r}")
+
+        put("tolerance", check_real("tolerance", self.tolerance, 0.0, MAX_LENGTH, lo_open=True,
+                                    what="a length", unit=" m"))  # fmt: skip
+        put("gap_max", check_real("gap_max", self.gap_max, 0.0, MAX_LENGTH, what="a length",
+                                  unit=" m"))  # fmt: skip
+        put("cell_factor", check_real("cell_factor", self.cell_factor, MIN_CELL_FACTOR,
+                                      MAX_SPACINGS))  # fmt: skip
+        put("edge_factor", check_real("edge_factor", self.edge_factor, 0.0, MAX_SPACINGS,
+                                      lo_open=True))  # fmt: skip
+        put("family_slack", check_real("family_slack", self.family_slack, 0.0, MAX_FACTOR,
+                                       lo_open=True))  # fmt: skip
+        put("score_points", check_int("score_points", self.score_points, 10, MAX_MIN_POINTS))
+        put("seed", check_int("seed", self.seed, 0, MAX_SEED))
 
 
 @dataclass(frozen=True, eq=False)

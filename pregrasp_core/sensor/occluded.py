@@ -33,6 +33,7 @@ from scipy.spatial import cKDTree
 
 from ..errors import WorkLimitError
 from ..facemask import SupportPlane
+from ..limits import MAX_LENGTH, MAX_SPACINGS, check_int, check_real
 from .completion import RangeImage
 
 OCCLUDED_MODES: tuple[str, ...] = ("auto", "completed", "occupied")
@@ -73,6 +74,26 @@ class OccludedParams:
     edge_factor: float = 6.0
     """The interior (voxels whose 6 neighbours are all hidden) is kept every this many voxels
     along each axis (9 mm at 3 mm voxels: less than a link box's 20 mm)."""
+
+    def __post_init__(self) -> None:
+        # bounds: docs/limits.md ("Sensor input"); the grid's size is limited by MAX_VOXELS
+        lengths = (("voxel", MIN_VOXEL, True), ("margin", 0.0, False), ("carve", 0.0, False))
+        for name, lo, lo_open in lengths:
+            v = check_real(name, getattr(self, name), lo, MAX_LENGTH, lo_open=lo_open,
+                           what="a length", unit=" m")  # fmt: skip
+            object.__setattr__(self, name, v)
+        step = check_int("interior_step", self.interior_step, 1, MAX_INTERIOR_STEP)
+        object.__setattr__(self, "interior_step", step)
+        edge = check_real("edge_factor", self.edge_factor, 0.0, MAX_SPACINGS, lo_open=True)
+        object.__setattr__(self, "edge_factor", edge)
+
+
+MIN_VOXEL: float = 1e-4
+"""Metres: the smallest voxel of the hidden space (0.1 mm; any grid is also limited by
+:data:`MAX_VOXELS`)."""
+
+MAX_INTERIOR_STEP: int = 1000
+"""Upper bound of ``OccludedParams.interior_step`` (voxels between kept interior voxels)."""
 
 
 DEFAULT_OCCLUDED: OccludedParams = OccludedParams()

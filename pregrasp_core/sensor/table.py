@@ -48,6 +48,17 @@ from scipy.spatial import cKDTree
 from ..errors import DegenerateGeometryError, InputError
 from ..facemask import SupportPlane
 from ..geometry import as_points
+from ..limits import (
+    MAX_LENGTH,
+    MAX_MIN_POINTS,
+    MAX_NEIGHBOURS,
+    MAX_RANSAC_ITERATIONS,
+    MAX_SEED,
+    MAX_SIGMAS,
+    MAX_SPACINGS,
+    check_int,
+    check_real,
+)
 from ..tolerances import GEOM_EPS
 from .completion import VisibilityMap
 
@@ -120,28 +131,27 @@ class SegmentParams:
     """Seed of the RANSAC sampling: same seed, same result."""
 
     def __post_init__(self) -> None:
+        # bounds: docs/limits.md ("Sensor input"); each refused value names its field
+        def put(name: str, v: float | int) -> None:
+            object.__setattr__(self, name, v)
+
         for name in ("ransac_threshold", "min_band", "cluster_radius", "foot_radius",
                      "foot_window"):  # fmt: skip
-            v = float(getattr(self, name))
-            if not (np.isfinite(v) and v > 0.0):
-                raise ValueError(f"{name} must be a positive length in metres, got {v!r}")
-            object.__setattr__(self, name, v)
-        for name in ("band_sigmas", "foot_height", "merge_gap", "hidden_gap", "foot_sigmas"):
-            v = float(getattr(self, name))
-            if not (np.isfinite(v) and v >= 0.0):
-                raise ValueError(f"{name} must be >= 0, got {v!r}")
-            object.__setattr__(self, name, v)
-        if isinstance(self.min_neighbours, bool) or int(self.min_neighbours) != self.min_neighbours:
-            raise ValueError(f"min_neighbours must be an integer >= 0, got {self.min_neighbours!r}")
-        if self.min_neighbours < 0 or not self.neighbour_spacings > 0.0:
-            raise ValueError("min_neighbours must be >= 0 and neighbour_spacings positive")
-        for name in ("iterations", "sample", "min_cluster", "merge_min_points"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or int(v) != v or v < 1:
-                raise ValueError(f"{name} must be a positive integer, got {v!r}")
-            object.__setattr__(self, name, int(v))
-        if isinstance(self.seed, bool) or int(self.seed) != self.seed or self.seed < 0:
-            raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
+            put(name, check_real(name, getattr(self, name), 0.0, MAX_LENGTH, lo_open=True,
+                                 what="a length", unit=" m"))  # fmt: skip
+        for name in ("foot_height", "merge_gap", "hidden_gap"):
+            put(name, check_real(name, getattr(self, name), 0.0, MAX_LENGTH, what="a length",
+                                 unit=" m"))  # fmt: skip
+        for name in ("band_sigmas", "foot_sigmas"):
+            put(name, check_real(name, getattr(self, name), 0.0, MAX_SIGMAS))
+        spacings = check_real("neighbour_spacings", self.neighbour_spacings, 0.0, MAX_SPACINGS,
+                              lo_open=True)  # fmt: skip
+        put("neighbour_spacings", spacings)
+        put("min_neighbours", check_int("min_neighbours", self.min_neighbours, 0, MAX_NEIGHBOURS))
+        put("iterations", check_int("iterations", self.iterations, 1, MAX_RANSAC_ITERATIONS))
+        for name in ("sample", "min_cluster", "merge_min_points"):
+            put(name, check_int(name, getattr(self, name), 1, MAX_MIN_POINTS))
+        put("seed", check_int("seed", self.seed, 0, MAX_SEED))
 
 
 @dataclass(frozen=True, eq=False)

@@ -43,6 +43,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from ..errors import DegenerateGeometryError, InputError
 from ..geometry import as_points, as_points_like
+from ..limits import moved_field, real_or_nan
 from ..tolerances import GEOM_EPS
 
 if TYPE_CHECKING:
@@ -52,6 +53,17 @@ logger = logging.getLogger(__name__)
 
 OBJECT_SOURCES: tuple[str, ...] = ("mesh", "cloud")
 """Where an :class:`ObjectModel` was derived from."""
+
+
+OBJECT_MODEL_INT_BOUNDS: dict[str, int] = {
+    "n_samples": 10_000_000,
+    "max_pieces": 4096,
+    "min_piece_points": 10_000_000,
+    "grid_cells": 256,
+    "k_neighbours": 200,
+}
+"""Upper bounds of the collision model's integer fields (the samples and the grid's
+``grid_cells**3`` cells are held in memory: 16.8 million cells at 256)."""
 
 
 @dataclass(frozen=True)
@@ -85,19 +97,29 @@ class ObjectModelParams:
     holds; capping keeps the test about the grasp, not the motor)."""
 
     def __post_init__(self) -> None:
-        for name in ("n_samples", "max_pieces", "min_piece_points", "grid_cells", "k_neighbours"):
+        for name, hi in OBJECT_MODEL_INT_BOUNDS.items():
             v = getattr(self, name)
-            if isinstance(v, bool) or int(v) != v or v < 1:
-                raise ValueError(f"ObjectModelParams.{name} must be an integer >= 1, got {v!r}")
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= hi:
+                raise ValueError(
+                    f"ObjectModelParams.{name} must be an integer in [1, {hi:,}], got {v!r}"
+                )
+            object.__setattr__(self, name, int(v))
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)):
+            raise ValueError(f"ObjectModelParams.seed must be an integer, got {self.seed!r}")
+        object.__setattr__(self, "seed", int(self.seed))
         for name in ("concavity_tol", "min_grid_spacing", "density", "min_mass", "max_mass"):
-            v = getattr(self, name)
+            v = real_or_nan(getattr(self, name))
             if not (np.isfinite(v) and v > 0.0):
                 raise ValueError(f"ObjectModelParams.{name} must be a finite number > 0, got {v}")
-        if not (np.isfinite(self.wall_offset) and self.wall_offset >= 0.0):
+            object.__setattr__(self, name, v)
+        if not (np.isfinite(real_or_nan(self.wall_offset)) and self.wall_offset >= 0.0):
             raise ValueError(f"ObjectModelParams.wall_offset must be >= 0, got {self.wall_offset}")
+        object.__setattr__(self, "wall_offset", float(self.wall_offset))
         if self.min_mass > self.max_mass:
+            name = moved_field(self, "min_mass", "max_mass")
             raise ValueError(
-                f"ObjectModelParams.min_mass ({self.min_mass}) exceeds max_mass ({self.max_mass})"
+                f"ObjectModelParams.{name} (min_mass {self.min_mass}, max_mass {self.max_mass}) "
+                "must keep min_mass <= max_mass"
             )
 
 

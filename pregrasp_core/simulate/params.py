@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 
+from ..limits import moved_field, real_or_nan
 from .object_model import ObjectModelParams
 
 OUTCOMES: dict[str, str] = {
@@ -16,6 +18,22 @@ OUTCOMES: dict[str, str] = {
     "unstable": "the simulation diverged (non-finite state); the grasp is not judged",
 }
 """Outcome key -> meaning (``SimulationResult.outcome``)."""
+
+
+SIMULATION_BOUNDS: dict[str, tuple[float, float]] = {
+    "timestep": (1e-5, 0.01),
+    "approach_speed": (1e-3, 10.0),
+    "closing_speed": (1e-2, 100.0),
+    "lift_speed": (1e-3, 10.0),
+    "settle_time": (0.0, 60.0),
+    "hold_time": (0.0, 60.0),
+    "object_settle_time": (0.0, 60.0),
+    "lift_height": (0.0, 1.0),
+    "record_fps": (1e-3, 1000.0),
+}
+"""Bounds of the fields that set how long one lift is simulated (speeds in m/s and rad/s, times in
+s, heights in m): at the bounds a lift is at most a few minutes of simulated time, where
+``hold_time`` 1e300 or ``approach_speed`` 1e-300 would never end."""
 
 
 @dataclass(frozen=True)
@@ -98,9 +116,10 @@ class SimulationParams:
             "record_fps",
         )
         for name in positive:
-            v = getattr(self, name)
+            v = real_or_nan(getattr(self, name))
             if not (np.isfinite(v) and v > 0.0):
                 raise ValueError(f"SimulationParams.{name} must be a finite number > 0, got {v}")
+            object.__setattr__(self, name, v)
         nonneg = (
             "squeeze",
             "settle_time",
@@ -114,34 +133,68 @@ class SimulationParams:
             "gravity",
         )
         for name in nonneg:
-            v = getattr(self, name)
+            v = real_or_nan(getattr(self, name))
             if not (np.isfinite(v) and v >= 0.0):
                 raise ValueError(f"SimulationParams.{name} must be a finite number >= 0, got {v}")
-        if len(self.finger_torque) != 2 or not all(t > 0.0 for t in self.finger_torque):
+            object.__setattr__(self, name, v)
+        for name, (lo, hi) in SIMULATION_BOUNDS.items():
+            v = getattr(self, name)
+            if not lo <= v <= hi:
+                raise ValueError(
+                    f"SimulationParams.{name} must be in [{lo:g}, {hi:g}], got {v} (the bounds "
+                    "that keep one lift's simulated time finite: docs/limits.md)"
+                )
+        torque = self.finger_torque
+        if (
+            not isinstance(torque, (tuple, list))
+            or len(torque) != 2
+            or not all(real_or_nan(t) > 0.0 and math.isfinite(real_or_nan(t)) for t in torque)
+        ):
             raise ValueError(
                 f"SimulationParams.finger_torque must be two torques > 0, got {self.finger_torque}"
             )
-        if self.friction is not None and not (np.isfinite(self.friction) and self.friction >= 0):
+        object.__setattr__(self, "finger_torque", tuple(float(t) for t in torque))
+        friction = self.friction
+        if friction is not None and not (math.isfinite(real_or_nan(friction)) and friction >= 0):
             raise ValueError(f"SimulationParams.friction must be >= 0 or None, got {self.friction}")
+        if friction is not None:
+            object.__setattr__(self, "friction", float(friction))
         if (
             isinstance(self.noslip_iterations, bool)
-            or int(self.noslip_iterations) != (self.noslip_iterations)
-            or self.noslip_iterations < 0
+            or not isinstance(self.noslip_iterations, (int, np.integer))
+            or not 0 <= self.noslip_iterations <= 10_000
         ):
             raise ValueError(
-                "SimulationParams.noslip_iterations must be an integer >= 0, got "
+                "SimulationParams.noslip_iterations must be an integer in [0, 10,000], got "
                 f"{self.noslip_iterations!r}"
             )
-        if self.contact_timeconst < 2.0 * self.timestep:
+        object.__setattr__(self, "noslip_iterations", int(self.noslip_iterations))
+        if not isinstance(self.multiccd, (bool, np.bool_)):
             raise ValueError(
-                f"SimulationParams.contact_timeconst ({self.contact_timeconst}) must be at least "
+                f"SimulationParams.multiccd must be True or False, got {self.multiccd!r}"
+            )
+        object.__setattr__(self, "multiccd", bool(self.multiccd))
+        if not isinstance(self.object, ObjectModelParams):
+            raise ValueError(
+                "SimulationParams.object must be an ObjectModelParams, got "
+                f"{type(self.object).__name__}"
+            )
+        ct = real_or_nan(self.contact_timeconst)
+        if not (math.isfinite(ct) and ct >= 2.0 * self.timestep):
+            name = moved_field(self, "timestep", "contact_timeconst")
+            raise ValueError(
+                f"SimulationParams.{name} (contact_timeconst {self.contact_timeconst}) must keep "
+                "contact_timeconst at least "
                 f"two timesteps ({2.0 * self.timestep})"
             )
         if self.base_timeconst < 2.0 * self.timestep:
+            name = moved_field(self, "timestep", "base_timeconst")
             raise ValueError(
-                f"SimulationParams.base_timeconst ({self.base_timeconst}) must be at least two "
+                f"SimulationParams.{name} (base_timeconst {self.base_timeconst}) must keep "
+                "base_timeconst at least two "
                 f"timesteps ({2.0 * self.timestep})"
             )
+        object.__setattr__(self, "contact_timeconst", ct)
 
 
 @dataclass(frozen=True)

@@ -276,7 +276,7 @@ def test_the_app_starts_with_the_scale_and_parameters_of_the_command_line(make_a
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["plan", "--mu", "-1"], "pregrasp plan: error: --mu: must be a finite number >= 0, got"),
+        (["plan", "--mu", "-1"], "pregrasp plan: error: --mu: must be a friction coefficient in"),
         (["plan", "--cone-edges", "2"], "pregrasp plan: error: --cone-edges: must be an integer"),
         (["plan", "--normals-k", "2"], "pregrasp plan: error: --normals-k: must be an integer"),
         (["plan", "--points", "5"], f"pregrasp plan: error: --points: must be in [{MIN_POINTS}, "),
@@ -287,7 +287,7 @@ def test_the_app_starts_with_the_scale_and_parameters_of_the_command_line(make_a
         (["pregrasps", "--interval", "0"], "pregrasp pregrasps: error: --interval: must be > 0"),
         (["pregrasps", "--up", "0", "0", "0"], "pregrasp pregrasps: error: --up: must be a non"),
         (["decompose", "--min-points", "3"], "pregrasp decompose: error: --min-points: must be"),
-        (["view", "--mu", "-1"], "pregrasp view: error: --mu: must be a finite number >= 0"),
+        (["view", "--mu", "-1"], "pregrasp view: error: --mu: must be a friction"),
         (["view", "--port", "70000"], "pregrasp view: error: --port: must be in [0, 65535]"),
     ],
 )  # fmt: skip

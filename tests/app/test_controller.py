@@ -539,6 +539,16 @@ def test_a_result_file_is_shown_as_it_holds_it_without_recomputing(app, tmp_path
     assert app.gui.plan.disabled and app.gui.export.disabled
 
 
+def _with_param(doc, path, value):
+    """``doc`` as JSON bytes with ``parameters.<path>`` set to ``value``."""
+    out = json.loads(json.dumps(doc))
+    d = out["parameters"]
+    for k in path[:-1]:
+        d = d[k]
+    d[path[-1]] = value
+    return json.dumps(out).encode()
+
+
 def test_result_files_by_upload_and_malformed_ones(app):
     doc, _ = _planned_doc(app)
 
@@ -561,6 +571,11 @@ def test_result_files_by_upload_and_malformed_ones(app):
             {**doc, "pool": {**doc["pool"], "pregrasps": [{"T_world_hand": [[1, 2]]}]}}
         ).encode(),
         "latin1.json": b'{"schema": "pregrasp/1", "x": "\xe9"}',
+        # an integer beyond the float range (was an OverflowError, "Internal error", no name)
+        "huge.json": _with_param(doc, ("decomposition", "volume_ratio"), 10**400),
+        # a closing table of 85 GiB (was accepted, then a MemoryError on re-planning)
+        "steps.json": _with_param(doc, ("planner", "closing_steps"), 10**8),
+        "edges.json": _with_param(doc, ("planner", "quality", "n_edges"), None),
     }
     s0 = c.state
     for name, data in bad.items():
@@ -569,6 +584,8 @@ def test_result_files_by_upload_and_malformed_ones(app):
         assert len(client.notes) == 1, name
         title, body = client.notes[0]
         assert title == "Cannot do that" and name in body and "\n" not in body, body
+        if name in ("huge.json", "steps.json", "edges.json"):
+            assert "parameters." in body and " must be " in body, body
         assert c.state.result is s0.result  # the object shown stays
     # a good one through the upload widget, as viser delivers it
     handle._impl.value = UploadedFile(name="mug.pregrasp.json", content=json.dumps(doc).encode())

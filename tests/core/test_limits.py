@@ -16,7 +16,16 @@ from pregrasp_core.decomposition import DecompositionParams
 from pregrasp_core.facemask import FaceMaskParams
 from pregrasp_core.limits import WorkLimits, check_int, check_real
 from pregrasp_core.mvbb import MvbbParams
+from pregrasp_core.normals import NormalParams
+from pregrasp_core.planner import PlannerParams
+from pregrasp_core.pregrasps import SamplingParams
+from pregrasp_core.quality import QualityParams
+from pregrasp_core.sensor.completion import CompletionParams
+from pregrasp_core.sensor.occluded import OccludedParams
+from pregrasp_core.sensor.table import SegmentParams
 from pregrasp_core.shape import ShapeParams
+from pregrasp_core.simulate.object_model import ObjectModelParams
+from pregrasp_core.simulate.params import SimulationParams
 
 ANY_VALUE = st.one_of(
     st.none(),
@@ -32,7 +41,24 @@ ANY_VALUE = st.one_of(
     st.just(1 + 2j),
 )
 
-CLASSES = (DecompositionParams, ShapeParams, FaceMaskParams, MvbbParams, WorkLimits)
+CLASSES = (
+    DecompositionParams,
+    ShapeParams,
+    FaceMaskParams,
+    MvbbParams,
+    WorkLimits,
+    SamplingParams,
+    PlannerParams,
+    QualityParams,
+    NormalParams,
+    OccludedParams,
+    SegmentParams,
+    CompletionParams,
+    SimulationParams,
+    ObjectModelParams,
+)
+PREFIXED = (SimulationParams, ObjectModelParams)
+"""The simulator's parameters name the field with its class: ``SimulationParams.timestep``."""
 
 
 @pytest.mark.parametrize("cls", CLASSES, ids=lambda c: c.__name__)
@@ -44,7 +70,8 @@ def test_any_value_is_accepted_or_names_the_field(cls, data):
     try:
         made = cls(**{field: value})
     except ValueError as exc:
-        assert str(exc).startswith(f"{field} must be "), str(exc)
+        prefix = f"{cls.__name__}.{field}" if cls in PREFIXED else field
+        assert str(exc).startswith((f"{prefix} must be ", f"{prefix} (")), str(exc)
         return
     got = getattr(made, field)
     # what was accepted is plain, finite and unchanged in value
@@ -56,6 +83,8 @@ def test_any_value_is_accepted_or_names_the_field(cls, data):
         assert got == value
     elif isinstance(got, tuple):
         assert all(isinstance(x, float) and math.isfinite(x) for x in got)
+    elif isinstance(got, str):  # a mode, a rule or a policy named by its value
+        assert got == value
     else:
         assert got is None and value is None
 
