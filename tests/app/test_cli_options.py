@@ -282,8 +282,8 @@ def test_the_app_starts_with_the_scale_and_parameters_of_the_command_line(make_a
         (["plan", "--points", "5"], f"pregrasp plan: error: --points: must be in [{MIN_POINTS}, "),
         (["plan", "--seed", "-1"], "pregrasp plan: error: --seed: must be >= 0"),
         (["plan", "--scale", "0"], "pregrasp plan: error: --scale: must be a positive"),
-        (["plan", "--closing-margin", "0.0002"], "pregrasp plan: error: --slice-resolution: "
-         "(0.0007) times sqrt(2) must not exceed --closing-margin (0.0002)"),
+        (["plan", "--closing-margin", "0.0002"], "pregrasp plan: error: --closing-margin: must "
+         "be at least --slice-resolution x sqrt(2) (0.00099 m)"),
         (["pregrasps", "--interval", "0"], "pregrasp pregrasps: error: --interval: must be > 0"),
         (["pregrasps", "--up", "0", "0", "0"], "pregrasp pregrasps: error: --up: must be a non"),
         (["decompose", "--min-points", "3"], "pregrasp decompose: error: --min-points: must be"),

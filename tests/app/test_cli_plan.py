@@ -177,7 +177,7 @@ def test_progress_bar_redraws_in_place_on_a_terminal():
     ("argv", "message"),
     [
         (["--mu", "-1"], "--mu: must be"),
-        (["--contact-distance", "0.0001"], "--contact-distance: (0.0001) must be >= --closing-m"),
+        (["--contact-distance", "0.0001"], "--contact-distance: must be at least --closing-m"),
         (["--threads", "-3"], "--threads: must be"),
         (["--top", "-2"], "--top: must be >= 0"),
         (["--report", "r.csv"], "--report is for a folder INPUT"),
