@@ -7,11 +7,13 @@ grasp}.png``, then ``depth_demo.png``: the depth-camera demo (``assets/objects/m
 opened as ``pregrasp view`` opens it, planned on start with ``--occluded auto``: its hidden
 space drawn) with its best grasp closed (:func:`depth_demo_shot`; ``--depth`` takes only that
 one), and ``depth_completed.png``: the same planned with ``--occluded completed``, the back
-completed and no hidden space (``--completed`` takes only that one).
+completed and no hidden space (``--completed`` takes only that one). ``--rim`` takes only
+``rim_pinch.png``: a torus 130 mm across, its best grasp a rim pinch (:func:`rim_pinch_shot`).
 
     .venv/bin/python scripts/screenshots.py [INPUT] [--out docs/screenshots] [--points 20000]
     .venv/bin/python scripts/screenshots.py --depth
     .venv/bin/python scripts/screenshots.py --completed
+    .venv/bin/python scripts/screenshots.py --rim
 """
 
 from __future__ import annotations
@@ -167,6 +169,57 @@ def depth_demo_shot(out: Path, chromium: str, occluded: str = "auto") -> int:
     return 0
 
 
+def rim_pinch_shot(out: Path, chromium: str) -> int:
+    """``out/rim_pinch.png``: a torus 130 mm across lying on the table (too wide for the pinch
+    across it, ``docs/pregrasps.md`` "Rim pinches"), opened in the viewer with its best grasp
+    planned on start, the hand closed with the thumb in the hole, seen from the side away
+    from the hand."""
+    import trimesh
+    import viser
+    from playwright.sync_api import sync_playwright
+
+    from app.server import ViewerConfig, run
+
+    torus = trimesh.creation.torus(0.05, 0.015, major_sections=64, minor_sections=24)
+    torus.apply_translation([0.0, 0.0, 0.015])
+    path = Path(tempfile.mkdtemp(prefix="pregrasp-torus-")) / "torus_130mm.stl"
+    torus.export(path)
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    app = run(ViewerConfig(input=path, plan_on_start=True), server)
+    c = app.controller
+    try:
+        _wait_idle(c)
+        if c.state.view.selected_grasp is None:
+            print("no grasp was planned on the torus: rim_pinch.png not written", file=sys.stderr)
+            return 1
+        c.set_face_masks_visible(False)
+        c.set_anim_t(1.0)  # the closed hand
+        with sync_playwright() as p:
+            ctx = launch(
+                p,
+                tempfile.mkdtemp(prefix="pregrasp-shots-"),
+                chromium,
+                viewport={"width": 1600, "height": 900},
+            )
+            page = ctx.new_page()
+            page.goto(f"http://127.0.0.1:{server.get_port()}")
+            page.get_by_text(re.compile(r"^boxes: \d+$")).wait_for(timeout=120_000)
+            page.add_style_tag(content=".mantine-Notification-root { display: none !important; }")
+            _view_behind_the_hand(server, c.state, elevation=1.0)
+            fc = re.compile(r"^\d+ force-closure of \d+ kept$")
+            page.get_by_text(fc).wait_for(timeout=120_000)
+            page.get_by_text(fc).scroll_into_view_if_needed()
+            _settle(page, app)
+            shot = out / "rim_pinch.png"
+            page.screenshot(path=str(shot), timeout=180_000)
+            print(f"wrote {shot.relative_to(ROOT) if shot.is_relative_to(ROOT) else shot}")
+            ctx.close()
+    finally:
+        app.close()
+        server.stop()
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description="documentation screenshots of the real app")
     ap.add_argument("input", nargs="?", type=Path, help="object to show (default: the mug)")
@@ -176,7 +229,12 @@ def main() -> int:
     ap.add_argument("--depth", action="store_true", help="only the depth demo (depth_demo.png)")
     completed_help = "only the depth demo with --occluded completed (depth_completed.png)"
     ap.add_argument("--completed", action="store_true", help=completed_help)
+    rim_help = "only the rim pinch on a torus 130 mm across (rim_pinch.png)"
+    ap.add_argument("--rim", action="store_true", help=rim_help)
     args = ap.parse_args()
+    if args.rim:
+        args.out.mkdir(parents=True, exist_ok=True)
+        return rim_pinch_shot(args.out, args.chromium)
     if args.depth or args.completed:
         args.out.mkdir(parents=True, exist_ok=True)
         rc = depth_demo_shot(args.out, args.chromium) if args.depth else 0
