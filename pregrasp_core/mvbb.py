@@ -183,6 +183,30 @@ def pca_box(points: np.ndarray) -> OrientedBox:
     return _tight_box(np.ascontiguousarray(pts.T), R)
 
 
+def upright_box(points: np.ndarray, up: np.ndarray) -> OrientedBox:
+    """The tightest box around ``points`` (N, 3), N >= 1, with one axis along ``up`` (3,): the
+    other two are the sides of the exact minimum-area rectangle of the points projected on the
+    plane normal to ``up`` (rotating calipers on their 2D hull; any two horizontal axes when
+    that hull is degenerate: a vertical line or a flat vertical wall). Canonicalised like every
+    box (axes sorted by extent)."""
+    pts = as_points(points)
+    if pts.shape[0] == 0:
+        raise ValueError("points must have shape (N, 3) with N >= 1, got (0, 3)")
+    z = np.asarray(up, dtype=np.float64)
+    z = z / np.linalg.norm(z)
+    e1 = np.cross(z, np.eye(3)[int(np.argmin(np.abs(z)))])
+    e1 /= np.linalg.norm(e1)
+    R = np.stack([e1, np.cross(z, e1), z], axis=1)
+    q2 = (pts @ R[:, :2]).T  # (2, N)
+    span = np.ptp(q2, axis=1)
+    if pts.shape[0] >= 3 and span.min() > GEOM_EPS * max(1.0, float(span.max())):
+        try:
+            R = _flat_rotation(q2, R)
+        except QhullError:  # collinear in the plane: the axes above are as good as any
+            pass
+    return OrientedBox.from_points_in_frame(pts, R)
+
+
 def minimum_volume_box(points: np.ndarray, params: MvbbParams = DEFAULT_PARAMS) -> OrientedBox:
     """The (near-)minimum-volume oriented box around ``points`` (N, 3) float64, metres.
 

@@ -8,11 +8,12 @@ from every direction but straight down, and from straight down the open fingerti
 table far from the part. A person picks such a part up with the fingertips, the hand opened
 just wider than the part. So every candidate also gets pinches:
 
-- **from above** (with a support plane, when the box's top face is within 30 degrees of
-  level): the hand approaches straight down, the palm parallel to the table, across each of
-  the two horizontal box axes; the fingertips start at the part's mid-height (higher when the
-  fingers are too short for that: the palm stays ``standoff`` above the part) and the
-  planner's approach then goes on until the part or the table stops it;
+- **from above** (with a support plane): the hand approaches straight down, the palm parallel
+  to the table, across each of the two horizontal axes of the part's box when its top face is
+  within 30 degrees of level, else of its upright box (:func:`~pregrasp_core.mvbb.upright_box`:
+  a ball's minimum box can stand on an edge); the fingertips start at the part's mid-height
+  (higher when the fingers are too short for that: the palm stays ``standoff`` above the
+  part) and the planner's approach then goes on until the part or the table stops it;
 - **across a thin part** (smallest box side at most :data:`THIN_PART`: a handle, a wall, a
   wing): from each face around its rim (not from under the table), across the thickness; the
   fingertips start ``standoff`` outside the part and the approach ends at most half a
@@ -42,6 +43,7 @@ import numpy as np
 from ..box import OrientedBox
 from ..facemask import FACE_NORMAL, SupportPlane
 from ..geometry import box_corners
+from ..mvbb import upright_box
 from .collision import preshape_box_poses, preshape_box_poses_many
 from .params import SamplingParams
 from .surfaces import SURFACES, centred_grid, grid_sizes
@@ -729,24 +731,32 @@ def pinch_samples(
     params: SamplingParams,
     points: np.ndarray | None = None,
 ) -> PinchSamples | None:
-    """The pinches of ``box`` (see the module docstring): from above (with a support plane,
-    when the box's top face is within 30 degrees of level), across each of the two horizontal
-    box axes; and for a thin part (smallest side at most ``THIN_PART``), across its thickness
-    from each face around its rim. ``points`` (N, 3): the part's points (the local width of
-    the pinches from above). ``None`` when there is none."""
+    """The pinches of ``box`` (see the module docstring): from above (with a support plane),
+    across each of the two horizontal axes of ``box`` when its top face is within 30 degrees of
+    level, else of the upright box of ``points`` (none without them); and for a thin part
+    (smallest side at most ``THIN_PART``), across its thickness from each face around its rim.
+    ``points`` (N, 3): the part's points (the local width of the pinches from above). ``None``
+    when there is none."""
     n_world = FACE_NORMAL @ box.rotation.T  # (6, 3) face normals, world
     found: list[tuple[np.ndarray, np.ndarray, str, float, float]] = []
     faces: list[int] = []
     if support is not None:
         up = support.normal
         top = int(np.argmax(n_world @ up))
-        if float(n_world[top] @ up) >= MAX_TILT_COS:
-            axes = tuple(a for a in range(3) if a != top // 2)
+        above: OrientedBox | None = box
+        if float(n_world[top] @ up) < MAX_TILT_COS:
+            # a tilted box (a ball's or a tilted brick's minimum box can stand on an edge):
+            # pinch from above across the part's upright box instead, its top face level
+            above = upright_box(points, up) if points is not None and len(points) else None
+        if above is not None:
+            a_top = int(np.argmax((FACE_NORMAL @ above.rotation.T) @ up))
+            axes = tuple(a for a in range(3) if a != a_top // 2)
             got = _face_pinches(
-                hand, box, top, up, axes, support.height, ("tip", "tripod"), False, params, points
-            )
+                hand, above, a_top, up, axes, support.height, ("tip", "tripod"), False, params,
+                points,
+            )  # fmt: skip
             found += got
-            faces += [top] * len(got)
+            faces += [top] * len(got)  # the masks of the part's own top face decide
     if float(box.extents[2]) <= THIN_PART:
         for f in range(4):  # the rim faces (axes 0 and 1): across the thickness (axis 2)
             if support is not None and float(n_world[f] @ support.normal) < -0.5:
@@ -774,7 +784,7 @@ def pinch_count_bound(
     """(K,) float64: an upper bound on the pinches :func:`pinch_samples` makes over ``boxes``
     at each of the K sampling ``intervals`` (nothing allocated), for the pool's size check.
 
-    Per box, with n the three-finger tip's positions along the box's longest side: from above,
+    Per box, with n the three-finger tip's positions along the box's diagonal: from above,
     2 closing axes x 2 rolls x n, twice (a position can also make a rim pinch,
     :func:`_rim_pinch`); a thin part adds 4 rim faces x 2 kinds x 2 rolls x
     n. (The tripod makes one position, the tip at most n; which face is on top is not
@@ -783,7 +793,9 @@ def pinch_count_bound(
     if not boxes:
         return np.zeros(len(iv))
     ext = np.array([b.extents for b in boxes], dtype=np.float64)  # (B, 3)
-    half_run = np.maximum(0.5 * ext.max(axis=1) - 0.5 * TIP_MIN_LENGTH, 0.0)  # (B,)
+    # the part's points lie in its box, so no horizontal run of them (the upright box's too)
+    # is longer than the box's diagonal
+    half_run = np.maximum(0.5 * np.linalg.norm(ext, axis=1) - 0.5 * TIP_MIN_LENGTH, 0.0)  # (B,)
     n = grid_sizes(half_run[:, None], iv[None, :])  # (B, K)
     per_position = 8.0 + 16.0 * (ext[:, 2] <= THIN_PART)  # (B,)
     return (per_position[:, None] * n).sum(axis=0)
