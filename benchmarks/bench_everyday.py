@@ -2,7 +2,7 @@
 the best grasp and how many of the first 5 lift the TRUE mesh in MuJoCo (``docs/simulation.md``).
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_everyday.py [--tree CHECKOUT]
-        [--points 20000] [--only NAME] [--estimated]
+        [--points 20000] [--only NAME] [--estimated] [--synchronous]
 
 The shapes are made here with trimesh and stand on the table (z = 0): a phone, a book, a pen,
 balls of 20 to 120 mm, cubes resting on an edge, tilted pebbles, a wine glass, a hammer, a
@@ -112,6 +112,7 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=20000)
     ap.add_argument("--only", default="", help="only the shapes whose name contains this")
     ap.add_argument("--estimated", action="store_true", help="also plan without normals")
+    ap.add_argument("--synchronous", action="store_true", help="SimulationParams.synchronous")
     ap.add_argument("--tree", type=Path, default=Path(__file__).resolve().parents[1])
     args = ap.parse_args()
     sys.path.insert(0, str(args.tree.resolve()))
@@ -120,7 +121,7 @@ def main() -> None:
     from pregrasp_core.hand import load_hand
     from pregrasp_core.io import PointCloud
     from pregrasp_core.pipeline import run_pipeline
-    from pregrasp_core.simulate import simulate_grasps
+    from pregrasp_core.simulate import SimulationParams, simulate_grasps
 
     hand = load_hand()
     print(
@@ -141,7 +142,8 @@ def main() -> None:
             res = run_pipeline(cloud, None, hand, until="grasps")
             gs = res.grasps
             top = [gs.grasps[i] for i in gs.ranking[:5]]
-            lifted = simulate_grasps(res, top, hand, mesh=mesh) if top else []
+            sp = SimulationParams(synchronous=True) if args.synchronous else None
+            lifted = simulate_grasps(res, top, hand, sp, mesh=mesh) if top else []
             best = "none force closure"
             if gs.best is not None:
                 g = gs.grasps[gs.best]

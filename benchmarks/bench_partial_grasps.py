@@ -126,6 +126,10 @@ def main() -> int:
         help="pipeline.AUTO_MIN_EPSILON, the weak-force-closure floor of auto (default: its "
         "default, 0 = off)",
     )  # fmt: skip
+    parser.add_argument(
+        "--synchronous", action="store_true", help="SimulationParams.synchronous for the lifts: "
+        "the fingers reach their planned contacts at the same moment",
+    )  # fmt: skip
     parser.add_argument("--json", type=Path, default=None, help="write every row to this file")
     args = parser.parse_args()
     if args.auto_min_epsilon is not None:
@@ -213,11 +217,12 @@ def main() -> int:
         line += f" {parts:>3}/{full_parts.get(name, -1):<3} {row.copy * 1e3:>+7.1f} {dt:>5.1f}"
         line += f" {cpu:>5.1f}"
         if args.simulate and best is not None:  # one MuJoCo scene (the true mesh) for them all
-            from pregrasp_core.simulate import simulate_grasps
+            from pregrasp_core.simulate import SimulationParams, simulate_grasps
 
             sims = simulate_grasps(
-                res, [best, *gs.ranking[: args.simulate]], hand, mesh=truths[name].mesh
-            )
+                res, [best, *gs.ranking[: args.simulate]], hand,
+                SimulationParams(synchronous=args.synchronous), mesh=truths[name].mesh,
+            )  # fmt: skip
             lifted = [s.success for s in sims]
             row.lift = lifted[0]
             row.top_lifts, row.top_n = sum(lifted[1:]), len(lifted) - 1

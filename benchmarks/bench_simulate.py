@@ -50,6 +50,10 @@ def main() -> None:
     ap.add_argument("--top", type=int, default=5, help="grasps simulated per object")
     ap.add_argument("--objects", nargs="*", default=None, help="object names (default: all)")
     ap.add_argument("--model-error", action="store_true", help="also the collision model error")
+    ap.add_argument(
+        "--synchronous", action="store_true", help="SimulationParams.synchronous: fingers "
+        "reach their planned contacts at the same moment",
+    )  # fmt: skip
     args = ap.parse_args()
     pinned = pin_one_core()
     now = datetime.datetime.now(datetime.UTC)
@@ -59,7 +63,7 @@ def main() -> None:
         f"mujoco {mujoco.__version__}, {pinned}"
     )
     hand = load_hand()
-    sp = SimulationParams()
+    sp = SimulationParams(synchronous=args.synchronous)
     pp = PipelineParams(planner=PlannerParams(threads=1))
     paths = [p for p in demo_objects() if args.objects is None or p.stem in args.objects]
     print(

@@ -49,6 +49,12 @@ class SimulationParams:
     squeeze: float = 0.3
     """Radians: each closing joint is commanded this far beyond its planned closed angle
     (clamped to its limit), so a finger stopped by the object presses on it."""
+    synchronous: bool = False
+    """Close the fingers so that every closing joint reaches its planned closed angle at the same
+    moment (each at its own rate, the one with the farthest to go at ``closing_speed``), then
+    squeeze all at ``closing_speed``. False (the protocol since issue 11): every joint at
+    ``closing_speed`` until it reaches its target, so the finger with the shortest way touches
+    first and can push a light round part away before the others arrive."""
     settle_time: float = 0.25
     """Seconds between the end of the closing command and the lift (the grip builds up)."""
     lift_height: float = 0.10
@@ -169,6 +175,11 @@ class SimulationParams:
                 f"{self.noslip_iterations!r}"
             )
         object.__setattr__(self, "noslip_iterations", int(self.noslip_iterations))
+        if not isinstance(self.synchronous, (bool, np.bool_)):
+            raise ValueError(
+                f"SimulationParams.synchronous must be True or False, got {self.synchronous!r}"
+            )
+        object.__setattr__(self, "synchronous", bool(self.synchronous))
         if not isinstance(self.multiccd, (bool, np.bool_)):
             raise ValueError(
                 f"SimulationParams.multiccd must be True or False, got {self.multiccd!r}"

@@ -217,7 +217,14 @@ class LiftSimulator:
             ji = list(f.flex_index)
             goal[ji] = np.minimum(np.maximum(spec.q_closed[ji], q0[ji]) + p.squeeze, f.upper)
         delta = goal - q0  # >= 0
-        n_close = max(1, math.ceil(float(delta.max(initial=0.0)) / p.closing_speed / dt))
+        reach = float(delta.max(initial=0.0))  # path length (rad) until every target is reached
+        plan = np.zeros_like(q0)  # synchronous: the way to the planned closed angles
+        if p.synchronous:
+            for name in spec.closing:
+                ji = list(hand.finger(name).flex_index)
+                plan[ji] = np.maximum(spec.q_closed[ji], q0[ji]) - q0[ji]
+            reach = max(reach, float(plan.max(initial=0.0)) + p.squeeze)
+        n_close = max(1, math.ceil(reach / p.closing_speed / dt))
         n_settle = math.ceil(p.settle_time / dt)
         n_lift = max(1, math.ceil(p.lift_height / p.lift_speed / dt))
         n_hold = math.ceil(p.hold_time / dt)
@@ -227,7 +234,13 @@ class LiftSimulator:
         s_lift = _smooth((k - n_app - n_close - n_settle) / n_lift)
         pos = p0 + s_app[:, None] * (p1 - p0) + (p.lift_height * s_lift)[:, None] * self.up
         tau = np.clip((k - n_app) * dt * p.closing_speed, 0.0, None)  # path parameter (rad)
-        ctrl = q0 + np.minimum(tau[:, None], delta[None, :])
+        if p.synchronous and plan.max(initial=0.0) > 0.0:
+            d_max = float(plan.max())
+            share = np.minimum(tau / d_max, 1.0)[:, None]  # 1: every finger at its contact
+            beyond = np.clip(tau - d_max, 0.0, None)[:, None]  # then the squeeze, all at once
+            ctrl = np.minimum(q0 + share * plan + beyond, goal)
+        else:
+            ctrl = q0 + np.minimum(tau[:, None], delta[None, :])
         ends = {
             "approach": n_app,
             "close": n_app + n_close + n_settle,
