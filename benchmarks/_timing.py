@@ -41,3 +41,39 @@ def views_manifest(views: Path) -> list[dict] | None:
         print(f"{path} not found: run .venv/bin/python scripts/make_views.py first")  # noqa: T201
         return None
     return json.loads(path.read_text())
+
+
+def lift_first(result, hand, mesh, k: int, params=None) -> tuple[str, int, int]:
+    """Lift the first ``k`` grasps of a pipeline ``result`` in MuJoCo with the true ``mesh`` as
+    the object (``pregrasp_core.simulate``, imported here so that a script's ``--tree`` applies):
+    ``(best, lifted, simulated)``, ``best`` the best force-closure grasp's type and epsilon and
+    whether it lifts when it is among the first ``k``."""
+    from pregrasp_core.simulate import simulate_grasps
+
+    gs = result.grasps
+    top = [gs.grasps[i] for i in gs.ranking[:k]]
+    lifted = simulate_grasps(result, top, hand, params, mesh=mesh) if top else []
+    best = "none force closure"
+    if gs.best is not None:
+        g = gs.grasps[gs.best]
+        i = [t.pregrasp for t in top].index(g.pregrasp) if g in top else -1
+        held = "" if i < 0 else (", lifts" if lifted[i].success else ", drops")
+        best = f"{g.grasp_type}, epsilon {g.epsilon:.3f}{held}"
+    return best, sum(r.success for r in lifted), len(lifted)
+
+
+def use_tree(tree: Path) -> str:
+    """Import ``pregrasp_core`` from the checkout ``tree`` (a script's ``--tree``: e.g. a ``git
+    worktree`` of the commit before a change) and return the table's header line: machine,
+    Python, UTC time, load average and where ``pregrasp_core`` came from."""
+    import platform
+    import sys
+
+    sys.path.insert(0, str(Path(tree).resolve()))
+    import pregrasp_core
+
+    return (
+        f"# {platform.machine()}, Python {platform.python_version()}, "
+        f"{time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC, load average "
+        f"{os.getloadavg()[0]:.1f}, pregrasp_core from {Path(pregrasp_core.__file__).parent}"
+    )

@@ -21,13 +21,11 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import argparse  # noqa: E402
-import platform  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
+from _timing import lift_first, use_tree  # noqa: E402
 
 R = trimesh.transformations.rotation_matrix
 
@@ -115,20 +113,14 @@ def main() -> None:
     ap.add_argument("--synchronous", action="store_true", help="SimulationParams.synchronous")
     ap.add_argument("--tree", type=Path, default=Path(__file__).resolve().parents[1])
     args = ap.parse_args()
-    sys.path.insert(0, str(args.tree.resolve()))
-
-    import pregrasp_core
+    header = use_tree(args.tree)
     from pregrasp_core.hand import load_hand
     from pregrasp_core.io import PointCloud
     from pregrasp_core.pipeline import run_pipeline
-    from pregrasp_core.simulate import SimulationParams, simulate_grasps
+    from pregrasp_core.simulate import SimulationParams
 
     hand = load_hand()
-    print(
-        f"# {platform.machine()}, Python {platform.python_version()}, "
-        f"{time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC, load average "
-        f"{os.getloadavg()[0]:.1f}, pregrasp_core from {Path(pregrasp_core.__file__).parent}"
-    )
+    print(header)
     print()
     print("| shape | normals | pool | kept | force closure | best grasp | first 5 that lift |")
     print("|---|---|---:|---:|---:|---|---:|")
@@ -140,20 +132,12 @@ def main() -> None:
             normals = mesh.face_normals[face] if given else None
             cloud = PointCloud(points=np.asarray(pts), normals=normals, source=name)
             res = run_pipeline(cloud, None, hand, until="grasps")
-            gs = res.grasps
-            top = [gs.grasps[i] for i in gs.ranking[:5]]
             sp = SimulationParams(synchronous=True) if args.synchronous else None
-            lifted = simulate_grasps(res, top, hand, sp, mesh=mesh) if top else []
-            best = "none force closure"
-            if gs.best is not None:
-                g = gs.grasps[gs.best]
-                i = [t.pregrasp for t in top].index(g.pregrasp) if g in top else -1
-                held = "" if i < 0 else (", lifts" if lifted[i].success else ", drops")
-                best = f"{g.grasp_type} {g.epsilon:.3f}{held}"
-            n_up = sum(r.success for r in lifted)
+            best, n_up, n_sim = lift_first(res, hand, mesh, 5, sp)
+            gs = res.grasps
             print(
                 f"| {name} | {'mesh' if given else 'estimated'} | {len(res.pool)} | "
-                f"{len(gs.ranking)} | {gs.n_force_closure} | {best} | {n_up} of {len(lifted)} |",
+                f"{len(gs.ranking)} | {gs.n_force_closure} | {best} | {n_up} of {n_sim} |",
                 flush=True,
             )
 

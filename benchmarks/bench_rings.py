@@ -28,14 +28,12 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import argparse  # noqa: E402
-import platform  # noqa: E402
 import statistics  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
+from _timing import lift_first, use_tree  # noqa: E402
 
 
 def shapes() -> dict[str, trimesh.Trimesh]:
@@ -61,21 +59,14 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=9, help="runs of the pool stage")
     ap.add_argument("--tree", type=Path, default=Path(__file__).resolve().parents[1])
     args = ap.parse_args()
-    sys.path.insert(0, str(args.tree.resolve()))
-
-    import pregrasp_core
+    header = use_tree(args.tree)
     from pregrasp_core.hand import load_hand
     from pregrasp_core.io import PointCloud, load_point_cloud
     from pregrasp_core.paths import DEFAULT_OBJECT
     from pregrasp_core.pipeline import run_pipeline
-    from pregrasp_core.simulate import simulate_grasps
 
     hand = load_hand()
-    print(
-        f"# {platform.machine()}, Python {platform.python_version()}, "
-        f"{time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC, load average "
-        f"{os.getloadavg()[0]:.1f}, pregrasp_core from {Path(pregrasp_core.__file__).parent}"
-    )
+    print(header)
     print()
     print(f"| shape | pool | kept | force closure | best grasp | top {args.simulate} that lift |")
     print("|---|---:|---:|---:|---|---:|")
@@ -85,20 +76,11 @@ def main() -> None:
         cloud = PointCloud(points=np.asarray(pts), normals=mesh.face_normals[face], source=name)
         clouds[name] = cloud
         res = run_pipeline(cloud, None, hand, until="grasps")
+        best, n_up, n_sim = lift_first(res, hand, mesh, args.simulate)
         gs = res.grasps
-        top = [gs.grasps[i] for i in gs.ranking[: args.simulate]]
-        lifted = simulate_grasps(res, top, hand, mesh=mesh) if top else []
-        if gs.best is None:
-            best = "none force closure"
-        else:
-            g = gs.grasps[gs.best]
-            i = [t.pregrasp for t in top].index(g.pregrasp) if g in top else -1
-            held = "" if i < 0 else (", lifts" if lifted[i].success else ", drops")
-            best = f"{g.grasp_type}, epsilon {g.epsilon:.3f}{held}"
-        n_up = sum(r.success for r in lifted)
         print(
             f"| {name} | {len(res.pool)} | {len(gs.ranking)} | {gs.n_force_closure} | {best} | "
-            f"{n_up} of {len(lifted)} |"
+            f"{n_up} of {n_sim} |"
         )
     print()
     print("| object | pool stage, min / median (ms) |")
