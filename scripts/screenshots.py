@@ -19,6 +19,7 @@ completed and no hidden space (``--completed`` takes only that one). ``--rim`` t
 from __future__ import annotations
 
 import argparse
+import contextlib
 import re
 import sys
 import tempfile
@@ -106,6 +107,45 @@ DEPTH_SHOTS: dict[str, str] = {
 """The file :func:`depth_demo_shot` writes per ``--occluded`` setting."""
 
 
+@contextlib.contextmanager
+def _closed_grasp_page(
+    server, app, chromium: str, what: str, elevation: float = 0.75, scroll: bool = False
+):
+    """A browser page on ``app`` once its plan is done, showing the chosen grasp closed, the
+    face masks hidden and the notifications hidden (under load a software-WebGL page may not
+    take clicks for minutes), seen from behind the hand, the grasp table drawn; ``None`` (and a
+    message naming ``what``) when no grasp was planned."""
+    from playwright.sync_api import sync_playwright
+
+    c = app.controller
+    _wait_idle(c)
+    if c.state.view.selected_grasp is None:
+        print(f"no grasp was planned on {what}: no picture written", file=sys.stderr)
+        yield None
+        return
+    c.set_face_masks_visible(False)
+    c.set_anim_t(1.0)  # the closed hand
+    with sync_playwright() as p:
+        ctx = launch(
+            p,
+            tempfile.mkdtemp(prefix="pregrasp-shots-"),
+            chromium,
+            viewport={"width": 1600, "height": 900},
+        )
+        page = ctx.new_page()
+        page.goto(f"http://127.0.0.1:{server.get_port()}")
+        page.get_by_text(re.compile(r"^boxes: \d+$")).wait_for(timeout=120_000)
+        page.add_style_tag(content=".mantine-Notification-root { display: none !important; }")
+        _view_behind_the_hand(server, c.state, elevation=elevation)
+        fc = re.compile(r"^\d+ force-closure of \d+ kept$")
+        page.get_by_text(fc).wait_for(timeout=120_000)
+        if scroll:  # the grasp table in view
+            page.get_by_text(fc).scroll_into_view_if_needed()
+        _settle(page, app)
+        yield page
+        ctx.close()
+
+
 def depth_demo_shot(out: Path, chromium: str, occluded: str = "auto") -> int:
     """``out/depth_demo.png``: the depth demo in the viewer as ``pregrasp view
     assets/objects/mug_depth.png`` starts it (the table found and removed, drawn grey behind the
@@ -114,7 +154,6 @@ def depth_demo_shot(out: Path, chromium: str, occluded: str = "auto") -> int:
     the Object panel and the legend open. Another ``occluded``: the same planned with that
     ``--occluded`` setting, in :data:`DEPTH_SHOTS`'s file."""
     import viser
-    from playwright.sync_api import sync_playwright
 
     from app.server import ViewerConfig, run
     from pregrasp_core.paths import OBJECTS_DIR
@@ -125,31 +164,10 @@ def depth_demo_shot(out: Path, chromium: str, occluded: str = "auto") -> int:
     params = PipelineParams(occluded=occluded)
     config = ViewerConfig(input=OBJECTS_DIR / "mug_depth.png", params=params, plan_on_start=True)
     app = run(config, server)
-    c = app.controller
     try:
-        _wait_idle(c)
-        if c.state.view.selected_grasp is None:
-            print(f"no grasp was planned on the depth demo: {name} not written",
-                  file=sys.stderr)  # fmt: skip
-            return 1
-        c.set_face_masks_visible(False)
-        c.set_anim_t(1.0)  # the closed hand
-        with sync_playwright() as p:
-            ctx = launch(
-                p,
-                tempfile.mkdtemp(prefix="pregrasp-shots-"),
-                chromium,
-                viewport={"width": 1600, "height": 900},
-            )
-            page = ctx.new_page()
-            page.goto(f"http://127.0.0.1:{server.get_port()}")
-            page.get_by_text(re.compile(r"^boxes: \d+$")).wait_for(timeout=120_000)
-            # hidden, not closed: under load a software-WebGL page may not take clicks for minutes
-            page.add_style_tag(content=".mantine-Notification-root { display: none !important; }")
-            _view_behind_the_hand(server, c.state)
-            fc = re.compile(r"^\d+ force-closure of \d+ kept$")
-            page.get_by_text(fc).wait_for(timeout=120_000)
-            _settle(page, app)
+        with _closed_grasp_page(server, app, chromium, "the depth demo") as page:
+            if page is None:
+                return 1
             for folder in ("Decomposition", "Face masks and pre-grasps", "Planner", "Legend"):
                 # fold the long panels, open the legend (the scene's colours)
                 page.get_by_text(folder, exact=True).click(timeout=300_000)
@@ -162,7 +180,6 @@ def depth_demo_shot(out: Path, chromium: str, occluded: str = "auto") -> int:
             path = out / name
             page.screenshot(path=str(path), timeout=180_000)
             print(f"wrote {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}")
-            ctx.close()
     finally:
         app.close()
         server.stop()
@@ -176,7 +193,6 @@ def rim_pinch_shot(out: Path, chromium: str) -> int:
     from the hand."""
     import trimesh
     import viser
-    from playwright.sync_api import sync_playwright
 
     from app.server import ViewerConfig, run
 
@@ -186,34 +202,13 @@ def rim_pinch_shot(out: Path, chromium: str) -> int:
     torus.export(path)
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     app = run(ViewerConfig(input=path, plan_on_start=True), server)
-    c = app.controller
     try:
-        _wait_idle(c)
-        if c.state.view.selected_grasp is None:
-            print("no grasp was planned on the torus: rim_pinch.png not written", file=sys.stderr)
-            return 1
-        c.set_face_masks_visible(False)
-        c.set_anim_t(1.0)  # the closed hand
-        with sync_playwright() as p:
-            ctx = launch(
-                p,
-                tempfile.mkdtemp(prefix="pregrasp-shots-"),
-                chromium,
-                viewport={"width": 1600, "height": 900},
-            )
-            page = ctx.new_page()
-            page.goto(f"http://127.0.0.1:{server.get_port()}")
-            page.get_by_text(re.compile(r"^boxes: \d+$")).wait_for(timeout=120_000)
-            page.add_style_tag(content=".mantine-Notification-root { display: none !important; }")
-            _view_behind_the_hand(server, c.state, elevation=1.0)
-            fc = re.compile(r"^\d+ force-closure of \d+ kept$")
-            page.get_by_text(fc).wait_for(timeout=120_000)
-            page.get_by_text(fc).scroll_into_view_if_needed()
-            _settle(page, app)
+        with _closed_grasp_page(server, app, chromium, "the torus", 1.0, scroll=True) as page:
+            if page is None:
+                return 1
             shot = out / "rim_pinch.png"
             page.screenshot(path=str(shot), timeout=180_000)
             print(f"wrote {shot.relative_to(ROOT) if shot.is_relative_to(ROOT) else shot}")
-            ctx.close()
     finally:
         app.close()
         server.stop()
