@@ -15,7 +15,9 @@ the table in it) and returns a :class:`TableSegmentation`:
    Euclidean proximity on a voxel grid of side ``cluster_radius`` (occupied voxels that touch,
    26-neighbourhood, are one cluster: scipy's connected components on the voxel graph). The
    object is the largest cluster, or with ``pick`` the cluster with the point nearest ``pick``.
-   Clusters smaller than ``min_cluster`` points are never chosen. Clusters of at least
+   Clusters smaller than ``min_cluster`` points are never chosen, nor the clusters of the
+   table's noise tail (:func:`noise_clusters`: fewer than ``noise_cover`` of their points per
+   table point inside their footprint), unless nothing else is left. Clusters of at least
    ``merge_min_points`` points within ``merge_gap`` of the chosen one join it (the object's own
    occlusion cuts a handle off its body).
 4. **The object's foot**: the object's points inside the band (the bottom of its walls, within
@@ -43,7 +45,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
+from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from ..errors import DegenerateGeometryError, InputError
 from ..facemask import SupportPlane
@@ -127,6 +129,12 @@ class SegmentParams:
     neighbour_spacings: float = 5.0
     """Radius of that neighbour count, in median nearest-neighbour spacings of the points above
     the band."""
+    noise_cover: float = 0.1
+    """A cluster is the table's noise tail, never the object nor merged into it, when it holds
+    fewer than this many points per table point the camera saw inside its footprint (the 2D
+    hull of its projection on the plane). An object hides the table under it, so its ratio is
+    far above 1; the points of a noisy table's Gaussian tail that clear the band are a few per
+    hundred table points, however many of them chain into one cluster (0: off)."""
     seed: int = 0
     """Seed of the RANSAC sampling: same seed, same result."""
 
@@ -151,6 +159,7 @@ class SegmentParams:
         put("iterations", check_int("iterations", self.iterations, 1, MAX_RANSAC_ITERATIONS))
         for name in ("sample", "min_cluster", "merge_min_points"):
             put(name, check_int(name, getattr(self, name), 1, MAX_MIN_POINTS))
+        put("noise_cover", check_real("noise_cover", self.noise_cover, 0.0, MAX_SPACINGS))
         put("seed", check_int("seed", self.seed, 0, MAX_SEED))
 
 
@@ -286,6 +295,37 @@ def remove_outliers(points: np.ndarray, k: int = 16, std_ratio: float = 2.0) -> 
     dist, _ = cKDTree(pts).query(pts, k=int(k) + 1)  # (N, k + 1), the point itself first
     mean_d = dist[:, 1:].mean(axis=1)
     return mean_d <= mean_d.mean() + std_ratio * mean_d.std()
+
+
+def noise_clusters(
+    above: np.ndarray,
+    lab: np.ndarray,
+    clusters: np.ndarray,
+    band_points: np.ndarray,
+    normal: np.ndarray,
+    cover: float,
+) -> np.ndarray:
+    """(len(clusters),) bool: which of ``clusters`` (labels into ``lab``, over the points
+    ``above`` the band) are the table's noise tail: fewer than ``cover`` of their points per
+    table point (``band_points``) inside their footprint, the 2D hull of their projection on the
+    plane of ``normal``. A cluster whose footprint is degenerate (a line) is not noise."""
+    out = np.zeros(len(clusters), dtype=bool)
+    if cover <= 0.0 or len(band_points) == 0:
+        return out
+    B = _plane_basis(normal)  # (3, 2)
+    table2 = band_points @ B
+    for k, c in enumerate(clusters):  # loop over the few clusters of at least min_cluster
+        q = above[lab == c] @ B
+        lo, hi = q.min(axis=0), q.max(axis=0)
+        box = np.all((table2 >= lo) & (table2 <= hi), axis=1)
+        if not np.any(box):
+            continue
+        try:
+            inside = Delaunay(q).find_simplex(table2[box]) >= 0
+        except QhullError:  # collinear or too few distinct points: a line, not a footprint
+            continue
+        out[k] = len(q) < cover * int(np.count_nonzero(inside))
+    return out
 
 
 def merge_hidden(
@@ -445,6 +485,22 @@ def segment_table(
                 f"no cluster of at least {params.min_cluster} points stands above the table "
                 f"(largest: {counts.max()} points); is there an object in the scene?"
             )
+        # clusters of the table's noise tail (a noisy sensor, a small object): set aside, unless
+        # nothing else is left
+        sizable = np.nonzero(counts >= params.merge_min_points)[0]
+        noise = sizable[
+            noise_clusters(pts[above], lab, sizable, pts[in_band], n, params.noise_cover)
+        ]
+        if len(noise):
+            real = eligible[~np.isin(eligible, noise)]
+            if len(real):
+                eligible = real
+                counts = counts.copy()
+                counts[noise] = 0  # never merged into the object either
+                logger.info(
+                    "table: %d cluster(s) of %d points in all are the table's noise tail",
+                    len(noise), int(np.isin(lab, noise).sum()),
+                )  # fmt: skip
         if pick is None:
             chosen = int(eligible[0])
         else:
