@@ -9,11 +9,15 @@ its epsilon, its penetration of the true mesh (mm; negative = clear of it), its 
 contact's distance to the true surface (mm), and whether it lifts the TRUE mesh in MuJoCo
 (``pregrasp_core.simulate``, ``docs/simulation.md``'s protocol on the view's support plane).
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_odd_shapes.py
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_odd_shapes.py [--everyday]
+        [--settings auto completed occupied]
+
+``--everyday``: the shapes of ``bench_everyday.py`` (balls, a pen, a wrench, a phone, ...).
 """
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
 import sys
 import tempfile
@@ -63,12 +67,26 @@ def shapes() -> dict[str, trimesh.Trimesh]:
 
 
 def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument(
+        "--everyday", action="store_true",
+        help="the 27 shapes of bench_everyday.py instead of the five above",
+    )  # fmt: skip
+    ap.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=SETTINGS)
+    args = ap.parse_args()
+    if args.everyday:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from bench_everyday import shapes as everyday
+
+        chosen = everyday()
+    else:
+        chosen = shapes()
     out = Path(tempfile.mkdtemp(prefix="pregrasp_odd_"))
     rng = np.random.default_rng(0)
     print("| shape | azimuth | noise mm | setting | used | kept | best FC | epsilon "
           "| penetration mm | worst contact mm | lifts the true mesh |")  # fmt: skip
     print("|---|---:|---:|---|---|---:|---|---:|---:|---:|---|")
-    for name, mesh in shapes().items():
+    for name, mesh in chosen.items():
         truth = MeshDistance(mesh)
         for az, noise in VIEWS:
             target, dist, half = mv.view_setup(mesh)
@@ -82,7 +100,7 @@ def main() -> None:
             label = np.where(lab == LABEL_OBJECT, 2, 1).astype(np.uint8)
             path.write_bytes(mv.pcd_bytes(pts, label, view.T_world_camera))
             cloud = load_point_cloud(path)
-            for setting in SETTINGS:
+            for setting in args.settings:
                 res = run_pipeline(cloud, PipelineParams(occluded=setting), until="grasps")
                 gs = res.grasps
                 assert gs is not None and res.hand is not None
