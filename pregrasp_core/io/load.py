@@ -245,13 +245,11 @@ def _load(
         return _scene_or_view(scene, vp, opts, n_points, seed, opts.scene is not False)
     parsed = _read(file, ext)
     if isinstance(parsed, TriangleMesh):
-        cloud = sample_mesh(parsed, file.source, fmt, n_points, seed, scale)
-        if scale is None:
-            warns: list[str] = []
-            mm = _units(np.asarray(cloud.points), None, seed, warns)
-            if mm is not None:  # same seed: the same samples, scaled
-                cloud = sample_mesh(parsed, file.source, fmt, n_points, seed, mm)
-                cloud.info["warnings"] = [*warns, *cloud.info.get("warnings", [])]
+
+        def units(pts: np.ndarray, notices: list[str]) -> float | None:
+            return _units(pts, None, seed, notices)
+
+        cloud = sample_mesh(parsed, file.source, fmt, n_points, seed, scale, units)
         return _scene_or_view(cloud, opts.viewpoint, opts, n_points, seed, bool(opts.scene))
     warns = list(parsed.warnings)
     T_pcd = pcd_viewpoint(file.path) if ext == ".pcd" and file.path is not None else None

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -107,8 +108,12 @@ def sample_mesh(
     n_points: int | None,
     seed: int,
     scale: float | None,
+    units: Callable[[np.ndarray, list[str]], float | None] | None = None,
 ) -> PointCloud:
-    """Area-weighted uniform samples on the triangles, face normals as normals."""
+    """Area-weighted uniform samples on the triangles, face normals as normals. With ``scale``
+    None and ``units`` given, ``units(samples, warnings)`` decides the scale from the samples
+    in the file's units (None: metres) and appends its notice first: one sampling, and the
+    warnings of the samples as scaled (a millimetre file is not also called "45 m long")."""
     import trimesh
 
     warns: list[str] = []
@@ -145,6 +150,11 @@ def sample_mesh(
     clean = trimesh.Trimesh(vertices=verts, faces=faces, process=False, validate=False)
     pts, face_idx = trimesh.sample.sample_surface(clean, n, face_weight=area2, seed=seed)
     pts = np.asarray(pts, dtype=np.float64)
+    if scale is None and units is not None:
+        notices: list[str] = []
+        scale = units(pts, notices)
+        s = 1.0 if scale is None else float(scale)
+        warns[:0] = notices
     # Unit face normals from the winding (zero-area faces are never sampled).
     normals = cross[face_idx] / area2[face_idx, None]  # (n, 3)
     watertight = mesh.watertight and not bad_vert.any()

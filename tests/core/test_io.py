@@ -276,6 +276,26 @@ def test_scale_and_millimetre_warning(tmp_path):
     assert c.warnings == [] and c.info["scale"] == 0.001
 
 
+def test_a_millimetre_mesh_is_sampled_once_and_warned_once(tmp_path, caplog):
+    """A mesh written in millimetres (a 45 mm ball's STL): read as millimetres, with the one
+    notice saying so; before, the mesh was sampled twice and the first, unscaled sampling also
+    logged "the cloud is 45.0 m long, which looks like millimetres; pass --scale 0.001", telling
+    the user to do what the loader had done. The points are those of an explicit --scale 0.001,
+    bit for bit."""
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=22.5)
+    ball.export(tmp_path / "ball_mm.stl")
+    with caplog.at_level(logging.WARNING, logger="pregrasp_core"):
+        auto = load_point_cloud(tmp_path / "ball_mm.stl", n_points=4000)
+    said = [r.getMessage() for r in caplog.records]
+    assert auto.info["scale"] == 0.001
+    assert len(said) == 1 and "read as millimetres and scaled by 0.001" in said[0], said
+    assert auto.warnings == said
+    told = load_point_cloud(tmp_path / "ball_mm.stl", n_points=4000, scale=0.001)
+    assert np.array_equal(auto.points, told.points)
+    assert np.array_equal(auto.normals, told.normals)
+    assert auto.info["area"] == pytest.approx(4 * np.pi * 0.0225**2, rel=0.01)
+
+
 # ------------------------------------------------------------------------------------------------
 # Meshes: a cube is the analytic oracle
 
