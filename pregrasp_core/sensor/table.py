@@ -112,8 +112,9 @@ class SegmentParams:
     table seen between them: only an occlusion parts them, and nothing in the view says that
     the object does not continue behind it (a hammer's head whose junction with the handle is
     out of sight, a teddy's arm in front of its body). Objects with the table seen between them
-    stay apart; one object partly hidden behind another within this distance joins it (``pick``
-    cannot part them then). 0: off."""
+    stay apart; one object partly hidden behind another within this distance joins it, except
+    that a ``pick``ed cluster never takes in a larger one (in clutter, the can beside the picked
+    ball). 0: off."""
     foot_window: float = 0.008
     """Radius of the neighbourhood whose mean height above the plane decides whether a band
     point is part of the object's foot (a bottom that leaves the table at a shallow angle)."""
@@ -521,7 +522,11 @@ def segment_table(
             mine |= np.isin(lab, merge)
         if vp is not None and params.hidden_gap > 0.0 and n_clusters > 1:
             plane = SupportPlane(normal=n, height=h)
-            mine = merge_hidden(pts[above], lab, mine, counts, vp, plane, params)
+            # a picked part takes in what its occlusion cut off, never a larger cluster: in
+            # clutter that is the object standing behind or in front of it (a can next to a
+            # 4 cm ball), not a piece of the part
+            joinable = counts if pick is None else np.where(counts <= counts[chosen], counts, 0)
+            mine = merge_hidden(pts[above], lab, mine, joinable, vp, plane, params)
         object_mask[above[mine]] = True
         # the object's foot inside the band: band points whose neighbourhood stands above the
         # table, then the band points under the lowest slice of all that
