@@ -7,10 +7,12 @@ the best grasp and how many of the first 5 lift the TRUE mesh in MuJoCo (``docs/
 The shapes are made here with trimesh and stand on the table (z = 0): a phone, a book, a pen,
 balls of 20 to 120 mm, cubes resting on an edge, tilted pebbles, a wine glass, a hammer, a
 wrench, a cereal box, a large box, a flat L bracket, a bottle lying down, cones point up and
-down, a plate, a tilted box and a dumbbell. Each is sampled to ``--points`` points with its
-face normals (seed 0; ``--estimated``: also without normals, estimated by the pipeline) and
-planned at default settings. ``--tree``: import ``pregrasp_core`` from another checkout (e.g.
-a ``git worktree`` of the commit before a change) to print the same table for it.
+down, a plate, a tilted box, a dumbbell, and four objects with a handle (a bucket and a basket
+with an arched handle, a kettlebell, a toolbox with a bar on top). Each is sampled to
+``--points`` points with its face normals (seed 0; ``--estimated``: also without normals,
+estimated by the pipeline) and planned at default settings. ``--tree``: import ``pregrasp_core``
+from another checkout (e.g. a ``git worktree`` of the commit before a change) to print the same
+table for it.
 """
 
 from __future__ import annotations
@@ -33,6 +35,18 @@ R = trimesh.transformations.rotation_matrix
 def revolve(profile: list[list[float]], sections: int = 48) -> trimesh.Trimesh:
     """A solid of revolution about z from its (radius, height) profile."""
     return trimesh.creation.revolve(np.asarray(profile), sections=sections)
+
+
+def arch(span: float, bar: float, height_above: float) -> trimesh.Trimesh:
+    """The upper half of a ring of ``span`` across and ``bar`` thick in the xz plane, its
+    centre ``height_above`` the origin (a bucket's or a basket's handle)."""
+    t = trimesh.creation.torus(span / 2, bar / 2, major_sections=64, minor_sections=16)
+    t.apply_transform(R(np.pi / 2, [1, 0, 0]))  # ring in the xz plane
+    upper = trimesh.creation.box([span + 2 * bar, 2 * bar, span / 2 + bar])
+    upper.apply_translation([0, 0, (span / 2 + bar) / 2])
+    a = trimesh.boolean.intersection([t, upper])
+    a.apply_translation([0, 0, height_above])
+    return a
 
 
 def shapes() -> dict[str, trimesh.Trimesh]:
@@ -100,6 +114,35 @@ def shapes() -> dict[str, trimesh.Trimesh]:
             .apply_translation([-0.075, 0, 0]),
         ]
     )
+    # objects with a handle (session 20: measured, not yet handled, docs/limits.md)
+    bucket = trimesh.boolean.difference(
+        [
+            trimesh.creation.cylinder(0.075, 0.14, sections=64),
+            trimesh.creation.cylinder(0.072, 0.14, sections=64).apply_translation([0, 0, 0.004]),
+        ]
+    )
+    bucket.apply_translation([0, 0, 0.07])
+    out["bucket 150 with arch"] = trimesh.util.concatenate([bucket, arch(0.15, 0.008, 0.14)])
+    basket = trimesh.boolean.difference(
+        [
+            trimesh.creation.box([0.16, 0.11, 0.07]),
+            trimesh.creation.box([0.154, 0.104, 0.07]).apply_translation([0, 0, 0.004]),
+        ]
+    )
+    basket.apply_translation([0, 0, 0.035])
+    out["basket 160x110 with arch"] = trimesh.util.concatenate([basket, arch(0.10, 0.012, 0.07)])
+    kb = trimesh.creation.icosphere(4, 0.06)
+    kb.apply_translation([0, 0, 0.06])
+    out["kettlebell"] = trimesh.util.concatenate([kb, arch(0.09, 0.02, 0.1)])
+    box = trimesh.creation.box([0.25, 0.18, 0.12])
+    box.apply_translation([0, 0, 0.06])
+    bar = trimesh.creation.cylinder(0.006, 0.10).apply_transform(R(np.pi / 2, [0, 1, 0]))
+    bar.apply_translation([0, 0, 0.155])
+    posts = [
+        trimesh.creation.cylinder(0.005, 0.035).apply_translation([x, 0, 0.1375])
+        for x in (-0.045, 0.045)
+    ]
+    out["toolbox 250 with top bar"] = trimesh.util.concatenate([box, bar, *posts])
     for m in out.values():
         m.apply_translation([-m.centroid[0], -m.centroid[1], -m.bounds[0, 2]])
     return out
