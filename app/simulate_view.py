@@ -323,7 +323,7 @@ class LiftRunner:
         from pregrasp_core.simulate import grasp_specs
 
         sim, model, build_cpu = self._simulator(s)
-        spec = grasp_specs(self.controller.hand, [g], s.result.grasps)[0]
+        spec = grasp_specs(self.controller.hand, [g], s.result.grasps, s.result.pool)[0]
         t0 = time.thread_time()
         res, frames = sim.run(spec, record_fps=LIFT_FPS)
         run_cpu = time.thread_time() - t0

@@ -2,9 +2,10 @@
 
 Protocol of one grasp (times from :class:`SimulationParams`):
 
-1. **start**: the hand at the pre-grasp pose with the preshape; the object at rest on the
-   support (settled once per object for ``object_settle_time``); the deepest hand-object
-   contact is recorded (``initial_penetration``);
+1. **start**: the hand at the pre-grasp pose with the pre-grasp's own preshape (``pool.q``,
+   :func:`grasp_specs`); the object at rest on the support (settled once per object for
+   ``object_settle_time``); the deepest hand-object contact is recorded
+   (``initial_penetration``);
 2. **approach**: the base moves (smooth start and stop) along the approach axis to the planned
    grasp pose;
 3. **close**: one command per closing finger advances both flexion targets along the closing
@@ -47,6 +48,7 @@ if TYPE_CHECKING:
     from ..io import PointCloud
     from ..pipeline import PipelineResult
     from ..planner import Grasp, GraspSet
+    from ..pregrasps import PreGraspPool
 
 logger = logging.getLogger(__name__)
 
@@ -492,10 +494,18 @@ def object_model(
 
 
 def grasp_specs(
-    hand: Hand, grasps: Sequence[Grasp | int], grasp_set: GraspSet | None
+    hand: Hand,
+    grasps: Sequence[Grasp | int],
+    grasp_set: GraspSet | None,
+    pool: PreGraspPool | None = None,
 ) -> list[GraspSpec]:
     """The simulator's description of each grasp (pose at the pre-grasp and after the approach,
-    preshape and closed joints); ints index ``grasp_set``; rejected grasps are an error."""
+    preshape and closed joints); ints index ``grasp_set``; rejected grasps are an error.
+
+    The preshape is the pre-grasp's own (``pool.q[g.pregrasp]``, what the planner closed the
+    fingers from: a pinch's is adapted to the part) when ``pool`` is given, else the grasp
+    type's fixed preshape (``Hand.preshape``), which is the pre-grasp's for every grasp but the
+    pinches."""
     specs = []
     for g in grasps:
         if isinstance(g, int | np.integer):
@@ -513,11 +523,14 @@ def grasp_specs(
         T = np.asarray(g.T_world_hand, dtype=np.float64)
         T0 = T.copy()
         T0[:3, 3] = T[:3, 3] - float(g.approach_distance) * T[:3, 2]
+        q0 = hand.preshape(g.grasp_type)
+        if pool is not None and 0 <= g.pregrasp < len(pool) and np.shape(pool.q)[1] == len(q0):
+            q0 = np.asarray(pool.q[g.pregrasp], dtype=np.float64).copy()
         specs.append(
             GraspSpec(
                 T0,
                 T,
-                hand.preshape(g.grasp_type),
+                q0,
                 np.asarray(g.q, dtype=np.float64),
                 tuple(f.name for f in hand.fingers_for(g.grasp_type)),
             )
@@ -538,12 +551,14 @@ def simulate_grasps(
     result_or_cloud: a :class:`~pregrasp_core.pipeline.PipelineResult` (its cloud, normals,
     support plane, friction and grasps) or a bare cloud; grasps: :class:`Grasp` objects or
     indices into the result's grasps (kept ones). Each grasp starts at its pre-grasp pose (the
-    grasp pose moved back by its ``approach_distance`` along the approach) with the preshape of
-    its type. The scene is compiled once for all of them. ``support`` overrides the result's.
+    grasp pose moved back by its ``approach_distance`` along the approach) with its pre-grasp's
+    preshape (the result's pool; a bare cloud's grasps: their type's preshape). The scene is
+    compiled once for all of them. ``support`` overrides the result's.
     """
     sim = simulator(result_or_cloud, hand, params, mesh, support)
     _, _, _, _, gs = _pipeline_parts(result_or_cloud)
-    return [sim.run(spec)[0] for spec in grasp_specs(hand, grasps, gs)]
+    specs = grasp_specs(hand, grasps, gs, getattr(result_or_cloud, "pool", None))
+    return [sim.run(spec)[0] for spec in specs]
 
 
 def simulator(
@@ -574,5 +589,5 @@ def simulate_playback(
     params = SimulationParams() if params is None else params
     sim = simulator(result_or_cloud, hand, params, mesh)
     _, _, _, _, gs = _pipeline_parts(result_or_cloud)
-    spec = grasp_specs(hand, [grasp], gs)[0]
+    spec = grasp_specs(hand, [grasp], gs, getattr(result_or_cloud, "pool", None))[0]
     return sim.run(spec, record_fps=params.record_fps if fps is None else fps)

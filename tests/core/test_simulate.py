@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+from unittest.mock import ANY
 
 import numpy as np
 import pytest
@@ -249,23 +250,40 @@ def test_synchronous_closing_reaches_every_planned_contact_at_once(hand, cylinde
     assert max(arrivals[False]) - min(arrivals[False]) > 10
 
 
-def test_synchronous_closing_lifts_a_small_ball_that_the_first_finger_would_push(hand):
-    """A 30 mm ball on the table, planned from its cloud (a tripod pinch): with the default
-    protocol the finger with the shortest way touches first and rolls the ball away (pushed
-    more than 5 cm, dropped); closing synchronously (every fingertip at its planned contact at
-    the same moment) lifts the true sphere with little push. MuJoCo is the reference."""
+def test_a_pinch_is_simulated_from_its_own_preshape(hand):
+    """A 30 mm ball on the table, planned from its cloud: its grasps are tripod pinches, whose
+    preshape the pool adapts to the ball (each finger opened just wider than it). The lift test
+    starts from that preshape (``pool.q``), the one the planner closed the fingers from, and
+    lifts the true sphere with little push. Before, it started every grasp from its type's
+    fixed preshape (the tripod opened wide): the fingers then swept far, the first to touch
+    rolled the ball away (pushed more than 5 cm) and it dropped. MuJoCo is the reference."""
+    from pregrasp_core.io import PointCloud
+
     r = 0.015
     mesh = trimesh.creation.icosphere(4, r)
     mesh.apply_translation([0.0, 0.0, r])
     pts, face = trimesh.sample.sample_surface(mesh, 8000, seed=0)
-    from pregrasp_core.io import PointCloud
-
     cloud = PointCloud(points=np.asarray(pts), normals=mesh.face_normals[face], source="ball")
     result = run_pipeline(cloud, until="grasps", hand=hand)
     best = result.grasps.best
     assert best is not None
-    (plain,) = simulate_grasps(result, [best], hand, SimulationParams(synchronous=False), mesh=mesh)
-    (sync,) = simulate_grasps(result, [best], hand, SimulationParams(synchronous=True), mesh=mesh)
-    assert not plain.success and plain.push > 0.05, plain.to_dict()
-    assert sync.success and sync.push < 0.01, sync.to_dict()
-    assert sync.rise > 0.09 and sync.slip < 0.005
+    g = result.grasps.grasps[best]
+    own = grasp_spec_of(hand, g, result, pool=True)
+    typed = grasp_spec_of(hand, g, result, pool=False)
+    assert np.array_equal(own.q_start, result.pool.q[g.pregrasp])
+    assert np.array_equal(typed.q_start, hand.preshape(g.grasp_type))
+    assert not np.allclose(own.q_start, typed.q_start)
+    (lift,) = simulate_grasps(result, [best], hand, mesh=mesh)
+    assert lift.success and lift.push < 0.01, lift.to_dict()
+    sim = LiftSimulator(hand, object_from_mesh(mesh), result.masks.support, friction=0.5)
+    assert sim.run(own)[0].to_dict() == {**lift.to_dict(), "cpu_time": ANY}
+    wide, _ = sim.run(typed)
+    assert not wide.success and wide.push > 0.05, wide.to_dict()
+
+
+def grasp_spec_of(hand, g, result, pool: bool):
+    """The simulator's spec of grasp ``g`` of ``result``, from the pre-grasp's own preshape
+    (``pool``) or from its type's."""
+    from pregrasp_core.simulate import grasp_specs
+
+    return grasp_specs(hand, [g], result.grasps, result.pool if pool else None)[0]
