@@ -84,7 +84,7 @@ def main() -> None:
         obj = object_from_mesh(mesh, sp.object)
         sim = LiftSimulator(hand, obj, result.masks.support, sp, pp.planner.quality.mu)
         build = time.process_time() - t0
-        res = [sim.run(s)[0] for s in grasp_specs(hand, top, gs)]
+        res = [sim.run(s)[0] for s in grasp_specs(hand, top, gs, result.pool)]
         cpu += [r.cpu_time for r in res]
         ok = sum(r.success for r in res)
         n_ok += ok
