@@ -23,7 +23,6 @@ from __future__ import annotations
 import dataclasses
 import enum
 import json
-import math
 import typing
 from dataclasses import dataclass
 from typing import Any
@@ -35,6 +34,7 @@ from pregrasp_core.decomposition import BoxNode, BoxTree
 from pregrasp_core.errors import InputError
 from pregrasp_core.facemask import FaceMasks, usable_subfaces
 from pregrasp_core.io import PointCloud
+from pregrasp_core.limits import real_or_nan
 from pregrasp_core.pipeline import PipelineParams, PipelineResult
 from pregrasp_core.planner import Contact, FingerTrace, Grasp, GraspSet
 from pregrasp_core.pregrasps import SURFACES, PreGraspPool
@@ -186,10 +186,7 @@ def _build(cls: Any, d: Any, where: str) -> Any:
         elif isinstance(cur, tuple) and isinstance(v, list):
             v = tuple(v)
         elif hints.get(f.name) is float and isinstance(v, int) and not isinstance(v, bool):
-            try:
-                v = float(v)
-            except OverflowError:  # an integer beyond the float range: the field names it
-                v = math.inf
+            v = real_or_nan(v)  # an integer beyond the float range: inf, which the field refuses
         kw[f.name] = v
     try:
         return cls(**kw)

@@ -56,13 +56,11 @@ from .limits import (
     MIN_STEP,
     check_int,
     check_real,
+    moved_field,
 )
 from .tolerances import GEOM_EPS, MVBB_DEGENERATE_REL
 
 logger = logging.getLogger(__name__)
-
-
-_DEFAULT_STEP_MIN = math.radians(0.005)
 
 
 @dataclass(frozen=True)
@@ -89,7 +87,7 @@ class MvbbParams:
     """Distinct candidates polished by the pattern search (step 3)."""
     step_start: float = math.radians(3.0)
     """First rotation step of the pattern search, radians."""
-    step_min: float = _DEFAULT_STEP_MIN
+    step_min: float = math.radians(0.005)
     """The pattern search stops when its step falls below this, radians."""
     active_reach: float = 4.0
     """The pattern search rebuilds its active point set after moves totalling this many steps
@@ -144,10 +142,8 @@ class MvbbParams:
         stop = check_real(
             "step_min", self.step_min, MIN_STEP, MAX_STEP, what="an angle", unit=" rad"
         )
-        if stop > start:
-            # name the field that was moved: a step_start below the default step_min is
-            # step_start's error, not step_min's
-            if stop == _DEFAULT_STEP_MIN:
+        if stop > start:  # named by the field that was moved (limits.moved_field)
+            if moved_field(self, "step_start", "step_min") == "step_start":
                 raise ValueError(
                     f"step_start must be an angle in [{stop:g}, {MAX_STEP:g}] rad (at least "
                     f"step_min), got {self.step_start!r}"

@@ -9,6 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..limits import real_or_nan
+
 SAMPLING_BOUNDS: dict[str, tuple[float, float]] = {
     "interval": (0.001, 1.0),
     "aperture_scale": (0.01, 10.0),
@@ -105,11 +107,7 @@ class SamplingParams:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
                 raise ValueError(f"{name} must be a number {what}, got {v!r}")
-            try:
-                finite = math.isfinite(v)
-            except OverflowError:  # an integer beyond the float range
-                finite = False
-            if not (finite and ok(v)):
+            if not (math.isfinite(real_or_nan(v)) and ok(v)):
                 raise ValueError(f"{name} must be {what}, got {v!r}")
             lo, hi = SAMPLING_BOUNDS[name]
             if not lo <= v <= hi:
