@@ -3,6 +3,7 @@ as ``python benchmarks/bench_x.py``, whose folder is then first on ``sys.path``)
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import time
@@ -60,6 +61,28 @@ def lift_first(result, hand, mesh, k: int, params=None) -> tuple[str, int, int]:
         held = "" if i < 0 else (", lifts" if lifted[i].success else ", drops")
         best = f"{g.grasp_type}, epsilon {g.epsilon:.3f}{held}"
     return best, sum(r.success for r in lifted), len(lifted)
+
+
+def shape_parser(description: str) -> argparse.ArgumentParser:
+    """The options every generated-shape benchmark has: ``--points`` sampled per shape and
+    ``--tree``, the checkout whose ``pregrasp_core`` runs (:func:`use_tree`)."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--points", type=int, default=20000)
+    ap.add_argument("--tree", type=Path, default=Path(__file__).resolve().parents[1])
+    return ap
+
+
+def start_shapes(ap: argparse.ArgumentParser) -> tuple[argparse.Namespace, object]:
+    """Parse ``ap`` (a :func:`shape_parser`), import ``pregrasp_core`` from ``--tree``, print the
+    table's header line and a blank line; ``(args, hand)``, the hand loaded from that tree."""
+    args = ap.parse_args()
+    header = use_tree(args.tree)
+    from pregrasp_core.hand import load_hand
+
+    hand = load_hand()
+    print(header)  # noqa: T201
+    print()  # noqa: T201
+    return args, hand
 
 
 def use_tree(tree: Path) -> str:

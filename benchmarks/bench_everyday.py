@@ -22,12 +22,10 @@ import os
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
-import argparse  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
-from _timing import lift_first, use_tree  # noqa: E402
+from _timing import lift_first, shape_parser, start_shapes  # noqa: E402
 
 R = trimesh.transformations.rotation_matrix
 
@@ -149,22 +147,15 @@ def shapes() -> dict[str, trimesh.Trimesh]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--points", type=int, default=20000)
+    ap = shape_parser(__doc__.split("\n")[0])
     ap.add_argument("--only", default="", help="only the shapes whose name contains this")
     ap.add_argument("--estimated", action="store_true", help="also plan without normals")
     ap.add_argument("--synchronous", action="store_true", help="SimulationParams.synchronous")
-    ap.add_argument("--tree", type=Path, default=Path(__file__).resolve().parents[1])
-    args = ap.parse_args()
-    header = use_tree(args.tree)
-    from pregrasp_core.hand import load_hand
+    args, hand = start_shapes(ap)
     from pregrasp_core.io import PointCloud
     from pregrasp_core.pipeline import run_pipeline
     from pregrasp_core.simulate import SimulationParams
 
-    hand = load_hand()
-    print(header)
-    print()
     print("| shape | normals | pool | kept | force closure | best grasp | first 5 that lift |")
     print("|---|---|---:|---:|---:|---|---:|")
     for name, mesh in shapes().items():  # loop over the few shapes

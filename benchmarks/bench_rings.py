@@ -27,13 +27,11 @@ import os
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
-import argparse  # noqa: E402
 import statistics  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
-from _timing import lift_first, use_tree  # noqa: E402
+from _timing import lift_first, shape_parser, start_shapes  # noqa: E402
 
 
 def shapes() -> dict[str, trimesh.Trimesh]:
@@ -53,21 +51,14 @@ def shapes() -> dict[str, trimesh.Trimesh]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--points", type=int, default=20000)
+    ap = shape_parser(__doc__.split("\n")[0])
     ap.add_argument("--simulate", type=int, default=5, help="grasps lifted per shape")
     ap.add_argument("--repeats", type=int, default=9, help="runs of the pool stage")
-    ap.add_argument("--tree", type=Path, default=Path(__file__).resolve().parents[1])
-    args = ap.parse_args()
-    header = use_tree(args.tree)
-    from pregrasp_core.hand import load_hand
+    args, hand = start_shapes(ap)
     from pregrasp_core.io import PointCloud, load_point_cloud
     from pregrasp_core.paths import DEFAULT_OBJECT
     from pregrasp_core.pipeline import run_pipeline
 
-    hand = load_hand()
-    print(header)
-    print()
     print(f"| shape | pool | kept | force closure | best grasp | top {args.simulate} that lift |")
     print("|---|---:|---:|---:|---|---:|")
     clouds = {}
