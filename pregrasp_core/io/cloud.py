@@ -39,6 +39,10 @@ not in metres (and squares of the coordinates could overflow)."""
 MILLIMETRE_EXTENT: float = 5.0
 """A cloud whose bounding box is longer than this (metres) probably is in millimetres: warn."""
 
+STRAY_FRACTION: float = 0.01
+"""At most this fraction of a cloud's points may be dropped as strays (:func:`drop_strays`):
+more than that far away is a second object, not noise."""
+
 CLOUD_EXTENSIONS: tuple[str, ...] = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".npy", ".npz")
 """Point-cloud formats (a ``.ply`` with faces is read as a mesh)."""
 
@@ -61,6 +65,8 @@ class CloudInfo(TypedDict, total=False):
     """Rows read, or mesh vertices."""
     n_dropped_nonfinite: int
     """Rows dropped for a NaN or infinite coordinate."""
+    n_dropped_strays: int
+    """Points dropped far outside the others (:func:`drop_strays`; absent when none)."""
     scale: float
     """Factor applied to the coordinates."""
     seed: int | None
@@ -106,7 +112,8 @@ class PointCloud:
     ``n_read`` (rows read, or mesh vertices), ``n_dropped_nonfinite``, ``scale``, ``seed`` (of
     the sampling/subsampling; None for an array), ``warnings`` (list of str); meshes add
     ``n_faces``, ``area`` (m^2, after scaling) and ``watertight``; clouds cut to ``n_points`` add
-    ``n_subsampled_from``; scenes add ``scene`` (:class:`CloudInfo`)."""
+    ``n_subsampled_from``; clouds with stray points add ``n_dropped_strays``; scenes add
+    ``scene`` (:class:`CloudInfo`)."""
     viewpoint: np.ndarray | None = None
     """(3,) the camera position (metres, world frame) of a single view, or None (a complete
     cloud): the pipeline turns the normals toward it unless ``--viewpoint`` says otherwise."""
@@ -349,6 +356,11 @@ def finish_cloud(
         info["n_subsampled_from"] = int(pts.shape[0])
         pts = pts[keep]
         nrm = None if nrm is None else nrm[keep]
+    keep = drop_strays(pts, source, warns)
+    if keep is not None:
+        pts = pts[keep]
+        nrm = None if nrm is None else nrm[keep]
+        info["n_dropped_strays"] = int(len(keep) - np.count_nonzero(keep))
     check_geometry(pts, source, warns)
     info["n_dropped_nonfinite"] = n_bad
     info["scale"] = s
@@ -356,6 +368,30 @@ def finish_cloud(
     info.setdefault("n_read", n_in)
     info.setdefault("seed", int(seed))
     return PointCloud(points=pts, normals=nrm, source=source, info=info)
+
+
+def drop_strays(pts: np.ndarray, source: str, warns: list[str]) -> np.ndarray | None:
+    """(N,) bool, the points to keep, when a few points (at most :data:`STRAY_FRACTION` of them)
+    lie far outside the rest, else None (keep all). "Far": beyond the box of the 1st to 99th
+    percentiles per axis grown on every side by its own longest side (at least 1 mm) -- a
+    scanner's stray return, a vertex left at 10^6 m in a mesh. Within that reach, or more of
+    them, the points are kept: a second object, a table, a long part. A stray point left in
+    would stretch the decomposition's root box and the collision grids over the whole distance
+    (one point at 10^6 m asked the pool for 4.8 billion samples)."""
+    lo, hi = np.percentile(pts, [1.0, 99.0], axis=0)  # (3,) each
+    reach = max(float(np.max(hi - lo)), 1e-3)
+    far = np.any((pts < lo - reach) | (pts > hi + reach), axis=1)  # (N,)
+    n_far = int(np.count_nonzero(far))
+    if n_far == 0 or n_far > STRAY_FRACTION * len(pts):
+        return None
+    worst = pts[far][int(np.argmax(np.abs(pts[far] - 0.5 * (lo + hi)).max(axis=1)))]
+    add_warning(
+        warns,
+        f"{source}: dropped {n_far} stray point(s) of {len(pts)}, more than {reach:.3g} m "
+        f"outside the box of the others (the farthest at ({worst[0]:.4g}, {worst[1]:.4g}, "
+        f"{worst[2]:.4g})): a scanner's stray returns or a stray vertex",
+    )
+    return ~far
 
 
 def check_geometry(pts: np.ndarray, source: str, warns: list[str]) -> None:

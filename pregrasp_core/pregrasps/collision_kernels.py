@@ -282,8 +282,9 @@ def point_grid(pts: np.ndarray, h: float) -> PointGrid:
     h = float(h)
     limit = min(MAX_VOXELS, max(4096, 8 * len(pts)))
     while True:
-        dims = (np.floor(size / h) + 1).astype(np.int64)
-        if int(np.prod(dims)) <= limit:
+        cells = np.floor(size / h) + 1.0  # (3,) float: a far outlier's counts overflow int64
+        if float(np.prod(cells)) <= limit:
+            dims = cells.astype(np.int64)
             break
         h *= 1.25
     start, spts = k.grid(pts, lo, h, dims)

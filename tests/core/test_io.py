@@ -719,6 +719,52 @@ def test_huge_coordinates_refused():
         load_point_cloud_bytes(obj, "huge.obj")
 
 
+@pytest.mark.parametrize("far", [1.0, 1e6])
+def test_a_stray_point_is_dropped_and_the_plan_is_the_clean_clouds(far, caplog):
+    """A scanner's stray return (one point 1 m or 10^6 m away from a mug): dropped with a
+    notice naming it, and the pipeline's pre-grasps are those of the cloud without it (before,
+    the point at 10^6 m crashed the pool stage with "negative dimensions not allowed")."""
+    from pregrasp_core.pipeline import run_pipeline
+
+    clean = load_point_cloud(DEFAULT_OBJECT, n_points=3000, seed=0).points
+    stray = np.vstack([clean[:1500], [[far, far, far]], clean[1500:]])
+    with caplog.at_level(logging.WARNING, logger="pregrasp_core.io.cloud"):
+        got = PointCloud.from_array(stray, source="scan.ply")
+    assert np.array_equal(got.points, clean)
+    assert got.info["n_dropped_strays"] == 1
+    assert "scan.ply: dropped 1 stray point(s) of 3001" in caplog.text
+    assert f"({far:.4g}, {far:.4g}, {far:.4g})" in caplog.text
+    pools = [run_pipeline(PointCloud.from_array(p), until="pool").pool for p in (clean, stray)]
+    assert len(pools[0]) > 0
+    assert np.array_equal(pools[0].T_world_hand, pools[1].T_world_hand)
+
+
+def test_far_apart_objects_and_long_parts_keep_every_point():
+    """Not strays: two equal objects a metre apart, a thin rod with 1 % of its points at a
+    far end, and 2 % of the points far away (a second, small object)."""
+    pts, _ = known_cloud(2000)
+    two = PointCloud.from_array(np.vstack([pts, pts + [1.0, 0.0, 0.0]]))
+    assert two.n_points == 4000 and "n_dropped_strays" not in two.info
+    rng = np.random.default_rng(3)
+    rod = np.c_[rng.uniform(0.0, 0.3, 1000), rng.normal(0.0, 0.002, (1000, 2))]
+    rod[:10, 0] = rng.uniform(0.3, 0.6, 10)  # the sparse far end of a long part
+    assert PointCloud.from_array(rod).n_points == 1000
+    second = np.vstack([pts, pts[:40] * 0.1 + [2.0, 0.0, 0.0]])
+    assert PointCloud.from_array(second).n_points == 2040
+
+
+def test_the_collision_grid_of_points_a_million_metres_apart():
+    """The pool's voxel grid of two points 10^6 m apart: the voxels per axis overflowed int64
+    when multiplied, the product passed the size test and the grid failed; now the voxel grows
+    until the grid fits, and both points are in it."""
+    from pregrasp_core.pregrasps.collision_kernels import MAX_VOXELS, point_grid
+
+    pts = np.array([[0.0, 0.0, 0.0], [1e6, 1e6, 1e6], [1.0, 2.0, 3.0]])
+    grid = point_grid(pts, 0.005)
+    assert 0 < np.prod(grid.dims.astype(np.float64)) <= MAX_VOXELS
+    assert grid.start[-1] == 3 and np.array_equal(np.sort(grid.pts, axis=0), np.sort(pts, axis=0))
+
+
 # ------------------------------------------------------------------------------------------------
 # Fuzzing: nothing but a PregraspError ever escapes
 
