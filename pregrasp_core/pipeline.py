@@ -48,6 +48,7 @@ from .planner import GraspSet, PlannerParams, cloud_normals, grasps_sections, pl
 from .planner.assumed import without_occupied
 from .planner.serialize import SimulatedRanking
 from .pregrasps import PreGraspPool, SamplingParams, Traversal, build_pool, traverse
+from .pregrasps.traversal import no_fit_hint
 from .result import JsonDocument
 from .result import result_document as _result_document
 from .sensor.occluded import OCCLUDED_MODES, OccupiedSpace, occupied_space
@@ -471,6 +472,9 @@ def _run_stages(
                 trav,
                 params.shape,
             )
+            if not trav.candidates:
+                hint = no_fit_hint(out["tree"], run_hand, params.sampling)
+                logger.warning("%s: %s", cloud.source, hint)
             return {"traversal": trav, "pool": pool}
 
         stage(

@@ -31,6 +31,36 @@ def grip_width(box: OrientedBox, grasp_type: str) -> float:
     return float({"cylindrical": e[1], "three_finger_tip": e[2]}.get(gt, e[0]))
 
 
+def no_fit_hint(tree: BoxTree, hand: Hand, params: SamplingParams | None = None) -> str:
+    """Why no node of ``tree`` fits ``hand``, in one sentence for a user: the narrowest grip
+    over every part and grasp type (:func:`grip_width`) against what the hand opens for that
+    type, and, when it is at least 3 times too wide, the hint that the file may not be in
+    metres (a mug in inches is 4.5 m long; the millimetre rule does not catch it)."""
+    params = SamplingParams() if params is None else params
+    best: tuple[float, float, float, str, int] | None = None  # (ratio, width, aperture, type, id)
+    for nd in tree.nodes:  # loop over the tree's nodes
+        for gt in ("cylindrical", "spherical", "three_finger_tip", "two_finger_tip"):
+            width = grip_width(nd.box, gt)
+            opens = float(hand.aperture(gt)) * params.aperture_scale
+            ratio = width / max(opens, 1e-12)
+            if best is None or ratio < best[0]:
+                best = (ratio, width, opens, gt, nd.id)
+    if best is None:
+        return "the decomposition has no part"
+    ratio, width, opens, gt, i = best
+    text = (
+        f"no part of the object fits the hand: the narrowest grip is {width:.3g} m ({gt}, "
+        f"part {i}) and the hand opens {opens:.3g} m for it"
+    )
+    if ratio >= 3.0:
+        longest = float(tree.nodes[0].box.extents[0])
+        text += (
+            f"; the object is {longest:.3g} m long: if the file is not in metres, pass --scale "
+            "(0.001 for millimetres, 0.01 for centimetres, 0.0254 for inches)"
+        )
+    return text
+
+
 @dataclass(frozen=True)
 class Traversal:
     """Which nodes get pre-grasps, and why each node does or does not."""

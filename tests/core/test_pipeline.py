@@ -299,3 +299,35 @@ def test_a_document_left_as_built_writes_the_plain_documents_file(hand, params, 
     a = write_result(plain, tmp_path / "plain.json").read_bytes()
     b = write_result(raw, tmp_path / "raw.json").read_bytes()
     assert a == b and json.loads(b) == plain
+
+
+@pytest.mark.parametrize(("scale", "hinted"), [(1.0 / 0.0254, True), (1.0, False)])
+def test_an_object_no_part_of_which_fits_the_hand_says_why(hand, scale, hinted, caplog):
+    """The L shape in inches (4 to 6 units a side, which the millimetre rule leaves as metres):
+    no candidate, and a warning naming the narrowest grip (over every part and grasp type: the
+    widths the hand must span, by the box sides of docs/pregrasps.md) against what the hand
+    opens for it, with the hint that the file may not be in metres; the L in metres gets
+    pre-grasps and no such warning."""
+    import logging
+
+    cloud = l_shape_cloud()
+    cloud = PointCloud.from_array(cloud.points * scale, source="l_inches.ply")
+    with caplog.at_level(logging.WARNING, logger="pregrasp_core.pipeline"):
+        res = run_pipeline(cloud, None, hand, until="pool")
+    said = [r.getMessage() for r in caplog.records if "fits the hand" in r.getMessage()]
+    if not hinted:
+        assert said == [] and len(res.pool) > 0
+        return
+    assert len(res.pool) == 0 and res.traversal.candidates == ()
+    side = {"cylindrical": 1, "spherical": 0, "three_finger_tip": 2, "two_finger_tip": 0}
+    grips = [
+        (float(n.box.extents[k]) / float(hand.aperture(t)), float(n.box.extents[k]), t)
+        for n in res.tree.nodes
+        for t, k in side.items()
+    ]
+    ratio, width, gt = min(grips)
+    assert ratio > 3.0  # (the post's 1.57 inch side is 1.57 m here, the hand opens 0.13 m)
+    assert len(said) == 1 and said[0].startswith("l_inches.ply: no part of the object fits")
+    assert f"the narrowest grip is {width:.3g} m ({gt}" in said[0]
+    assert f"the hand opens {float(hand.aperture(gt)):.3g} m for it" in said[0]
+    assert "0.0254 for inches" in said[0]
