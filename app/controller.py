@@ -27,6 +27,7 @@ from pregrasp_core import pipeline as ppl
 from pregrasp_core.errors import InputError, PregraspError
 from pregrasp_core.limits import MAX_SCALE, MIN_SCALE, check_real
 from pregrasp_core.paths import demo_depth_images, demo_objects
+from pregrasp_core.pregrasps.traversal import no_fit_hint
 from pregrasp_core.sensor import CameraFile, Intrinsics
 
 from .result_file import ResultFile, looks_like_result, read_result_file
@@ -719,6 +720,9 @@ class Controller:
             f"({dt * 1000:.0f} ms)"
         )
         warn = list(getattr(cloud, "info", {}).get("warnings", []) or [])
+        trav = getattr(result, "traversal", None)
+        if trav is not None and not trav.candidates and result.hand is not None:
+            warn.append(no_fit_hint(tree, result.hand, params.sampling))  # (a mug in inches)
         depth = (getattr(cloud, "info", {}) or {}).get("depth")
         if depth is not None:
             where = str(depth["intrinsics_from"]).replace("--intrinsics", "the given fx fy cx cy")

@@ -356,11 +356,11 @@ def finish_cloud(
         info["n_subsampled_from"] = int(pts.shape[0])
         pts = pts[keep]
         nrm = None if nrm is None else nrm[keep]
-    keep = drop_strays(pts, source, warns)
-    if keep is not None:
-        pts = pts[keep]
-        nrm = None if nrm is None else nrm[keep]
-        info["n_dropped_strays"] = int(len(keep) - np.count_nonzero(keep))
+    near = drop_strays(pts, source, warns)
+    if near is not None:
+        pts = pts[near]
+        nrm = None if nrm is None else nrm[near]
+        info["n_dropped_strays"] = int(len(near) - np.count_nonzero(near))
     check_geometry(pts, source, warns)
     info["n_dropped_nonfinite"] = n_bad
     info["scale"] = s

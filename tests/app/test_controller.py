@@ -58,6 +58,20 @@ def test_upload_of_a_point_cloud_replaces_the_object(app):
     assert app.controller.state.source.name == "bottle" and app.gui.demo.value == "bottle"
 
 
+def test_an_upload_too_large_for_the_hand_says_why_and_hints_at_units(app):
+    """A 6 cm block written in inches (2.4 units long: the millimetre rule reads it as metres):
+    its message says that no part fits the hand and names --scale 0.0254 for inches."""
+    pts = _box_cloud(2500, (0.06, 0.04, 0.03)) / 0.0254
+    handle = app.gui.upload
+    handle._impl.value = UploadedFile(name="block_inches.xyz", content=_xyz_bytes(pts))
+    for cb in handle._impl.update_cb:
+        cb(GuiEvent(client=None, client_id=None, target=handle))
+    s = app.controller.state
+    assert s.source.name == "block_inches.xyz" and s.error == "" and len(s.result.pool) == 0
+    assert "no part of the object fits the hand" in s.message
+    assert "0.0254 for inches" in s.message
+
+
 def test_upload_errors_become_notifications_and_keep_the_state(app):
     s0 = app.controller.state
     app.controller.max_upload_bytes = 1000
