@@ -337,7 +337,7 @@ def scene_object(
     except PregraspError as exc:
         raise type(exc)(
             f"{scene.source}: the scene's table and object: {exc} (--no-scene reads the points "
-            "as one object)"
+            "as one object, its normals facing the camera)"
         ) from None
     if len(done.points) < MIN_POINTS:
         raise InputError(

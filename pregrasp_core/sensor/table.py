@@ -539,7 +539,12 @@ def segment_table(
             near, _ = cKDTree(pts[low] @ B).query(pts[in_band] @ B, distance_upper_bound=radius)
             object_mask[np.nonzero(in_band)[0][np.isfinite(near)]] = True
     else:
-        raise InputError("nothing stands above the table: every point is on the plane or below it")
+        raise InputError(
+            f"nothing stands above the table: every point is on the plane found or below it "
+            f"({int(in_band.sum())} of {len(pts)} points within {1000.0 * band:.1f} mm of it): "
+            "the view holds no object, or no table (a view of the object alone, cut out of its "
+            "scene)"
+        )
     table_mask = in_band & ~object_mask
     logger.info(
         "table: normal %s height %.4f m, sigma %.2g m, %d table points, object %d points "
