@@ -74,7 +74,8 @@ def detect_units(points: np.ndarray, seed: int = 0) -> UnitGuess:
     if extent > MM_MIN_EXTENT and spacing > MM_MIN_SPACING:
         notice = (
             f"the cloud is {extent:.4g} units across with points {spacing:.3g} units apart: "
-            "read as millimetres and scaled by 0.001 (pass --scale 1 if it really is metres)"
+            "read as millimetres and scaled by 0.001 (pass --scale 1 if it really is metres, "
+            "--scale 0.01 if centimetres)"
         )
         return UnitGuess(0.001, "mm", extent, spacing, notice)
     why = (
