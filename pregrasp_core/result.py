@@ -275,6 +275,7 @@ def input_section(cloud: PointCloud, seed: int | None = None) -> JsonDocument:
         "scale": info.get("scale", 1.0),
         "n_read": info.get("n_read"),
         "n_dropped_nonfinite": info.get("n_dropped_nonfinite", 0),
+        **({"n_dropped_strays": info["n_dropped_strays"]} if "n_dropped_strays" in info else {}),
         "has_normals": getattr(cloud, "normals", None) is not None,
         "bounds": to_jsonable(np.stack([lo, hi])),
         "warnings": list(info.get("warnings", [])),

@@ -354,6 +354,9 @@ def run(args: argparse.Namespace) -> int:
         if best is not None
         else f", {reason}"
     )
+    pool = result.pool
+    if pool is not None and len(pool) == 0 and any(pool.dropped.values()):
+        tail += f" (every sample dropped: {_counts(pool.dropped)})"  # (see docs/pregrasps.md)
     if lift is not None:
         tail += f"; {len(lift.results)} simulated, {lift.n_lifted} lifted"
     if note := occluded_note(result):

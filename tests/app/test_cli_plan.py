@@ -66,6 +66,24 @@ def test_json_result_has_grasps_best_and_timings(tmp_path, capsys):
     assert doc["parameters"]["planner"]["quality"]["mu"] == 0.5
 
 
+def test_an_empty_pool_says_why_every_sample_was_dropped(tmp_path, capsys):
+    """A 2 x 2 x 1 cm brick on the table with the fingertip pinches off: the paper's enclosing
+    surfaces put the open hand below the table from every side, so every sample is dropped;
+    the line says so with the pool's counts (the result file's ``pool.dropped``)."""
+    brick = trimesh.creation.box([0.02, 0.02, 0.01])
+    brick.apply_translation([0.0, 0.0, 0.005])
+    pts, _ = trimesh.sample.sample_surface(brick, 3000, seed=0)
+    src = tmp_path / "brick.xyz"
+    np.savetxt(src, np.asarray(pts))
+    out_file = tmp_path / "brick.json"
+    assert main(["plan", str(src), "--no-pinch", "-o", str(out_file)]) == 0
+    line = capsys.readouterr().out
+    dropped = json.loads(out_file.read_text())["pool"]["dropped"]
+    assert sum(dropped.values()) > 0
+    said = ", ".join(f"{k} {v}" for k, v in dropped.items() if v)
+    assert f"the pre-grasp pool is empty (every sample dropped: {said})" in line
+
+
 def test_json_to_stdout_and_planner_options(capsys):
     assert main(["plan", str(LEMON), *FAST, "--mu", "0.8", "--cone-edges", "6", "-o", "-"]) == 0
     doc = json.loads(capsys.readouterr().out)
