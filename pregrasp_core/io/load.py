@@ -14,10 +14,11 @@ import numpy as np
 from ..errors import InputError, PregraspError
 from ..sensor import (
     CompletionParams,
+    NoTableError,
     SensorView,
     complete_view,
     detect_units,
-    pcd_viewpoint,
+    pcd_viewpoint_of,
     prepare_view,
 )
 from .cloud import (
@@ -242,7 +243,9 @@ def _load(
         scene = finish_cloud(
             depth.points, None, file.source, info, scale=scale, n_points=None, seed=seed
         )
-        return _scene_or_view(scene, vp, opts, n_points, seed, opts.scene is not False)
+        return _scene_or_view(
+            scene, vp, opts, n_points, seed, opts.scene is not False, opts.scene is None
+        )
     parsed = _read(file, ext)
     if isinstance(parsed, TriangleMesh):
 
@@ -252,7 +255,8 @@ def _load(
         cloud = sample_mesh(parsed, file.source, fmt, n_points, seed, scale, units)
         return _scene_or_view(cloud, opts.viewpoint, opts, n_points, seed, bool(opts.scene))
     warns = list(parsed.warnings)
-    T_pcd = pcd_viewpoint(file.path) if ext == ".pcd" and file.path is not None else None
+    # (from the bytes: an uploaded PCD's VIEWPOINT counts as a file's)
+    T_pcd = pcd_viewpoint_of(file.data, file.source) if ext == ".pcd" else None
     eff_scale = _units(parsed.points, scale, seed, warns)
     info = CloudInfo(format=fmt, kind="cloud", n_read=parsed.n_read, warnings=warns)
     cam: np.ndarray | None = None
@@ -270,7 +274,7 @@ def _load(
         n_points=None if as_scene else n_points,
         seed=seed,
     )
-    return _scene_or_view(cloud, cam, opts, n_points, seed, as_scene)
+    return _scene_or_view(cloud, cam, opts, n_points, seed, as_scene, opts.scene is None)
 
 
 def _scene_or_view(
@@ -280,8 +284,13 @@ def _scene_or_view(
     n_points: int | None,
     seed: int,
     as_scene: bool,
+    inferred: bool = False,
 ) -> PointCloud:
-    """``cloud`` with its viewpoint, or, for a scene, its object (table removed, completed)."""
+    """``cloud`` with its viewpoint, or, for a scene, its object (table removed, completed).
+    ``inferred``: the scene was not asked for (a PCD's ``VIEWPOINT``, a depth image): a view
+    with no table in it (:class:`~pregrasp_core.sensor.NoTableError`, an object cut out of its
+    scene) is then read as one object seen from its camera, cut to ``n_points``, with a
+    warning, as ``--no-scene`` reads it; an asked-for scene without a table is an error."""
     if not as_scene:
         if opts.pick is not None:
             raise InputError(f"{cloud.source}: --pick needs a scene (--scene)")
@@ -293,7 +302,14 @@ def _scene_or_view(
             f"{cloud.source}: a scene needs the camera position: pass --viewpoint X Y Z "
             "(metres, the cloud's frame)"
         )
-    view = scene_object(cloud, np.asarray(viewpoint, dtype=np.float64), opts.pick, n_points, seed)
+    try:
+        view = scene_object(
+            cloud, np.asarray(viewpoint, dtype=np.float64), opts.pick, n_points, seed
+        )
+    except NoTableError as exc:
+        if not inferred or opts.pick is not None:
+            raise
+        return _alone(cloud, np.asarray(viewpoint, dtype=np.float64), n_points, seed, exc)
     info = cloud.info.copy()
     info["scene"] = {
         "n_scene": cloud.n_points,
@@ -316,6 +332,32 @@ def _scene_or_view(
     )
 
 
+def _alone(
+    cloud: PointCloud, viewpoint: np.ndarray, n_points: int | None, seed: int, why: NoTableError
+) -> PointCloud:
+    """The view ``cloud`` (every point read, no table in it) as one object seen from
+    ``viewpoint``: cut to ``n_points`` as :func:`~.cloud.finish_cloud` cuts a cloud (the same
+    points as ``--no-scene``), with the warning that says so."""
+    info = cloud.info.copy()
+    warns = list(info.get("warnings", []))
+    cam = ", ".join(f"{v:.4g}" for v in viewpoint)
+    add_warning(
+        warns,
+        f"{cloud.source}: no table in the view (nothing stands above the plane the table search "
+        f"found, {why.behind} points lie behind it): read as one object seen from the camera at "
+        f"({cam}), its normals facing the camera; its unseen back is not completed (keep the "
+        "table in the view for that)",
+    )
+    info["warnings"] = warns
+    pts, nrm = cloud.points, cloud.normals
+    if n_points is not None and len(pts) > n_points:
+        rng = np.random.default_rng(seed)
+        keep = np.sort(rng.choice(len(pts), size=int(n_points), replace=False))
+        info["n_subsampled_from"] = len(pts)
+        pts, nrm = pts[keep], None if nrm is None else nrm[keep]
+    return PointCloud(points=pts, normals=nrm, source=cloud.source, info=info, viewpoint=viewpoint)
+
+
 def scene_object(
     scene: PointCloud,
     viewpoint: np.ndarray,
@@ -335,10 +377,13 @@ def scene_object(
         tol = max(0.003, 3.0 * view.segmentation.sigma)
         done = complete_view(obj, viewpoint, view.plane, CompletionParams(tolerance=tol))
     except PregraspError as exc:
-        raise type(exc)(
+        msg = (
             f"{scene.source}: the scene's table and object: {exc} (--no-scene reads the points "
             "as one object, its normals facing the camera)"
-        ) from None
+        )
+        if isinstance(exc, NoTableError):
+            raise NoTableError(msg, exc.behind) from None
+        raise type(exc)(msg) from None
     if len(done.points) < MIN_POINTS:
         raise InputError(
             f"{scene.source}: the object above the table has only {len(done.points)} points; "

@@ -25,6 +25,7 @@ from .depth import (
     read_depth_file,
 )
 from .table import (
+    NoTableError,
     SegmentParams,
     TableSegmentation,
     fit_plane_ransac,
@@ -33,7 +34,7 @@ from .table import (
     voxel_clusters,
 )
 from .units import UnitGuess, detect_units
-from .view import SensorView, pcd_viewpoint, prepare_view
+from .view import SensorView, pcd_viewpoint, pcd_viewpoint_of, prepare_view
 
 __all__ = [
     "CameraFile",
@@ -41,6 +42,7 @@ __all__ = [
     "CompletionParams",
     "DepthCloud",
     "Intrinsics",
+    "NoTableError",
     "SegmentParams",
     "SensorView",
     "TableSegmentation",
@@ -52,6 +54,7 @@ __all__ = [
     "load_camera_pose",
     "load_depth_image",
     "pcd_viewpoint",
+    "pcd_viewpoint_of",
     "prepare_view",
     "read_depth_file",
     "remove_outliers",

@@ -75,6 +75,22 @@ FOOT_NEIGHBOURS: int = 16
 MAD_TO_SIGMA: float = 1.4826
 """Median absolute deviation to standard deviation for Gaussian residuals."""
 
+NO_TABLE_BEHIND: float = 0.05
+"""When nothing stands above the plane found and more than this fraction of the points lies
+behind it (the side away from the camera, which a table hides), the plane is not a table: it
+cuts through an object seen alone (:class:`NoTableError`)."""
+
+
+class NoTableError(InputError):
+    """A view with no table in it: the plane the search found cuts through the object (a view of
+    the object alone, cut out of its scene). The loader reads such a view as one object seen
+    from its camera when the scene was only inferred (a PCD's ``VIEWPOINT``, a depth image)."""
+
+    def __init__(self, message: str, behind: int = 0) -> None:
+        super().__init__(message)
+        self.behind = int(behind)
+        """Points behind the plane found."""
+
 
 @dataclass(frozen=True)
 class SegmentParams:
@@ -539,11 +555,18 @@ def segment_table(
             near, _ = cKDTree(pts[low] @ B).query(pts[in_band] @ B, distance_upper_bound=radius)
             object_mask[np.nonzero(in_band)[0][np.isfinite(near)]] = True
     else:
+        behind = int(np.count_nonzero(dist < -band))
+        where = f"{int(in_band.sum())} of {len(pts)} points within {1000.0 * band:.1f} mm of it"
+        if behind > NO_TABLE_BEHIND * len(pts):
+            raise NoTableError(
+                f"no table in the view: nothing stands above the plane found ({where}) and "
+                f"{behind} points lie behind it, where a table would hide everything: the view "
+                "holds an object alone (cut out of its scene)",
+                behind,
+            )
         raise InputError(
-            f"nothing stands above the table: every point is on the plane found or below it "
-            f"({int(in_band.sum())} of {len(pts)} points within {1000.0 * band:.1f} mm of it): "
-            "the view holds no object, or no table (a view of the object alone, cut out of its "
-            "scene)"
+            f"nothing stands above the table: every point is on the plane found ({where}): the "
+            "view holds no object"
         )
     table_mask = in_band & ~object_mask
     logger.info(

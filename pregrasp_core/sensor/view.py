@@ -152,6 +152,12 @@ def pcd_viewpoint(path: str | Path) -> np.ndarray | None:
         raise InputError(f"{p}: file not found; check the path")
     with open(p, "rb") as f:
         head = f.read(PCD_HEADER_BYTES)
+    return pcd_viewpoint_of(head, str(p))
+
+
+def pcd_viewpoint_of(data: bytes, source: str) -> np.ndarray | None:
+    """:func:`pcd_viewpoint` of a PCD file's bytes ``data`` (an upload), ``source`` its name."""
+    head = bytes(data[:PCD_HEADER_BYTES])
     for raw in head.split(b"\n"):
         line = raw.decode("ascii", errors="replace").strip()
         if line.upper().startswith("DATA"):
@@ -161,14 +167,14 @@ def pcd_viewpoint(path: str | Path) -> np.ndarray | None:
         try:
             vals = np.array([float(v) for v in line.split()[1:]])
         except ValueError:
-            raise InputError(f"{p}: malformed VIEWPOINT line {line[:80]!r}") from None
+            raise InputError(f"{source}: malformed VIEWPOINT line {line[:80]!r}") from None
         if vals.shape != (7,) or not np.all(np.isfinite(vals)):
             raise InputError(
-                f"{p}: VIEWPOINT must hold 7 numbers (tx ty tz qw qx qy qz), got {line[:80]!r}"
+                f"{source}: VIEWPOINT must hold 7 numbers (tx ty tz qw qx qy qz), got {line[:80]!r}"
             )
         q = vals[3:]
         if np.linalg.norm(q) < 1e-9:
-            raise InputError(f"{p}: the VIEWPOINT quaternion is zero")
+            raise InputError(f"{source}: the VIEWPOINT quaternion is zero")
         if np.allclose(vals, [0, 0, 0, 1, 0, 0, 0]):
             return None
         T = np.eye(4)

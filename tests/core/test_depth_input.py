@@ -115,6 +115,20 @@ def test_pcd_viewpoint_scene_removes_table_and_gives_support_plane(scene_pcd) ->
     assert fixed.facemask.support_height == 0.01
 
 
+def test_an_uploaded_pcd_scene_is_read_as_its_file(scene_pcd) -> None:
+    """The viewer's upload (the bytes and the file's name) reads the VIEWPOINT as the path
+    does: the same scene, table removed, the same camera (before, an upload's VIEWPOINT was
+    ignored: the table and both boxes became one object with normals by visibility)."""
+    from pregrasp_core.io import load_point_cloud_bytes
+
+    path, T = scene_pcd
+    by_path = load_point_cloud(path)
+    up = load_point_cloud_bytes(path.read_bytes(), "boxes.pcd")
+    np.testing.assert_allclose(up.viewpoint, T[:3, 3], atol=1e-6)
+    assert up.info["scene"] == by_path.info["scene"]
+    assert np.array_equal(up.points, by_path.points)
+
+
 def test_pick_selects_the_other_object(scene_pcd) -> None:
     path, _ = scene_pcd
     _, _, small = two_boxes()
@@ -130,6 +144,43 @@ def test_no_scene_keeps_every_point_and_the_viewpoint(scene_pcd) -> None:
     assert "scene" not in cloud.info and cloud.sensor is None
     assert cloud.n_points == cloud.info["n_read"]
     np.testing.assert_allclose(cloud.viewpoint, T[:3, 3], atol=1e-6)
+
+
+def test_a_view_of_an_object_cut_out_of_its_scene_is_read_as_one_object(tmp_path) -> None:
+    """A PCD view (with its VIEWPOINT) of the large box with the table's points cut away, as a
+    user crops a depth camera's cloud: the table search finds a plane through the box, with
+    points behind it, which no table has; the scene was only inferred from the VIEWPOINT, so
+    the points are read as one object seen from the camera (the same cloud as ``scene=False``)
+    with a warning, and its normals face the camera. Asked for as a scene, it is an error that
+    says there is no table (before: "nothing stands above the table", with no way out in the
+    viewer, which reads every PCD with a VIEWPOINT as a scene)."""
+    from pregrasp_core.sensor import NoTableError
+    from pregrasp_core.sensor.synthetic import LABEL_OBJECT
+
+    big = trimesh.creation.box((0.08, 0.06, 0.12))
+    big.apply_translation((0.0, 0.0, 0.06))
+    T = orbit_camera(np.array([0.0, 0.0, 0.06]), 0.6, np.radians(30.0), np.radians(35.0))
+    view = render_view(big.vertices, big.faces, T, K, 320, 240, table_half=0.4)
+    pts, lab = view.points_world()
+    obj = pts[lab == LABEL_OBJECT]
+    path = tmp_path / "box_alone.pcd"
+    write_scene_pcd(path, obj, T)
+    cloud = load_point_cloud(path, n_points=2000)
+    assert "scene" not in cloud.info and cloud.sensor is None
+    np.testing.assert_allclose(cloud.viewpoint, T[:3, 3], atol=1e-6)
+    said = [w for w in cloud.info["warnings"] if "no table in the view" in w]
+    assert len(said) == 1 and "read as one object seen from the camera" in said[0]
+    plain = load_point_cloud(path, n_points=2000, sensor=SensorOptions(scene=False))
+    assert np.array_equal(cloud.points, plain.points)
+    params = with_cloud(PipelineParams(), cloud)
+    n = view_normals(cloud, params.planner.normals)
+    assert np.all(np.einsum("ij,ij->i", n, cloud.viewpoint - cloud.points) >= 0.0)
+    with pytest.raises(NoTableError, match=r"box_alone\.pcd: .*no table in the view"):
+        load_point_cloud(path, sensor=SensorOptions(scene=True))
+    # the whole view, table included, is still a scene
+    whole = tmp_path / "box_scene.pcd"
+    write_scene_pcd(whole, pts, T)
+    assert load_point_cloud(whole).info["scene"]["n_table"] > 10_000
 
 
 def test_millimetre_cloud_is_scaled_with_a_notice(tmp_path: Path) -> None:
