@@ -350,12 +350,7 @@ def finish_cloud(
             f"{MAX_COORDINATE:.0e} m; the file is not in metres or is corrupt: check it, or "
             "pass a scale"
         )
-    if n_points is not None and pts.shape[0] > n_points:
-        rng = np.random.default_rng(seed)
-        keep = np.sort(rng.choice(pts.shape[0], size=int(n_points), replace=False))
-        info["n_subsampled_from"] = int(pts.shape[0])
-        pts = pts[keep]
-        nrm = None if nrm is None else nrm[keep]
+    pts, nrm = subsample(pts, nrm, n_points, seed, info)
     near = drop_strays(pts, source, warns)
     if near is not None:
         pts = pts[near]
@@ -368,6 +363,19 @@ def finish_cloud(
     info.setdefault("n_read", n_in)
     info.setdefault("seed", int(seed))
     return PointCloud(points=pts, normals=nrm, source=source, info=info)
+
+
+def subsample(
+    pts: np.ndarray, nrm: np.ndarray | None, n_points: int | None, seed: int, info: CloudInfo
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """``pts`` (N, 3) and ``nrm`` cut to ``n_points`` points drawn without replacement (seeded,
+    kept in their order), ``info["n_subsampled_from"]`` set; as they are when N <= n_points."""
+    if n_points is None or pts.shape[0] <= n_points:
+        return pts, nrm
+    rng = np.random.default_rng(seed)
+    keep = np.sort(rng.choice(pts.shape[0], size=int(n_points), replace=False))
+    info["n_subsampled_from"] = int(pts.shape[0])
+    return pts[keep], None if nrm is None else nrm[keep]
 
 
 def drop_strays(pts: np.ndarray, source: str, warns: list[str]) -> np.ndarray | None:

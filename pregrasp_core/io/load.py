@@ -34,6 +34,7 @@ from .cloud import (
     check_request,
     describe_error,
     finish_cloud,
+    subsample,
 )
 from .depth_image import DEPTH_IMAGE_EXTENSIONS, IntrinsicsArg, is_depth_input, read_depth_image
 from .gltf import read_glb, read_gltf
@@ -336,7 +337,7 @@ def _alone(
     cloud: PointCloud, viewpoint: np.ndarray, n_points: int | None, seed: int, why: NoTableError
 ) -> PointCloud:
     """The view ``cloud`` (every point read, no table in it) as one object seen from
-    ``viewpoint``: cut to ``n_points`` as :func:`~.cloud.finish_cloud` cuts a cloud (the same
+    ``viewpoint``: cut to ``n_points`` by :func:`~.cloud.subsample`, as a cloud is (the same
     points as ``--no-scene``), with the warning that says so."""
     info = cloud.info.copy()
     warns = list(info.get("warnings", []))
@@ -349,12 +350,7 @@ def _alone(
         "table in the view for that)",
     )
     info["warnings"] = warns
-    pts, nrm = cloud.points, cloud.normals
-    if n_points is not None and len(pts) > n_points:
-        rng = np.random.default_rng(seed)
-        keep = np.sort(rng.choice(len(pts), size=int(n_points), replace=False))
-        info["n_subsampled_from"] = len(pts)
-        pts, nrm = pts[keep], None if nrm is None else nrm[keep]
+    pts, nrm = subsample(cloud.points, cloud.normals, n_points, seed, info)
     return PointCloud(points=pts, normals=nrm, source=cloud.source, info=info, viewpoint=viewpoint)
 
 

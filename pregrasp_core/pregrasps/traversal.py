@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 from ..box import OrientedBox
 from ..decomposition import BoxTree
 from ..hand import grasp_type_name
-from ..shape import NodeShape, ShapeParams, is_small
+from ..shape import GRASP_TYPES, NodeShape, ShapeParams, is_small
 from .params import SamplingParams, TraversalPolicy
 
 if TYPE_CHECKING:
@@ -39,7 +39,7 @@ def no_fit_hint(tree: BoxTree, hand: Hand, params: SamplingParams | None = None)
     params = SamplingParams() if params is None else params
     best: tuple[float, float, float, str, int] | None = None  # (ratio, width, aperture, type, id)
     for nd in tree.nodes:  # loop over the tree's nodes
-        for gt in ("cylindrical", "spherical", "three_finger_tip", "two_finger_tip"):
+        for gt in GRASP_TYPES:
             width = grip_width(nd.box, gt)
             opens = float(hand.aperture(gt)) * params.aperture_scale
             ratio = width / max(opens, 1e-12)
