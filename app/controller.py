@@ -722,7 +722,8 @@ class Controller:
         warn = list(getattr(cloud, "info", {}).get("warnings", []) or [])
         trav = getattr(result, "traversal", None)
         if trav is not None and not trav.candidates and result.hand is not None:
-            warn.append(no_fit_hint(tree, result.hand, params.sampling))  # (a mug in inches)
+            # (a mug in inches; or parts whose shape class gives a type that does not fit)
+            warn.append(no_fit_hint(tree, result.shapes, result.hand, params.sampling))
         depth = (getattr(cloud, "info", {}) or {}).get("depth")
         if depth is not None:
             where = str(depth["intrinsics_from"]).replace("--intrinsics", "the given fx fy cx cy")

@@ -473,7 +473,7 @@ def _run_stages(
                 params.shape,
             )
             if not trav.candidates:
-                hint = no_fit_hint(out["tree"], run_hand, params.sampling)
+                hint = no_fit_hint(out["tree"], out["shapes"], run_hand, params.sampling)
                 logger.warning("%s: %s", cloud.source, hint)
             return {"traversal": trav, "pool": pool}
 

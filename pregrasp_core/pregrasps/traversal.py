@@ -31,28 +31,47 @@ def grip_width(box: OrientedBox, grasp_type: str) -> float:
     return float({"cylindrical": e[1], "three_finger_tip": e[2]}.get(gt, e[0]))
 
 
-def no_fit_hint(tree: BoxTree, hand: Hand, params: SamplingParams | None = None) -> str:
-    """Why no node of ``tree`` fits ``hand``, in one sentence for a user: the narrowest grip
-    over every part and grasp type (:func:`grip_width`) against what the hand opens for that
-    type, and, when it is at least 3 times too wide, the hint that the file may not be in
-    metres (a mug in inches is 4.5 m long; the millimetre rule does not catch it)."""
+def no_fit_hint(
+    tree: BoxTree,
+    shapes: Sequence[NodeShape],
+    hand: Hand,
+    params: SamplingParams | None = None,
+) -> str:
+    """Why no node of ``tree`` is a candidate, in one sentence for a user. A part is grasped
+    with the grasp type its shape gives it (``shapes``, what :func:`traverse` tests), so the
+    sentence names the part whose grip of that type is the narrowest against what the hand opens
+    for it; when another type would fit some part, it says so (the classification's thresholds
+    decide the type); when even the narrowest grip of any type is at least 3 times too wide, it
+    hints that the file may not be in metres (a mug in inches is 4.5 m long; the millimetre rule
+    does not catch it)."""
     params = SamplingParams() if params is None else params
-    best: tuple[float, float, float, str, int] | None = None  # (ratio, width, aperture, type, id)
-    for nd in tree.nodes:  # loop over the tree's nodes
-        for gt in GRASP_TYPES:
-            width = grip_width(nd.box, gt)
-            opens = float(hand.aperture(gt)) * params.aperture_scale
-            ratio = width / max(opens, 1e-12)
-            if best is None or ratio < best[0]:
-                best = (ratio, width, opens, gt, nd.id)
-    if best is None:
+    if not tree.nodes:
         return "the decomposition has no part"
-    ratio, width, opens, gt, i = best
+    if len(shapes) != len(tree.nodes):
+        raise ValueError(
+            f"shapes must have one entry per node ({len(tree.nodes)}), got {len(shapes)}"
+        )
+
+    def ratio(nd_id: int, gt: str) -> tuple[float, float, float, str, int]:
+        width = grip_width(tree.nodes[nd_id].box, gt)
+        opens = float(hand.aperture(gt)) * params.aperture_scale
+        return width / max(opens, 1e-12), width, opens, grasp_type_name(gt), nd_id
+
+    own = min(ratio(nd.id, shapes[nd.id].grasp_type) for nd in tree.nodes)
+    any_type = min(ratio(nd.id, gt) for nd in tree.nodes for gt in GRASP_TYPES)
+    _, width, opens, gt, i = own
     text = (
-        f"no part of the object fits the hand: the narrowest grip is {width:.3g} m ({gt}, "
-        f"part {i}) and the hand opens {opens:.3g} m for it"
+        f"no part of the object fits the hand with the grasp type its shape gives it: the "
+        f"narrowest is part {i}, {gt} across {width:.3g} m, and the hand opens {opens:.3g} m for "
+        "it"
     )
-    if ratio >= 3.0:
+    if any_type[0] <= 1.0:
+        _, w2, o2, gt2, i2 = any_type
+        text += (
+            f" (a {gt2} grip of part {i2} would fit, {w2:.3g} m of {o2:.3g} m: the shape "
+            "classification's thresholds give the parts their types)"
+        )
+    elif any_type[0] >= 3.0:
         longest = float(tree.nodes[0].box.extents[0])
         text += (
             f"; the object is {longest:.3g} m long: if the file is not in metres, pass --scale "

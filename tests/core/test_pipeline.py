@@ -49,6 +49,16 @@ def l_shape_cloud(seed: int = 0) -> PointCloud:
     return PointCloud.from_array(np.concatenate(out), source="l_shape")
 
 
+def _box_surface(extents, n: int, seed: int = 0) -> np.ndarray:
+    """``n`` points on the surface of a box of ``extents`` (metres) centred at the origin."""
+    rng = np.random.default_rng(seed)
+    hi = 0.5 * np.asarray(extents, dtype=float)
+    p = (rng.uniform(size=(n, 3)) * 2.0 - 1.0) * hi
+    axis = rng.integers(0, 3, n)
+    p[np.arange(n), axis] = np.where(rng.uniform(size=n) < 0.5, -hi[axis], hi[axis])
+    return p
+
+
 @pytest.fixture(scope="module")
 def hand():
     return load_hand()
@@ -304,10 +314,10 @@ def test_a_document_left_as_built_writes_the_plain_documents_file(hand, params, 
 @pytest.mark.parametrize(("scale", "hinted"), [(1.0 / 0.0254, True), (1.0, False)])
 def test_an_object_no_part_of_which_fits_the_hand_says_why(hand, scale, hinted, caplog):
     """The L shape in inches (4 to 6 units a side, which the millimetre rule leaves as metres):
-    no candidate, and a warning naming the narrowest grip (over every part and grasp type: the
-    widths the hand must span, by the box sides of docs/pregrasps.md) against what the hand
-    opens for it, with the hint that the file may not be in metres; the L in metres gets
-    pre-grasps and no such warning."""
+    no candidate, and a warning naming the part whose grip of the grasp type its shape gives it
+    is the narrowest (the widths the hand must span, by the box sides of docs/pregrasps.md)
+    against what the hand opens for it, with the hint that the file may not be in metres; the L
+    in metres gets pre-grasps and no such warning."""
     import logging
 
     cloud = l_shape_cloud()
@@ -320,14 +330,32 @@ def test_an_object_no_part_of_which_fits_the_hand_says_why(hand, scale, hinted, 
         return
     assert len(res.pool) == 0 and res.traversal.candidates == ()
     side = {"cylindrical": 1, "spherical": 0, "three_finger_tip": 2, "two_finger_tip": 0}
-    grips = [
-        (float(n.box.extents[k]) / float(hand.aperture(t)), float(n.box.extents[k]), t)
-        for n in res.tree.nodes
-        for t, k in side.items()
-    ]
-    ratio, width, gt = min(grips)
-    assert ratio > 3.0  # (the post's 1.57 inch side is 1.57 m here, the hand opens 0.13 m)
+
+    def grip(n, t):
+        k = side[t]
+        return float(n.box.extents[k]) / float(hand.aperture(t)), float(n.box.extents[k]), t, n.id
+
+    own = min(grip(n, res.shapes[n.id].grasp_type) for n in res.tree.nodes)
+    assert min(grip(n, t) for n in res.tree.nodes for t in side)[0] > 3.0  # (1.57 m sides)
+    _, width, gt, i = own
     assert len(said) == 1 and said[0].startswith("l_inches.ply: no part of the object fits")
-    assert f"the narrowest grip is {width:.3g} m ({gt}" in said[0]
+    assert f"the narrowest is part {i}, {gt} across {width:.3g} m" in said[0]
     assert f"the hand opens {float(hand.aperture(gt)):.3g} m for it" in said[0]
     assert "0.0254 for inches" in said[0]
+
+
+def test_the_no_fit_sentence_names_a_grasp_type_that_would_fit(hand):
+    """A 20 x 15 x 2 cm slab whose parts are all given the spherical type (its longest side,
+    20 cm, is more than the hand opens): the sentence names the spherical grip that does not
+    fit, and that a three-finger tip grip across the 2 cm thickness would; no hint at units."""
+    import dataclasses
+
+    from pregrasp_core.pregrasps.traversal import no_fit_hint
+
+    cloud = PointCloud.from_array(_box_surface((0.20, 0.15, 0.02), 4000), source="slab.ply")
+    res = run_pipeline(cloud, None, hand, until="facemask")
+    shapes = [dataclasses.replace(s, grasp_type="spherical") for s in res.shapes]
+    text = no_fit_hint(res.tree, shapes, hand)
+    assert "spherical across 0.2 m" in text
+    assert "a three_finger_tip grip of part" in text and "would fit" in text
+    assert "--scale" not in text
