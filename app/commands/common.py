@@ -62,6 +62,9 @@ class InputOptions:
     files with a VIEWPOINT; --no-scene reads every point as the object."""
     viewpoint: tuple[float, float, float] | None = None
     """The camera position (from --viewpoint, shared with the normals' option)."""
+    flying_pixels: bool = False
+    """In a scene, drop the flying pixels first: points strung along the camera's rays between
+    an edge and what lies behind it, as time-of-flight cameras give them (docs/input.md)."""
 
     def __post_init__(self) -> None:
         if not MIN_POINTS <= self.points <= MAX_POINTS:
@@ -91,7 +94,11 @@ class InputOptions:
                     f"{' '.join(self.intrinsics)}"
                 ) from None
         return SensorOptions(
-            intrinsics=intr, viewpoint=self.viewpoint, scene=self.scene, pick=self.pick
+            intrinsics=intr,
+            viewpoint=self.viewpoint,
+            scene=self.scene,
+            pick=self.pick,
+            flying_pixels=self.flying_pixels,
         )
 
     def load(self, path: str | Path) -> PointCloud:
@@ -146,10 +153,12 @@ INPUT_OPTIONS: Options[InputOptions] = _InputSpec(
         "seed": Flag(metavar="S"),
         "scale": Flag(metavar="F"),
         "pick": Flag(metavar=("X", "Y", "Z")),
+        "flying_pixels": Flag(store_true=True),
     },
-    fields=("points", "seed", "scale", "pick"),
+    fields=("points", "seed", "scale", "pick", "flying_pixels"),
 )
-"""``--points``, ``--seed``, ``--scale``, ``--intrinsics``, ``--pick``, ``--scene`` (after the
+"""``--points``, ``--seed``, ``--scale``, ``--intrinsics``, ``--pick``, ``--flying-pixels``,
+``--scene`` (after the
 positional INPUT of :func:`add_input_args`)."""
 
 FORMATS = ", ".join(e.lstrip(".").upper() for e in (*SUPPORTED_EXTENSIONS, *DEPTH_IMAGE_EXTENSIONS))

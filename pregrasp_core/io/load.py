@@ -21,6 +21,7 @@ from ..sensor import (
     pcd_viewpoint_of,
     prepare_view,
 )
+from ..sensor.veils import VeilParams
 from .cloud import (
     DEFAULT_MAX_BYTES,
     DEFAULT_N_POINTS,
@@ -175,6 +176,11 @@ class SensorOptions:
     None = for depth images and for PCD files with a ``VIEWPOINT``."""
     pick: tuple[float, float, float] | None = None
     """A point near the object to keep (metres, after scaling); None = the largest cluster."""
+    flying_pixels: bool = False
+    """Drop a scene's flying pixels before its table is searched
+    (:func:`~pregrasp_core.sensor.veils.flying_points`, ``docs/input.md``); off by default: on
+    views without them it drops the last pixel of outlines and faces seen within 10 degrees of
+    grazing, which measured worse (``docs/benchmarks.md``)."""
 
     def __post_init__(self) -> None:
         for name in ("viewpoint", "pick"):
@@ -305,7 +311,12 @@ def _scene_or_view(
         )
     try:
         view = scene_object(
-            cloud, np.asarray(viewpoint, dtype=np.float64), opts.pick, n_points, seed
+            cloud,
+            np.asarray(viewpoint, dtype=np.float64),
+            opts.pick,
+            n_points,
+            seed,
+            opts.flying_pixels,
         )
     except NoTableError as exc:
         if not inferred or opts.pick is not None:
@@ -321,6 +332,8 @@ def _scene_or_view(
         "plane": view.plane.to_dict(),
         "completion": None if view.completion is None else view.completion.kind,
     }
+    if opts.flying_pixels:
+        info["scene"]["n_flying"] = view.n_flying
     if "n_subsampled_from" in info:
         del info["n_subsampled_from"]
     return PointCloud(
@@ -360,12 +373,15 @@ def scene_object(
     pick: tuple[float, float, float] | None,
     n_points: int | None,
     seed: int,
+    flying_pixels: bool = False,
 ) -> SensorView:
     """The object of ``scene`` seen from ``viewpoint``: :func:`~pregrasp_core.sensor.prepare_view`
-    without completion, the visible object cut to ``n_points // 2`` (seeded), then completed
-    (at most doubles it), so the cloud handed on holds at most ``n_points`` points."""
+    without completion (``flying_pixels``: its flying-pixel test on), the visible object cut to
+    ``n_points // 2`` (seeded), then completed (at most doubles it), so the cloud handed on
+    holds at most ``n_points`` points."""
     try:
-        view = prepare_view(scene.points, viewpoint, pick=pick, complete=False)
+        veils = VeilParams() if flying_pixels else None
+        view = prepare_view(scene.points, viewpoint, pick=pick, complete=False, veils=veils)
         obj = view.points
         if n_points is not None and len(obj) > n_points // 2:
             rng = np.random.default_rng(seed)

@@ -9,6 +9,7 @@
   visibility constraint (``docs/partial-views.md``);
 - :mod:`.view`: :func:`prepare_view`, the whole chain in one call (:class:`SensorView`), and the
   PCD header's viewpoint;
+- :mod:`.veils`: the flying pixels a depth camera strings along its rays at depth jumps;
 - :mod:`.synthetic`: simulated depth views of a mesh on a table (the test data).
 
 See ``docs/input.md`` ("Depth-camera input").
@@ -34,6 +35,7 @@ from .table import (
     voxel_clusters,
 )
 from .units import UnitGuess, detect_units
+from .veils import VeilParams, flying_points
 from .view import SensorView, pcd_viewpoint, pcd_viewpoint_of, prepare_view
 
 __all__ = [
@@ -47,10 +49,12 @@ __all__ = [
     "SensorView",
     "TableSegmentation",
     "UnitGuess",
+    "VeilParams",
     "complete_view",
     "depth_to_points",
     "detect_units",
     "fit_plane_ransac",
+    "flying_points",
     "load_camera_pose",
     "load_depth_image",
     "pcd_viewpoint",

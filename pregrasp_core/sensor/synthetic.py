@@ -228,3 +228,35 @@ def render_view(
     labels[~np.isfinite(depth)] = LABEL_NONE
     return SyntheticView(depth, labels, np.asarray(T_world_camera, dtype=np.float64),
                          intrinsics, float(noise))  # fmt: skip
+
+
+LABEL_MIXED: int = 3
+"""Label of a flying pixel made by :func:`add_mixed_pixels` (neither table nor object)."""
+
+
+def add_mixed_pixels(
+    view: SyntheticView, fraction: float, jump: float, rng: np.random.Generator
+) -> SyntheticView:
+    """``view`` with flying pixels, as time-of-flight cameras make them: a pixel whose 3 x 3
+    neighbourhood spans a depth jump of more than ``jump`` metres (an edge in front of what lies
+    behind it) returns, with probability ``fraction``, a depth drawn uniformly between the
+    nearest and the farthest depth of that neighbourhood (its footprint mixes both surfaces).
+    Those pixels are labelled ``LABEL_MIXED``."""
+    if not 0.0 <= fraction <= 1.0:
+        raise ValueError(f"fraction must lie in [0, 1], got {fraction!r}")
+    d = view.depth
+    H, W = d.shape
+    z = np.where(np.isfinite(d), d, np.inf)
+    pad = np.pad(z, 1, constant_values=np.inf)
+    win = np.stack([pad[1 + a : 1 + a + H, 1 + b : 1 + b + W] for a in (-1, 0, 1)
+                    for b in (-1, 0, 1)])  # fmt: skip
+    near = win.min(axis=0)
+    far = np.where(np.isfinite(win), win, -np.inf).max(axis=0)
+    edge = np.isfinite(z) & np.isfinite(far) & (far - near > jump)
+    pick = edge & (rng.random(d.shape) < fraction)
+    u = rng.random(d.shape)
+    mixed = d.copy()
+    mixed[pick] = near[pick] + u[pick] * (far[pick] - near[pick])
+    labels = view.labels.copy()
+    labels[pick] = LABEL_MIXED
+    return SyntheticView(mixed, labels, view.T_world_camera, view.intrinsics, view.noise)

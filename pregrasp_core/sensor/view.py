@@ -32,6 +32,7 @@ from ..geometry import as_points
 from .completion import CompletedView, CompletionParams, complete_view
 from .smooth import smooth_view
 from .table import SegmentParams, TableSegmentation, remove_outliers, segment_table
+from .veils import VeilParams, flying_points
 
 SMOOTH_K: int = 24
 """Neighbours of the projection that takes the range noise off the object's points
@@ -62,8 +63,10 @@ class SensorView:
     completion: CompletedView | None
     """The completion, or None when it was not asked for."""
     kept: np.ndarray
-    """(N,) bool over the scene's input points: those kept by the outlier removal (all True
-    without it); the segmentation's masks index the kept points."""
+    """(N,) bool over the scene's input points: those kept by the flying-pixel test and the
+    outlier removal (all True without them); the segmentation's masks index the kept points."""
+    n_flying: int = 0
+    """Points of the scene dropped as flying pixels (:mod:`.veils`)."""
 
     @property
     def n_visible(self) -> int:
@@ -107,6 +110,7 @@ def prepare_view(
     completion: CompletionParams | None = None,
     outliers: tuple[int, float] | None = None,
     smooth: int | None = None,
+    veils: VeilParams | None = None,
 ) -> SensorView:
     """The object of the scene ``points`` (N, 3) seen from ``viewpoint`` (see the module).
 
@@ -116,15 +120,20 @@ def prepare_view(
     (default: none). ``smooth``: neighbours of the projection of the object's points onto their
     local planes (:func:`~.smooth.smooth_view`); None = ``SMOOTH_K`` when the table's noise
     ``sigma`` reaches ``SMOOTH_MIN_SIGMA``, 0 = never. The segmentation's masks and points
-    stay those of the scene.
+    stay those of the scene. ``veils``: the flying-pixel test run before everything else
+    (:func:`~.veils.flying_points`; None = off, the default).
     """
     pts = as_points(points)
     vp = np.asarray(viewpoint, dtype=np.float64)
     if vp.shape != (3,) or not np.all(np.isfinite(vp)):
         raise ValueError(f"viewpoint must be a finite 3-vector, got {viewpoint!r}")
     kept = np.ones(len(pts), dtype=bool)
+    if veils is not None:
+        kept = ~flying_points(pts, vp, veils)
+    n_flying = len(pts) - int(np.count_nonzero(kept))
     if outliers is not None:
-        kept = remove_outliers(pts, k=outliers[0], std_ratio=outliers[1])
+        idx = np.flatnonzero(kept)
+        kept[idx[~remove_outliers(pts[idx], k=outliers[0], std_ratio=outliers[1])]] = False
     seg = segment_table(pts[kept], viewpoint=vp, pick=pick, params=segment)
     obj = seg.object_points
     if smooth is None:
@@ -139,7 +148,7 @@ def prepare_view(
     else:
         out, assumed = obj, np.zeros(len(obj), dtype=bool)
     kept.setflags(write=False)
-    return SensorView(out, assumed, vp.copy(), seg.plane, seg, done, kept)
+    return SensorView(out, assumed, vp.copy(), seg.plane, seg, done, kept, n_flying)
 
 
 def pcd_viewpoint(path: str | Path) -> np.ndarray | None:
