@@ -32,6 +32,7 @@ FLAGS: dict[str, tuple[list[str], str, object]] = {
     "--pick": (["0.1", "0", "0.2"], "input.pick", (0.1, 0.0, 0.2)),
     "--intrinsics": (["cam.json"], "input.intrinsics", ("cam.json",)),
     "--scene": ([], "input.scene", True),
+    "--flying-pixels": ([], "input.flying_pixels", True),
     "--no-scene": ([], "input.scene", False),
     "--volume-ratio": (["0.8"], "params.decomposition.volume_ratio", 0.8),
     "--min-points": (["300"], "params.decomposition.min_points", 300),
@@ -177,7 +178,8 @@ def test_commands_take_the_flags_of_their_stages():
     assert plan_pipeline == set(PIPELINE_FLAGS)
     assert _flags_of("view") == plan_pipeline | {"--points", "--seed", "--scale", "--pick",
                                                  "--intrinsics", "--scene", "--no-scene",
-                                                 "--host", "--port", "--compare"}  # fmt: skip
+                                                 "--flying-pixels", "--host", "--port",
+                                                 "--compare"}  # fmt: skip
 
 
 def test_help_lists_every_flag_grouped_by_stage(capsys):
