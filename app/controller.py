@@ -540,6 +540,25 @@ class Controller:
             return self._state
         return self._load(dataclasses.replace(src, scale=scale))
 
+    def set_flying_pixels(self, on: Any) -> AppState:
+        """Read the current scene again with its flying pixels dropped (``on``) or kept, as
+        ``--flying-pixels`` does (``docs/input.md``, "Flying pixels")."""
+        if not isinstance(on, (bool, np.bool_)):
+            raise ValueError(f"flying pixels: expected true or false, got {on!r}")
+        src = self._state.source
+        if src is None or getattr(self._state.cloud, "sensor", None) is None:
+            raise InputError(
+                "flying pixels are dropped from a depth-camera scene (a depth image, a PCD with "
+                "a VIEWPOINT, or pregrasp view FILE --scene --viewpoint X Y Z)"
+            )
+        if self._state.loaded is not None:
+            raise InputError(loaded_result_notice(self._state.loaded, "drop flying pixels"))
+        base = src.sensor if src.sensor is not None else pio.SensorOptions()
+        if bool(on) == base.flying_pixels:
+            return self._state
+        sensor = dataclasses.replace(base, flying_pixels=bool(on))
+        return self._load(dataclasses.replace(src, sensor=sensor))
+
     def fix_units(self) -> AppState:
         """Apply the fix of the loader's unit hint (:func:`~app.scene_data.unit_fix`): metres
         for a cloud it read as millimetres, millimetres for one it only warned about."""

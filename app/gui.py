@@ -220,6 +220,8 @@ class Gui:
             self.units_fix = gui.add_button("read as metres", visible=False)
             self.units_fix.on_click(lambda e: self._do(e, c.fix_units))
             self.pick_mode = gui.add_checkbox("click picks the object", False, disabled=True)
+            self.flying = gui.add_checkbox("drop flying pixels", False, disabled=True)
+            self.flying.on_update(lambda e: self._do(e, c.set_flying_pixels, e.target.value))
             self.status = gui.add_markdown("")
         server.scene.on_click()(self._scene_click)
 
@@ -611,6 +613,8 @@ class Gui:
         ]
         if s.source is not None:
             out.append(("demo", self.demo, s.source.name))
+            sensor = s.source.sensor
+            out.append(("flying", self.flying, bool(sensor is not None and sensor.flying_pixels)))
         if s.tree is not None:
             out.append(("level", self.level, s.shown_level))
         gn = ALL if s.view.ghost_node is None else f"node {s.view.ghost_node}"
@@ -693,6 +697,7 @@ class Gui:
             self._set("units_fix.label", self.units_fix, "label", fix[1])
         scene = getattr(s.cloud, "sensor", None) is not None
         self._set("pick_mode.disabled", self.pick_mode, "disabled", not scene)
+        self._set("flying.disabled", self.flying, "disabled", not scene or s.loaded is not None)
         hidden = getattr(s.result, "occupied", None) is not None  # --occluded occupied views
         self._set("show_hidden.disabled", self.show_hidden, "disabled", not hidden)
         if s.loaded is not None:  # a result file: nothing to plan or export again

@@ -515,3 +515,37 @@ def test_a_bad_uploaded_camera_file_names_the_file_and_the_field(app) -> None:
     assert (
         "frame.json: fx and fy must be positive focal lengths in pixels, got fy=-1" in c.state.error
     )
+
+
+def _toggle(handle, value: bool) -> None:
+    """Set a checkbox as a browser does: its value, then its update callbacks."""
+    handle.value = value
+    for cb in handle._impl.update_cb:
+        cb(GuiEvent(client=None, client_id=None, target=handle))
+
+
+def test_the_flying_pixels_box_reads_the_scene_again(make_app, boxes_scene) -> None:
+    """The object panel's "drop flying pixels" reads the scene again with the flying-pixel test
+    (the scene section then counts what it dropped, as `pregrasp plan --flying-pixels` does) and
+    without it; the box is off for a complete cloud, where there is nothing to drop."""
+    path, *_ = boxes_scene
+    app = make_app(input=path, n_points=3000)
+    c, gui = app.controller, app.gui
+    assert not gui.flying.disabled and gui.flying.value is False
+    assert "n_flying" not in c.state.cloud.info["scene"]
+    _toggle(gui.flying, True)
+    _wait_idle(c)
+    s = c.state
+    assert s.error == "" and s.source.sensor.flying_pixels
+    expected = load_point_cloud(path, n_points=3000, sensor=SensorOptions(flying_pixels=True))
+    assert s.cloud.info["scene"]["n_flying"] == expected.info["scene"]["n_flying"]
+    assert np.array_equal(s.cloud.points, expected.points)
+    _toggle(gui.flying, False)
+    _wait_idle(c)
+    assert "n_flying" not in c.state.cloud.info["scene"] and gui.flying.value is False
+
+
+def test_flying_pixels_need_a_scene(app) -> None:
+    assert app.gui.flying.disabled  # the default mug is a complete cloud
+    with pytest.raises(InputError, match="flying pixels are dropped from a depth-camera scene"):
+        app.controller.set_flying_pixels(True)
