@@ -982,6 +982,7 @@ LEGEND = (
     ("orange dots and cones", "contacts on assumed (dark) points: the grasp rests on a guess"),
     ("light grey points", "the table of a depth-camera scene (removed from the object)"),
     ("brown points", "other objects of the scene: tick 'click picks the object', click one"),
+    ("magenta points", "flying pixels of a depth-camera scene, dropped ('drop flying pixels')"),
 )
 """(what, meaning) of each row of the legend panel."""
 

@@ -372,6 +372,9 @@ TABLE_RGB = (200, 200, 200)
 """Colour of the scene's table points (light grey), drawn around the object."""
 OTHER_RGB = (175, 140, 100)
 """Colour of the scene's points that are neither the table nor the kept object (brown)."""
+FLYING_RGB = (235, 60, 150)
+"""Colour of a scene's flying pixels, dropped by ``--flying-pixels`` (magenta: neither a part's
+hue nor the table's or the other objects')."""
 HIDDEN_RGB = (185, 225, 255)
 """Colour of the space hidden behind a single depth view, drawn when it was planned with
 ``--occluded occupied`` (pale blue: paler than every part's colour, bluer than the table's
@@ -420,18 +423,26 @@ def assumed_contacts(grasp: Any, cloud: Any) -> np.ndarray:
 
 def scene_backdrop(sensor: Any, max_points: int = 30000) -> tuple[np.ndarray, np.ndarray]:
     """The scene around a depth-camera object: ``(points (K, 3), colours (K, 3) uint8)`` of the
-    scene's points that are not the kept object (the table grey, the rest brown), an even
-    subsample of at most ``max_points``; empty arrays when there is no scene."""
+    scene's points that are not the kept object (the table grey, the rest brown) and of its
+    flying pixels when ``--flying-pixels`` dropped them (magenta, every one up to half of
+    ``max_points``), an even subsample of at most ``max_points`` in all; empty arrays when there
+    is no scene."""
     seg = attr_or_none(sensor, "segmentation")
     if seg is None:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.uint8)
+    fly = attr_or_none(sensor, "flying")
+    fly = np.zeros((0, 3)) if fly is None else np.asarray(fly, dtype=np.float64)
+    if len(fly) > max_points // 2:
+        fly = fly[np.linspace(0, len(fly) - 1, max_points // 2).astype(np.int64)]
     idx = np.flatnonzero(~np.asarray(seg.object_mask, dtype=bool))
-    if len(idx) > max_points:
-        idx = idx[np.linspace(0, len(idx) - 1, max_points).astype(np.int64)]
-    cols = np.empty((len(idx), 3), dtype=np.uint8)
+    room = max_points - len(fly)
+    if len(idx) > room:
+        idx = idx[np.linspace(0, len(idx) - 1, room).astype(np.int64)]
     table = np.asarray(seg.table_mask, dtype=bool)[idx]
-    cols[table], cols[~table] = TABLE_RGB, OTHER_RGB
-    return np.asarray(seg.points, dtype=np.float64)[idx], cols
+    cols = np.empty((len(idx) + len(fly), 3), dtype=np.uint8)
+    cols[: len(idx)] = np.where(table[:, None], TABLE_RGB, OTHER_RGB)
+    cols[len(idx) :] = FLYING_RGB
+    return np.concatenate([np.asarray(seg.points, dtype=np.float64)[idx], fly]), cols
 
 
 def hidden_space_points(occupied: Any, max_points: int = HIDDEN_POINTS) -> np.ndarray:

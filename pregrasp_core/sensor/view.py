@@ -67,6 +67,9 @@ class SensorView:
     outlier removal (all True without them); the segmentation's masks index the kept points."""
     n_flying: int = 0
     """Points of the scene dropped as flying pixels (:mod:`.veils`)."""
+    flying: np.ndarray | None = None
+    """(n_flying, 3) those points (the viewer draws them in their own colour); None without the
+    test."""
 
     @property
     def n_visible(self) -> int:
@@ -127,10 +130,10 @@ def prepare_view(
     vp = np.asarray(viewpoint, dtype=np.float64)
     if vp.shape != (3,) or not np.all(np.isfinite(vp)):
         raise ValueError(f"viewpoint must be a finite 3-vector, got {viewpoint!r}")
-    kept = np.ones(len(pts), dtype=bool)
-    if veils is not None:
-        kept = ~flying_points(pts, vp, veils)
-    n_flying = len(pts) - int(np.count_nonzero(kept))
+    fly = np.zeros(len(pts), dtype=bool) if veils is None else flying_points(pts, vp, veils)
+    kept = ~fly
+    n_flying = int(np.count_nonzero(fly))
+    dropped = None if veils is None else pts[fly]
     if outliers is not None:
         idx = np.flatnonzero(kept)
         kept[idx[~remove_outliers(pts[idx], k=outliers[0], std_ratio=outliers[1])]] = False
@@ -148,7 +151,7 @@ def prepare_view(
     else:
         out, assumed = obj, np.zeros(len(obj), dtype=bool)
     kept.setflags(write=False)
-    return SensorView(out, assumed, vp.copy(), seg.plane, seg, done, kept, n_flying)
+    return SensorView(out, assumed, vp.copy(), seg.plane, seg, done, kept, n_flying, dropped)
 
 
 def pcd_viewpoint(path: str | Path) -> np.ndarray | None:

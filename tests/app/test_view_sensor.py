@@ -27,6 +27,7 @@ from app.gui import LEGEND, grasp_table
 from app.scene import ASSUMED_CONTACT_RGB, CONTACT_RGB, NAMES
 from app.scene_data import (
     ASSUMED_RGB,
+    FLYING_RGB,
     OTHER_RGB,
     TABLE_RGB,
     assumed_contacts,
@@ -38,7 +39,7 @@ from pregrasp_core.errors import InputError
 from pregrasp_core.io import PointCloud, SensorOptions, load_point_cloud
 from pregrasp_core.paths import OBJECTS_DIR
 from pregrasp_core.sensor import Intrinsics, load_camera_pose, load_depth_image
-from pregrasp_core.sensor.synthetic import orbit_camera, render_view
+from pregrasp_core.sensor.synthetic import add_mixed_pixels, orbit_camera, render_view
 from tests.core.test_depth_input import two_boxes, write_scene_pcd
 
 DEMO = OBJECTS_DIR / "mug_depth.png"
@@ -524,11 +525,27 @@ def _toggle(handle, value: bool) -> None:
         cb(GuiEvent(client=None, client_id=None, target=handle))
 
 
-def test_the_flying_pixels_box_reads_the_scene_again(make_app, boxes_scene) -> None:
+@pytest.fixture(scope="module")
+def veiled_boxes(tmp_path_factory) -> Path:
+    """The two boxes' scene with every pixel at a depth jump of more than 2 cm mixed
+    (``add_mixed_pixels``, the time-of-flight model): a PCD with VIEWPOINT = the camera."""
+    mesh, _, _ = two_boxes()
+    T = orbit_camera(np.array([0.0, 0.07, 0.05]), 0.7, np.radians(20.0), np.radians(40.0))
+    view = render_view(mesh.vertices, mesh.faces, T, Intrinsics(300, 300, 159.5, 119.5), 320,
+                       240, table_half=0.4)  # fmt: skip
+    view = add_mixed_pixels(view, 1.0, 0.02, np.random.default_rng(0))
+    pts, _ = view.points_world()
+    path = tmp_path_factory.mktemp("veiled") / "two_boxes_veiled.pcd"
+    write_scene_pcd(path, pts, T)
+    return path
+
+
+def test_the_flying_pixels_box_reads_the_scene_again(make_app, veiled_boxes) -> None:
     """The object panel's "drop flying pixels" reads the scene again with the flying-pixel test
-    (the scene section then counts what it dropped, as `pregrasp plan --flying-pixels` does) and
-    without it; the box is off for a complete cloud, where there is nothing to drop."""
-    path, *_ = boxes_scene
+    (the scene section then counts what it dropped, as `pregrasp plan --flying-pixels` does, and
+    the dropped points are drawn in magenta) and without it; the box is off for a complete
+    cloud, where there is nothing to drop."""
+    path = veiled_boxes
     app = make_app(input=path, n_points=3000)
     c, gui = app.controller, app.gui
     assert not gui.flying.disabled and gui.flying.value is False
@@ -540,9 +557,17 @@ def test_the_flying_pixels_box_reads_the_scene_again(make_app, boxes_scene) -> N
     expected = load_point_cloud(path, n_points=3000, sensor=SensorOptions(flying_pixels=True))
     assert s.cloud.info["scene"]["n_flying"] == expected.info["scene"]["n_flying"]
     assert np.array_equal(s.cloud.points, expected.points)
+    handle = app.server.scene.get_handle_by_name(NAMES["scene"])
+    magenta = np.all(np.asarray(handle.colors) == FLYING_RGB, axis=1)
+    n_flying = s.cloud.info["scene"]["n_flying"]
+    assert n_flying > 100 and np.count_nonzero(magenta) == n_flying  # (under the layer's cap)
+    drawn = np.asarray(handle.points, dtype=np.float64)[magenta]
+    np.testing.assert_allclose(drawn, s.cloud.sensor.flying, atol=1e-6)
     _toggle(gui.flying, False)
     _wait_idle(c)
     assert "n_flying" not in c.state.cloud.info["scene"] and gui.flying.value is False
+    handle = app.server.scene.get_handle_by_name(NAMES["scene"])
+    assert not np.all(np.asarray(handle.colors) == FLYING_RGB, axis=1).any()
 
 
 def test_flying_pixels_need_a_scene(app) -> None:
