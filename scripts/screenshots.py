@@ -9,11 +9,14 @@ space drawn) with its best grasp closed (:func:`depth_demo_shot`; ``--depth`` ta
 one), and ``depth_completed.png``: the same planned with ``--occluded completed``, the back
 completed and no hidden space (``--completed`` takes only that one). ``--rim`` takes only
 ``rim_pinch.png``: a torus 130 mm across, its best grasp a rim pinch (:func:`rim_pinch_shot`).
+``--flying`` takes only ``flying_pixels.png``: the depth demo's view with every edge pixel
+mixed, opened with ``--flying-pixels`` (:func:`flying_pixels_shot`).
 
     .venv/bin/python scripts/screenshots.py [INPUT] [--out docs/screenshots] [--points 20000]
     .venv/bin/python scripts/screenshots.py --depth
     .venv/bin/python scripts/screenshots.py --completed
     .venv/bin/python scripts/screenshots.py --rim
+    .venv/bin/python scripts/screenshots.py --flying
 """
 
 from __future__ import annotations
@@ -186,6 +189,59 @@ def depth_demo_shot(out: Path, chromium: str, occluded: str = "auto") -> int:
     return 0
 
 
+def flying_pixels_shot(out: Path, chromium: str) -> int:
+    """``out/flying_pixels.png``: the depth demo's view (``scripts/make_views.py --demo``: the
+    mug with a handle, azimuth 300 degrees, 1 mm of noise) with every pixel at a depth jump of
+    more than 2 cm mixed (``add_mixed_pixels``, the time-of-flight model), written as a PCD scene
+    and opened as ``pregrasp view SCENE.pcd --flying-pixels`` opens it: the dropped points in
+    magenta behind the mug's outline, its best grasp planned on start and closed."""
+    import importlib.util
+
+    import numpy as np
+    import trimesh
+    import viser
+
+    from app.server import ViewerConfig, run
+    from pregrasp_core.io import SensorOptions
+    from pregrasp_core.paths import OBJECTS_DIR
+    from pregrasp_core.sensor.synthetic import add_mixed_pixels
+
+    spec = importlib.util.spec_from_file_location("make_views", ROOT / "scripts" / "make_views.py")
+    assert spec is not None and spec.loader is not None
+    mv = importlib.util.module_from_spec(spec)
+    sys.modules["make_views"] = mv
+    spec.loader.exec_module(mv)
+    name, azimuth, noise = mv.DEMO
+    mesh = trimesh.load(OBJECTS_DIR / f"{name}.obj", force="mesh")
+    view = mv.make_view(mesh, azimuth, noise, mv.view_seed(name, 0, noise))
+    view = add_mixed_pixels(view, 1.0, 0.02, np.random.default_rng(0))
+    pts, lab = view.points_world()
+    path = Path(tempfile.mkdtemp(prefix="pregrasp-veiled-")) / "mug_handle_veiled.pcd"
+    path.write_bytes(mv.pcd_bytes(pts, lab, view.T_world_camera))
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    config = ViewerConfig(input=path, sensor=SensorOptions(flying_pixels=True), plan_on_start=True)
+    app = run(config, server)
+    try:
+        with _closed_grasp_page(server, app, chromium, "the veiled view") as page:
+            if page is None:
+                return 1
+            for folder in ("Decomposition", "Face masks and pre-grasps", "Planner", "Legend"):
+                page.get_by_text(folder, exact=True).click(timeout=300_000)
+            page.get_by_text("magenta points", exact=True).wait_for(timeout=300_000)
+            page.wait_for_load_state("networkidle")
+            for _ in range(3):
+                page.evaluate(
+                    "() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))"
+                )
+            shot = out / "flying_pixels.png"
+            page.screenshot(path=str(shot), timeout=180_000)
+            print(f"wrote {shot.relative_to(ROOT) if shot.is_relative_to(ROOT) else shot}")
+    finally:
+        app.close()
+        server.stop()
+    return 0
+
+
 def rim_pinch_shot(out: Path, chromium: str) -> int:
     """``out/rim_pinch.png``: a torus 130 mm across lying on the table (too wide for the pinch
     across it, ``docs/pregrasps.md`` "Rim pinches"), opened in the viewer with its best grasp
@@ -226,7 +282,12 @@ def main() -> int:
     ap.add_argument("--completed", action="store_true", help=completed_help)
     rim_help = "only the rim pinch on a torus 130 mm across (rim_pinch.png)"
     ap.add_argument("--rim", action="store_true", help=rim_help)
+    flying_help = "only the depth demo's view with flying pixels, dropped (flying_pixels.png)"
+    ap.add_argument("--flying", action="store_true", help=flying_help)
     args = ap.parse_args()
+    if args.flying:
+        args.out.mkdir(parents=True, exist_ok=True)
+        return flying_pixels_shot(args.out, args.chromium)
     if args.rim:
         args.out.mkdir(parents=True, exist_ok=True)
         return rim_pinch_shot(args.out, args.chromium)
