@@ -166,21 +166,27 @@ def depth_demo_shot(out: Path, chromium: str, occluded: str = "auto") -> int:
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     params = PipelineParams(occluded=occluded)
     config = ViewerConfig(input=OBJECTS_DIR / "mug_depth.png", params=params, plan_on_start=True)
-    app = run(config, server)
+    return _legend_shot(server, run(config, server), chromium, "the depth demo",
+                        "dark slate points", out / name)  # fmt: skip
+
+
+def _legend_shot(server, app, chromium: str, what: str, legend_row: str, path: Path) -> int:
+    """Save ``path``: ``app`` (on ``server``) with its chosen grasp closed
+    (:func:`_closed_grasp_page`), the long panels folded and the legend open (its row
+    ``legend_row`` shown); 1 when no grasp was planned on ``what``. Closes the app and server."""
     try:
-        with _closed_grasp_page(server, app, chromium, "the depth demo") as page:
+        with _closed_grasp_page(server, app, chromium, what) as page:
             if page is None:
                 return 1
             for folder in ("Decomposition", "Face masks and pre-grasps", "Planner", "Legend"):
                 # fold the long panels, open the legend (the scene's colours)
                 page.get_by_text(folder, exact=True).click(timeout=300_000)
-            page.get_by_text("dark slate points", exact=True).wait_for(timeout=300_000)
+            page.get_by_text(legend_row, exact=True).wait_for(timeout=300_000)
             page.wait_for_load_state("networkidle")
             for _ in range(3):
                 page.evaluate(
                     "() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))"
                 )
-            path = out / name
             page.screenshot(path=str(path), timeout=180_000)
             print(f"wrote {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}")
     finally:
@@ -220,26 +226,8 @@ def flying_pixels_shot(out: Path, chromium: str) -> int:
     path.write_bytes(mv.pcd_bytes(pts, lab, view.T_world_camera))
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     config = ViewerConfig(input=path, sensor=SensorOptions(flying_pixels=True), plan_on_start=True)
-    app = run(config, server)
-    try:
-        with _closed_grasp_page(server, app, chromium, "the veiled view") as page:
-            if page is None:
-                return 1
-            for folder in ("Decomposition", "Face masks and pre-grasps", "Planner", "Legend"):
-                page.get_by_text(folder, exact=True).click(timeout=300_000)
-            page.get_by_text("magenta points", exact=True).wait_for(timeout=300_000)
-            page.wait_for_load_state("networkidle")
-            for _ in range(3):
-                page.evaluate(
-                    "() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))"
-                )
-            shot = out / "flying_pixels.png"
-            page.screenshot(path=str(shot), timeout=180_000)
-            print(f"wrote {shot.relative_to(ROOT) if shot.is_relative_to(ROOT) else shot}")
-    finally:
-        app.close()
-        server.stop()
-    return 0
+    return _legend_shot(server, run(config, server), chromium, "the veiled view",
+                        "magenta points", out / "flying_pixels.png")  # fmt: skip
 
 
 def rim_pinch_shot(out: Path, chromium: str) -> int:
