@@ -40,9 +40,9 @@ PITCH_SAMPLES: int = 4000
 """Points whose nearest neighbour's distance in the image gives the pixel pitch (evenly spread
 over the cloud's order: deterministic, and a camera's pixels are in a fixed order)."""
 
-MAX_CELLS: int = 50_000_000
-"""Most cells of the image grid; a wider image (a cloud spread over a very wide angle) uses a
-coarser pitch."""
+MAX_CELLS_PER_SIDE: int = 7_000
+"""Most cells along each side of the image grid (at most 49 M cells): a cloud spread over a wider
+angle than that many pixels, or with nearly coincident rays, uses a coarser pitch."""
 
 MAX_RAY_ANGLE_DEG: float = 80.0
 """Points more than this off the camera's mean viewing direction are not tested (the image
@@ -167,7 +167,7 @@ def flying_points(
     span = uv.max(axis=0) - lo
     if not pitch > 0.0:  # duplicated rays: half of the points share one
         pitch = float(np.max(span)) / math.sqrt(len(idx)) if np.max(span) > 0.0 else 1.0
-    pitch = max(pitch, float(np.sqrt(span[0] * span[1] / MAX_CELLS)))
+    pitch = max(pitch, float(np.max(span)) / MAX_CELLS_PER_SIDE)
     ij = np.floor((uv - lo) / pitch).astype(np.int64)
     n_rows, n_cols = int(ij[:, 0].max()) + 1, int(ij[:, 1].max()) + 1
     cell = np.full((len(pts), 2), -1, dtype=np.int64)

@@ -65,11 +65,14 @@ class SensorView:
     kept: np.ndarray
     """(N,) bool over the scene's input points: those kept by the flying-pixel test and the
     outlier removal (all True without them); the segmentation's masks index the kept points."""
-    n_flying: int = 0
-    """Points of the scene dropped as flying pixels (:mod:`.veils`)."""
     flying: np.ndarray | None = None
-    """(n_flying, 3) those points (the viewer draws them in their own colour); None without the
-    test."""
+    """(K, 3) the scene's points dropped as flying pixels (:mod:`.veils`; the viewer draws them
+    in their own colour); None without the test."""
+
+    @property
+    def n_flying(self) -> int:
+        """Number of the scene's points dropped as flying pixels (0 without the test)."""
+        return 0 if self.flying is None else len(self.flying)
 
     @property
     def n_visible(self) -> int:
@@ -132,8 +135,6 @@ def prepare_view(
         raise ValueError(f"viewpoint must be a finite 3-vector, got {viewpoint!r}")
     fly = np.zeros(len(pts), dtype=bool) if veils is None else flying_points(pts, vp, veils)
     kept = ~fly
-    n_flying = int(np.count_nonzero(fly))
-    dropped = None if veils is None else pts[fly]
     if outliers is not None:
         idx = np.flatnonzero(kept)
         kept[idx[~remove_outliers(pts[idx], k=outliers[0], std_ratio=outliers[1])]] = False
@@ -151,7 +152,8 @@ def prepare_view(
     else:
         out, assumed = obj, np.zeros(len(obj), dtype=bool)
     kept.setflags(write=False)
-    return SensorView(out, assumed, vp.copy(), seg.plane, seg, done, kept, n_flying, dropped)
+    flying = None if veils is None else pts[fly]
+    return SensorView(out, assumed, vp.copy(), seg.plane, seg, done, kept, flying)
 
 
 def pcd_viewpoint(path: str | Path) -> np.ndarray | None:
