@@ -6,7 +6,9 @@ point's nearest neighbours (the point itself included); ``curvature`` = l3 / (l1
 
 * With reference normals or a viewpoint (mesh-sampled clouds, single views): the ``k`` nearest
   neighbours (the exact grid search below, which gives ``scipy.spatial.cKDTree``'s rows in
-  half its time) and a batched ``numpy.linalg.eigh``.
+  half its time) and the closed-form 3x3 eigenproblem of the kernels below (the same vectors
+  as ``numpy.linalg.eigh`` to about 1e-15 where the smallest eigenvalue is apart from the
+  others, in a seventh of its time; a test checks them against it).
 * Without (the clouds the orientation below has to work for): scale selection over k/2, 3k/4, k
   and 3k/2 neighbours (:func:`pca_scales_of`), keeping the smallest neighbourhood whose surface
   variation is below ``SCALE_FLAT`` (else the largest). A rim or lip a few millimetres thick
@@ -217,38 +219,30 @@ def _run_rows(
             f.result()
 
 
-def _pca_normals(points: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Smallest-eigenvector normals (N, 3) and surface variation (N,) from neighbour ids (N, k)."""
-    nb = points[nbr]  # (N, k, 3)
-    centred = nb - nb.mean(axis=1, keepdims=True)
-    cov = np.einsum("nki,nkj->nij", centred, centred)  # (N, 3, 3)
-    evals, evecs = np.linalg.eigh(cov)  # ascending
-    normals = evecs[:, :, 0]
-    total = np.maximum(evals.sum(axis=1), GEOM_EPS**2)
-    return normals, np.clip(evals[:, 0], 0.0, None) / total
-
-
 def _plain_pca(
     points: np.ndarray, k: int, threads: int = 0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The k nearest neighbours of every point (itself first; distances (N, k), ids (N, k)) and
-    :func:`_pca_normals` of them, the normals of the ``reference`` and ``viewpoint`` rules: the
-    exact neighbours of :func:`nearest_neighbours` (a compiled grid search, the k-d tree's
-    answer: the same rows, equal distances by index; half the time of the tree's queries),
-    then the PCA in row chunks on ``threads`` threads (0: the usable CPUs; the grid's queries
-    and numpy's ``eigh`` run without the GIL). Each row is computed from the same inputs by the
-    same operations whatever its chunk, so the result does not depend on the threads, to the
-    bit (a test checks it against one call over all rows)."""
+    the PCA normals and surface variation of each neighbourhood, the normals of the
+    ``reference`` and ``viewpoint`` rules: the exact neighbours of :func:`nearest_neighbours`
+    (a compiled grid search, the k-d tree's answer: the same rows, equal distances by index;
+    half the time of the tree's queries), then the covariance and its closed-form smallest
+    eigenvector (:func:`~pregrasp_core.normal_kernels.pca_rows` at the one scale k) in row
+    chunks on ``threads`` threads (0: the usable CPUs; both kernels run without the GIL). Each
+    row is computed from the same inputs by the same operations whatever its chunk, so the
+    result does not depend on the threads, to the bit (a test checks it against one call over
+    all rows, and the vectors against ``numpy.linalg.eigh``)."""
+    from . import normal_kernels as nk
+
     pts = np.ascontiguousarray(points, dtype=np.float64)
     n = len(pts)
     dist, nbr = _Grid(pts, k).query(k, threads=threads)
     normals = np.empty((n, 3))
     curvature = np.empty(n)
-
-    def rows(a: int, b: int) -> None:
-        normals[a:b], curvature[a:b] = _pca_normals(pts, nbr[a:b])
-
-    _run_rows(rows, n, threads)
+    scales = np.array([k], dtype=np.int64)
+    _run_rows(
+        lambda a0, a1: nk.pca_rows(pts, nbr, scales, 0.0, a0, a1, normals, curvature), n, threads
+    )
     return dist, nbr, normals, curvature
 
 
@@ -578,6 +572,22 @@ def _scale_selected(
     return normals, variation, dist[:, :k], nbr[:, :k], order
 
 
+PLAIN_RULES: tuple[str, ...] = ("reference", "viewpoint")
+"""The orientation rules whose normals are the plain PCA of the k nearest neighbours (a compiled
+pass, about 30 ms of one core at 20,000 points); the others select the scale and orient by
+sightings or propagation (several times that)."""
+
+
+def orient_rule(params: NormalParams, has_reference: bool) -> str:
+    """The rule :func:`estimate_normals` applies (``params.orient`` with 'auto' resolved: the
+    reference normals when the cloud has them, else the viewpoint when given, else visibility)."""
+    if params.orient != "auto":
+        return params.orient
+    if has_reference:
+        return "reference"
+    return "viewpoint" if params.viewpoint is not None else "visibility"
+
+
 def estimate_normals(
     points: np.ndarray,
     params: NormalParams = NormalParams(),  # noqa: B008 (frozen, immutable)
@@ -599,12 +609,7 @@ def estimate_normals(
             f"normal estimation needs at least k = {params.k} points, the cloud has {len(pts)}; "
             "use a denser cloud or a smaller k"
         )
-    mode = params.orient
-    if mode == "auto":
-        if ref is not None:
-            mode = "reference"
-        else:
-            mode = "viewpoint" if params.viewpoint is not None else "visibility"
+    mode = orient_rule(params, ref is not None)
     if mode == "reference" and ref is None:
         raise ValueError("orient='reference' needs reference normals")
     if mode in ("reference", "viewpoint"):

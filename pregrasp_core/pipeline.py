@@ -43,7 +43,7 @@ from .errors import WorkLimitError
 from .facemask import FaceMaskParams, FaceMasks, compute_face_masks, support_plane
 from .io import PointCloud
 from .limits import WorkLimits
-from .normals import NormalParams, estimate_normals
+from .normals import PLAIN_RULES, NormalParams, estimate_normals, orient_rule
 from .planner import GraspSet, PlannerParams, cloud_normals, grasps_sections, plan_grasps
 from .planner.assumed import without_occupied
 from .planner.serialize import SimulatedRanking
@@ -191,7 +191,8 @@ def run_pipeline(
     # the normals need only the cloud: on a thread of their own beside the stages up to the pool
     background = None
     if last >= 4 and not _normals_reusable(prev, params):
-        background = _Background(view_normals, cloud, params.planner.normals)
+        nprm = params.planner.normals
+        background = _Background(view_normals, cloud, nprm, background_threads(cloud, nprm))
     try:
         if params.occluded == "auto" and cloud.sensor is not None and last >= 4:
             return _run_auto(
@@ -588,15 +589,28 @@ def with_cloud(params: PipelineParams, cloud: PointCloud) -> PipelineParams:
     return params
 
 
-def view_normals(cloud: PointCloud, params: NormalParams) -> np.ndarray:
+def view_normals(cloud: PointCloud, params: NormalParams, threads: int = 0) -> np.ndarray:
     """(N, 3) normals of ``cloud``; for a completed view, those of the visible points
     (oriented as ``params`` says, toward the camera by default) and, for the assumed points,
-    their source's normal moved by the symmetry (``SensorView.full_normals``)."""
+    their source's normal moved by the symmetry (``SensorView.full_normals``). ``threads``:
+    those of the normals' kernels (0: the usable CPUs; the normals do not depend on it)."""
     sv = cloud.sensor
     if sv is None or not np.any(sv.assumed):
-        return cloud_normals(cloud, params)
+        return cloud_normals(cloud, params, threads)
     visible = np.asarray(cloud.points)[~sv.assumed]
-    return sv.full_normals(estimate_normals(visible, params).normals)
+    return sv.full_normals(estimate_normals(visible, params, threads=threads).normals)
+
+
+def background_threads(cloud: PointCloud, params: NormalParams) -> int:
+    """Threads of the normals computed beside the stages up to the pool (:func:`run_pipeline`):
+    one for the plain PCA of a cloud with normals or a viewpoint (a compiled pass of about 30 ms
+    at 20,000 points, done before the stages beside it, about 50 ms: a second thread of its
+    would only take the core they run on; measured on the default object, the stages around
+    the planner 70 ms with two, 59 ms with one, docs/benchmarks.md), else the usable CPUs (the
+    scale selection and visibility take several times as long)."""
+    sv = cloud.sensor
+    has_ref = cloud.normals is not None and (sv is None or not np.any(sv.assumed))
+    return 1 if orient_rule(params, has_ref) in PLAIN_RULES else 0
 
 
 def _load_hand() -> Hand:

@@ -645,8 +645,12 @@ def plan_grasps(
             end()
 
 
-def cloud_normals(cloud: PointCloud, params: NormalParams | None = None) -> np.ndarray:
+def cloud_normals(
+    cloud: PointCloud, params: NormalParams | None = None, threads: int = 0
+) -> np.ndarray:
     """(N, 3) outward unit normals of a ``PointCloud`` by local PCA, oriented by its own normals
-    when it has them (mesh-sampled clouds), else by propagation (:mod:`pregrasp_core.normals`)."""
+    when it has them (mesh-sampled clouds), else by propagation (:mod:`pregrasp_core.normals`);
+    ``threads``: those of the compiled kernels (0: the usable CPUs; the normals do not depend
+    on it)."""
     prm = NormalParams() if params is None else params
-    return estimate_normals(cloud.points, prm, reference=cloud.normals).normals
+    return estimate_normals(cloud.points, prm, reference=cloud.normals, threads=threads).normals
