@@ -48,6 +48,7 @@ from scipy.spatial import ConvexHull, QhullError
 from .geometry import as_points
 from .jit import Lazy, njit
 from .limits import MAX_CONE_EDGES, MAX_EXACT_TOP, MAX_FRICTION, MAX_LENGTH, check_int, check_real
+from .minnorm import walk_loop
 from .tolerances import GEOM_EPS, HULL_CHECK_TOL, QUALITY_EPS, QUALITY_RANK_TOL
 
 logger = logging.getLogger(__name__)
@@ -470,89 +471,7 @@ WALK_STEPS: int = 40
 """The most steps of :func:`walk_bound`'s walk (the demo objects' sets take 13-19, median)."""
 
 
-def _walk_loop(w: np.ndarray, u0: np.ndarray, max_steps: int) -> np.ndarray:
-    """The direction (6,) where the walk of :func:`walk_bound` ends, from ``u0`` (unit, with a
-    positive support value). Compiled by numba (:data:`_WALK`)."""
-    m, d = w.shape
-    h = -np.inf
-    for i in range(m):
-        h = max(h, w[i] @ u0)
-    y = u0 / h  # on the boundary of the polar set {y : w y <= 1}
-    act = np.empty(d, dtype=np.int64)
-    wy = w @ y
-    act[0] = int(np.argmax(wy))
-    na = 1
-    g = np.empty((d, d))
-    lo = np.empty((d, d))
-    for _ in range(max_steps):
-        # the projection of y on the span of the active rows: (N N^T) c = N y by Cholesky
-        for a in range(na):
-            for b in range(na):
-                g[a, b] = w[act[a]] @ w[act[b]]
-        ok = True
-        for a in range(na):
-            s = g[a, a]
-            for k in range(a):
-                s -= lo[a, k] * lo[a, k]
-            if not s > 1e-24 * g[a, a]:
-                ok = False
-                break
-            lo[a, a] = np.sqrt(s)
-            for b in range(a + 1, na):
-                t = g[b, a]
-                for k in range(a):
-                    t -= lo[b, k] * lo[a, k]
-                lo[b, a] = t / lo[a, a]
-        if not ok:
-            break
-        c = np.empty(na)
-        for a in range(na):  # forward then back substitution
-            t = w[act[a]] @ y
-            for k in range(a):
-                t -= lo[a, k] * c[k]
-            c[a] = t / lo[a, a]
-        for a in range(na - 1, -1, -1):
-            t = c[a]
-            for k in range(a + 1, na):
-                t -= lo[k, a] * c[k]
-            c[a] = t / lo[a, a]
-        dv = y.copy()
-        for a in range(na):
-            dv -= c[a] * w[act[a]]
-        if dv @ dv <= 1e-18 * (y @ y):
-            # y in the cone of the active rows: a local maximum of |y|, else drop a row
-            j = int(np.argmin(c))
-            if c[j] >= 0.0:
-                break
-            for a in range(j, na - 1):
-                act[a] = act[a + 1]
-            na -= 1
-            continue
-        if na == d:
-            break
-        wd = w @ dv
-        wy = w @ y
-        tol = 1e-12 * np.sqrt(dv @ dv)
-        best, jb = np.inf, -1
-        for i in range(m):
-            inside = False
-            for a in range(na):
-                if act[a] == i:
-                    inside = True
-                    break
-            if not inside and wd[i] > tol:
-                t = (1.0 - wy[i]) / wd[i]
-                if t < best:
-                    best, jb = t, i
-        if jb < 0:
-            break
-        y = y + max(best, 0.0) * dv
-        act[na] = jb
-        na += 1
-    return y / np.sqrt(y @ y)
-
-
-_WALK = Lazy(lambda: njit(_walk_loop))
+_WALK = Lazy(lambda: njit(walk_loop))
 
 
 def walk_bound(wrenches: np.ndarray, u0: np.ndarray, max_steps: int = WALK_STEPS) -> float:
@@ -686,13 +605,45 @@ def _cheap_bounds(
 ) -> tuple[float, float, bool | None, float]:
     """``(epsilon upper bound, volume upper bound, force closure or None, epsilon lower bound)``
     of full-rank 6D wrenches ``w`` from the fixed directions, the principal box and the
-    closure certificate (:func:`wrench_quality`'s cheapest level)."""
+    closure certificate (:func:`wrench_quality`'s cheapest level), by these functions one
+    after the other: the reference of :func:`_cheap_bounds_compiled`, which the planner uses."""
     upper, u = best_direction(w, wrench_frame(w, n_edges))
     vol = box_volume_bound(w, centred)
     closure, lower = (False, 0.0) if upper <= NOT_CLOSURE_BOUND else closure_certificate(w)
     if closure:
         upper = min(upper, walk_bound(w, u))
     return upper, vol, closure, lower
+
+
+def _quick_check(w: np.ndarray) -> str:
+    """:func:`_wrench_check`'s tests before the rank's: too few wrenches, a non-finite one."""
+    m, d = w.shape
+    if m < d + 1:
+        return f"{m} wrenches < {d + 1}"
+    if not np.isfinite(w).all():
+        return "non-finite wrench"
+    return ""
+
+
+def _cheap_bounds_compiled(
+    w: np.ndarray, n_edges: int
+) -> tuple[str, tuple[float, float, bool | None, float]]:
+    """``(reason, bounds)``: :func:`_wrench_check`'s reason ('' for a full-rank set) and
+    :func:`_cheap_bounds` of 6D wrenches ``w`` (M, 6), by one compiled pass
+    (:func:`pregrasp_core.minnorm.cheap_bounds`: the same tests and bounds, the sums in another
+    order; about a fifth of the time of the numpy functions' some 30 calls)."""
+    from .minnorm import MAX_ITERATIONS, compiled_cheap_bounds
+
+    reason = _quick_check(w)
+    if reason:
+        return reason, (0.0, 0.0, None, 0.0)
+    rank, upper, vol, closure, lower = compiled_cheap_bounds()(
+        np.ascontiguousarray(w), int(n_edges), BOUND_DIRECTIONS, QUALITY_RANK_TOL, GEOM_EPS,
+        NOT_CLOSURE_BOUND, CLOSURE_PROOF_MIN, MAX_ITERATIONS, WALK_STEPS,
+    )  # fmt: skip
+    if rank < w.shape[1]:
+        return f"rank {rank} < {w.shape[1]}", (0.0, 0.0, None, 0.0)
+    return "", (upper, vol, None if closure < 0 else bool(closure), lower)
 
 
 def wrench_quality(
@@ -712,13 +663,16 @@ def wrench_quality(
         raise ValueError(f"wrenches must have shape (M, D), got {w.shape}")
     key = (w.shape, int(n_edges), w.tobytes())
     cheap = _CHEAP_MEMO.get(key)  # (a set seen before passed the check)
-    if cheap is None:
-        reason, centred = _centred_check(w)
+    bounded = level < LEVEL_EXACT and w.shape[1] == 6
+    if cheap is None and not bounded:
+        reason, _ = _centred_check(w)
         if reason:
             return GraspQuality(0.0, 0.0, n_contacts, False, reason)
-    if level < LEVEL_EXACT and w.shape[1] == 6:
+    if bounded:
         if cheap is None:
-            cheap = _cheap_bounds(w, centred, n_edges)
+            reason, cheap = _cheap_bounds_compiled(w, n_edges)
+            if reason:
+                return GraspQuality(0.0, 0.0, n_contacts, False, reason)
             if len(_CHEAP_MEMO) >= CHEAP_MEMO_SIZE:
                 _CHEAP_MEMO.clear()
             _CHEAP_MEMO[key] = cheap

@@ -448,6 +448,50 @@ def test_wrench_frame_and_bounds_equal_the_numpy_forms_to_the_bit():
         assert box_volume_bound(w, c) == box_volume_bound(w)
 
 
+def test_compiled_cheapest_bounds_agree_with_the_numpy_functions():
+    """The planner's one-pass cheapest bounds (``minnorm.cheap_bounds``) against the numpy
+    functions it replaces (``quality._cheap_bounds``: rank test, principal box, directions'
+    bound, closure certificate, walk) on random contact sets, some flat (rank < 6) and some not
+    force closure: the same reason, the same force-closure decision, the volume and the lower
+    bound equal to rounding, the upper bound equal to rounding where no walk ran; with the
+    walk (a path that rounding may end elsewhere) both at least qhull's epsilon."""
+    from pregrasp_core import quality
+
+    rng = np.random.default_rng(23)
+    seen = {"flat": 0, "not fc": 0, "fc": 0, "undecided": 0}
+    for trial in range(300):
+        k = int(rng.integers(2, 7))
+        m = int(rng.choice([6, 8]))
+        p, n, t, c, r = _contact_set(rng, k, spread=0.3 if trial % 2 else 0.9)
+        if trial % 10 == 0:
+            p[:, 2] = 0.0  # contacts and normals in a plane: a flat wrench set
+            n[:, 2] = 0.0
+            n /= np.linalg.norm(n, axis=1, keepdims=True)
+        w = contact_wrenches(p, n, QualityParams(n_edges=m), tangents=t, center=c, radius=r)
+        reason, got = quality._cheap_bounds_compiled(w, m)
+        want_reason, centred = quality._centred_check(w)
+        assert reason == want_reason, trial
+        if reason:
+            seen["flat"] += 1
+            continue
+        up, vol, closure, low = got
+        up0, vol0, closure0, low0 = quality._cheap_bounds(w, centred, m)
+        assert closure == closure0, trial
+        assert vol == pytest.approx(vol0, rel=1e-12), trial
+        assert low == pytest.approx(low0, rel=1e-9, abs=1e-15), trial
+        exact = ConvexHull(w, qhull_options="Q0")
+        eps = max(float((-exact.equations[:, -1]).min()), 0.0)
+        assert vol >= exact.volume * (1.0 - 1e-9), trial
+        if closure:
+            seen["fc"] += 1
+            assert min(up, up0) >= eps - 1e-12, trial
+            assert low <= eps + 1e-12, trial
+        else:
+            seen["not fc" if closure is False else "undecided"] += 1
+            assert up == pytest.approx(up0, rel=1e-12, abs=1e-15), trial
+    assert min(seen.values()) >= 5, seen
+
+
 def test_memo_of_the_cheapest_bounds_changes_no_score():
     """The cheapest bounds that ``wrench_quality`` keeps per wrench set (for the planner's
     refinements) give every level the scores a fresh computation gives: the same sets scored
