@@ -279,6 +279,17 @@ def walk_loop(w: np.ndarray, u0: np.ndarray, max_steps: int) -> np.ndarray:
     return y / np.sqrt(y @ y)
 
 
+def _support(w: np.ndarray, u: np.ndarray) -> float:
+    """``max_i w_i . u``: the support value of the rows of ``w`` (M, D) along ``u`` (D,)."""
+    h = -np.inf
+    for i in range(w.shape[0]):
+        s = 0.0
+        for c in range(w.shape[1]):
+            s += w[i, c] * u[c]
+        h = max(h, s)
+    return h
+
+
 _min_norm_inline = min_norm_point
 """:func:`min_norm_point` as :func:`cheap_bounds` calls it (its compiled, inlined form once
 :func:`compiled_cheap_bounds` has run)."""
@@ -375,12 +386,7 @@ def cheap_bounds(
         for r in range(3):
             u[r] = R[r, 0] * dirs[0, j] + R[r, 1] * dirs[1, j] + R[r, 2] * dirs[2, j]
             u[r + 3] = R[r, 0] * dirs[3, j] + R[r, 1] * dirs[4, j] + R[r, 2] * dirs[5, j]
-        h = -np.inf
-        for i in range(m):
-            s = 0.0
-            for c in range(d):
-                s += w[i, c] * u[c]
-            h = max(h, s)
+        h = _support(w, u)
         if h < upper:
             upper = h
             best_u[:] = u
@@ -393,13 +399,7 @@ def cheap_bounds(
         nx += x[c] * x[c]
     nx = math.sqrt(nx)
     if nx > 0.0:
-        h = -np.inf
-        for i in range(m):
-            s = 0.0
-            for c in range(d):
-                s -= w[i, c] * x[c] / nx
-            h = max(h, s)
-        if h <= not_closure:
+        if _support(w, -x / nx) <= not_closure:
             return rank, upper, vol, 0, 0.0
     if nc != d + 1:
         return rank, upper, vol, -1, 0.0
@@ -435,13 +435,7 @@ def cheap_bounds(
     for c in range(d):
         ok = ok and math.isfinite(y[c])
     if ok:
-        h = -np.inf
-        for i in range(m):
-            s = 0.0
-            for c in range(d):
-                s += w[i, c] * y[c]
-            h = max(h, s)
-        upper = min(upper, h)
+        upper = min(upper, _support(w, y))
     return rank, upper, vol, 1, lower
 
 
@@ -458,6 +452,6 @@ def compiled_cheap_bounds() -> Callable[..., tuple[int, float, float, int, float
             if _CHEAP is None:
                 from .jit import inline_helpers, njit
 
-                inline_helpers(globals(), "_min_norm_inline", "_walk_inline")
+                inline_helpers(globals(), "_support", "_min_norm_inline", "_walk_inline")
                 _CHEAP = njit(cheap_bounds)
     return _CHEAP
