@@ -30,6 +30,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .jit import Lazy
+
 _LOCK = threading.Lock()
 _COMPILED: Callable[..., tuple[np.ndarray, np.ndarray, int, bool]] | None = None
 
@@ -439,19 +441,17 @@ def cheap_bounds(
     return rank, upper, vol, 1, lower
 
 
-_CHEAP_LOCK = threading.Lock()
-_CHEAP: Callable[..., tuple[int, float, float, int, float]] | None = None
+def _build_cheap_bounds() -> Callable[..., tuple[int, float, float, int, float]]:
+    from .jit import inline_helpers, njit
+
+    inline_helpers(globals(), "_support", "_min_norm_inline", "_walk_inline")
+    return njit(cheap_bounds)
+
+
+_CHEAP = Lazy(_build_cheap_bounds)
 
 
 def compiled_cheap_bounds() -> Callable[..., tuple[int, float, float, int, float]]:
     """:func:`cheap_bounds` compiled by numba (its helpers inlined; the first call imports
     numba and compiles it, then it is loaded from numba's cache)."""
-    global _CHEAP
-    if _CHEAP is None:
-        with _CHEAP_LOCK:
-            if _CHEAP is None:
-                from .jit import inline_helpers, njit
-
-                inline_helpers(globals(), "_support", "_min_norm_inline", "_walk_inline")
-                _CHEAP = njit(cheap_bounds)
-    return _CHEAP
+    return _CHEAP.get()

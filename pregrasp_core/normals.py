@@ -6,9 +6,9 @@ point's nearest neighbours (the point itself included); ``curvature`` = l3 / (l1
 
 * With reference normals or a viewpoint (mesh-sampled clouds, single views): the ``k`` nearest
   neighbours (the exact grid search below, which gives ``scipy.spatial.cKDTree``'s rows in
-  half its time) and the closed-form 3x3 eigenproblem of the kernels below (the same vectors
-  as ``numpy.linalg.eigh`` to about 1e-15 where the smallest eigenvalue is apart from the
-  others, in a seventh of its time; a test checks them against it).
+  half its time) and the closed-form 3x3 eigenproblem of the kernels below (the vectors of
+  ``numpy.linalg.eigh`` to about 1e-15, in an eighth of its time; a test checks them against
+  it).
 * Without (the clouds the orientation below has to work for): scale selection over k/2, 3k/4, k
   and 3k/2 neighbours (:func:`pca_scales_of`), keeping the smallest neighbourhood whose surface
   variation is below ``SCALE_FLAT`` (else the largest). A rim or lip a few millimetres thick
@@ -612,7 +612,7 @@ def estimate_normals(
     mode = orient_rule(params, ref is not None)
     if mode == "reference" and ref is None:
         raise ValueError("orient='reference' needs reference normals")
-    if mode in ("reference", "viewpoint"):
+    if mode in PLAIN_RULES:
         dist, nbr, normals, curvature = _plain_pca(pts, params.k, threads)
     else:  # no normals to orient by: scale-selected PCA (thin rims), compiled kernels
         normals, curvature, dist, nbr, order = _scale_selected(pts, params.k, threads)

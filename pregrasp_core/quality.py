@@ -326,6 +326,16 @@ def _exact_hull(w: np.ndarray) -> ConvexHull | None:
     return hull
 
 
+def _quick_check(w: np.ndarray) -> str:
+    """:func:`_wrench_check`'s tests before the rank's: too few wrenches, a non-finite one."""
+    m, d = w.shape
+    if m < d + 1:
+        return f"{m} wrenches < {d + 1}"
+    if not np.isfinite(w).all():
+        return "non-finite wrench"
+    return ""
+
+
 def _wrench_check(w: np.ndarray) -> str:
     """'' when the wrenches ``w`` (M, D) span D dimensions (a hull exists), else why not."""
     return _centred_check(w)[0]
@@ -334,11 +344,10 @@ def _wrench_check(w: np.ndarray) -> str:
 def _centred_check(w: np.ndarray) -> tuple[str, np.ndarray | None]:
     """:func:`_wrench_check` of ``w`` (M, D) and the centred wrenches ``w - mean`` it measured
     the rank of (None when it did not get that far), for :func:`box_volume_bound`."""
-    m, d = w.shape
-    if m < d + 1:
-        return f"{m} wrenches < {d + 1}", None
-    if not np.isfinite(w).all():
-        return "non-finite wrench", None
+    reason = _quick_check(w)
+    if reason:
+        return reason, None
+    d = w.shape[1]
     c = w - w.mean(axis=0)
     sv = np.linalg.svd(c, compute_uv=False)
     rank = int(np.sum(sv > QUALITY_RANK_TOL * max(sv[0], GEOM_EPS)))
@@ -591,8 +600,9 @@ planner empties it at the end of each plan (:func:`forget_cheap_bounds`), so tha
 gains from an earlier one's sets (nor holds their memory)."""
 
 _CHEAP_MEMO: dict[tuple[tuple[int, ...], int, bytes], tuple[float, float, bool | None, float]] = {}
-"""(shape, edges per contact, the wrenches' bytes) -> :func:`_cheap_bounds` of a full-rank set
-(pure functions of those: a hit gives the values a new computation would, bit for bit)."""
+"""(shape, edges per contact, the wrenches' bytes) -> the bounds of
+:func:`_cheap_bounds_compiled` of a full-rank set (pure functions of those: a hit gives the
+values a new computation would, bit for bit)."""
 
 
 def forget_cheap_bounds() -> None:
@@ -600,38 +610,16 @@ def forget_cheap_bounds() -> None:
     _CHEAP_MEMO.clear()
 
 
-def _cheap_bounds(
-    w: np.ndarray, centred: np.ndarray | None, n_edges: int
-) -> tuple[float, float, bool | None, float]:
-    """``(epsilon upper bound, volume upper bound, force closure or None, epsilon lower bound)``
-    of full-rank 6D wrenches ``w`` from the fixed directions, the principal box and the
-    closure certificate (:func:`wrench_quality`'s cheapest level), by these functions one
-    after the other: the reference of :func:`_cheap_bounds_compiled`, which the planner uses."""
-    upper, u = best_direction(w, wrench_frame(w, n_edges))
-    vol = box_volume_bound(w, centred)
-    closure, lower = (False, 0.0) if upper <= NOT_CLOSURE_BOUND else closure_certificate(w)
-    if closure:
-        upper = min(upper, walk_bound(w, u))
-    return upper, vol, closure, lower
-
-
-def _quick_check(w: np.ndarray) -> str:
-    """:func:`_wrench_check`'s tests before the rank's: too few wrenches, a non-finite one."""
-    m, d = w.shape
-    if m < d + 1:
-        return f"{m} wrenches < {d + 1}"
-    if not np.isfinite(w).all():
-        return "non-finite wrench"
-    return ""
-
-
 def _cheap_bounds_compiled(
     w: np.ndarray, n_edges: int
 ) -> tuple[str, tuple[float, float, bool | None, float]]:
-    """``(reason, bounds)``: :func:`_wrench_check`'s reason ('' for a full-rank set) and
-    :func:`_cheap_bounds` of 6D wrenches ``w`` (M, 6), by one compiled pass
-    (:func:`pregrasp_core.minnorm.cheap_bounds`: the same tests and bounds, the sums in another
-    order; about a fifth of the time of the numpy functions' some 30 calls)."""
+    """``(reason, (epsilon upper bound, volume upper bound, force closure or None, epsilon lower
+    bound))``: :func:`_wrench_check`'s reason ('' for a full-rank set) and
+    :func:`wrench_quality`'s cheapest bounds of 6D wrenches ``w`` (M, 6), by one compiled pass
+    (:func:`pregrasp_core.minnorm.cheap_bounds`: the tests and bounds of
+    :func:`best_direction` in :func:`wrench_frame`, :func:`box_volume_bound`,
+    :func:`closure_certificate` and :func:`walk_bound`, the sums in another order; about a
+    third of the time of those functions' some 30 numpy calls)."""
     from .minnorm import MAX_ITERATIONS, compiled_cheap_bounds
 
     reason = _quick_check(w)

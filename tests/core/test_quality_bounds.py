@@ -448,9 +448,23 @@ def test_wrench_frame_and_bounds_equal_the_numpy_forms_to_the_bit():
         assert box_volume_bound(w, c) == box_volume_bound(w)
 
 
+def _cheap_bounds_numpy(w, centred, n_edges):
+    """The cheapest level's bounds by the numpy functions one after the other (what
+    ``quality.wrench_quality`` computed before its compiled pass): ``(epsilon upper bound,
+    volume upper bound, force closure or None, epsilon lower bound)``."""
+    from pregrasp_core.quality import NOT_CLOSURE_BOUND, box_volume_bound, closure_certificate
+
+    upper, u = best_direction(w, wrench_frame(w, n_edges))
+    vol = box_volume_bound(w, centred)
+    closure, lower = (False, 0.0) if upper <= NOT_CLOSURE_BOUND else closure_certificate(w)
+    if closure:
+        upper = min(upper, walk_bound(w, u))
+    return upper, vol, closure, lower
+
+
 def test_compiled_cheapest_bounds_agree_with_the_numpy_functions():
     """The planner's one-pass cheapest bounds (``minnorm.cheap_bounds``) against the numpy
-    functions it replaces (``quality._cheap_bounds``: rank test, principal box, directions'
+    functions it replaces (:func:`_cheap_bounds_numpy`: rank test, principal box, directions'
     bound, closure certificate, walk) on random contact sets, some flat (rank < 6) and some not
     force closure: the same reason, the same force-closure decision, the volume and the lower
     bound equal to rounding, the upper bound equal to rounding where no walk ran; with the
@@ -475,7 +489,7 @@ def test_compiled_cheapest_bounds_agree_with_the_numpy_functions():
             seen["flat"] += 1
             continue
         up, vol, closure, low = got
-        up0, vol0, closure0, low0 = quality._cheap_bounds(w, centred, m)
+        up0, vol0, closure0, low0 = _cheap_bounds_numpy(w, centred, m)
         assert closure == closure0, trial
         assert vol == pytest.approx(vol0, rel=1e-12), trial
         assert low == pytest.approx(low0, rel=1e-9, abs=1e-15), trial
