@@ -3,7 +3,7 @@
 Formats (the file name's extension picks the reader in ``READERS``, case-insensitive):
 
 - point clouds: PLY without faces (ascii, binary little/big endian; ``ply``), PCD (PCL's format;
-  ascii and binary, ``binary_compressed`` is refused with a message; ``pcd``), XYZ/TXT/CSV (3
+  ascii, binary and binary_compressed, whose LZF ``lzf`` decodes; ``pcd``), XYZ/TXT/CSV (3
   columns, or 6 with normals; whitespace or comma separated; ``#`` comments; a column-name first
   line is skipped; ``text``), NPY (``allow_pickle=False``) and NPZ (key ``points`` or a single
   array; optional ``normals``; ``numpy_format``);

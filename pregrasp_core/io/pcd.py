@@ -1,9 +1,11 @@
-"""PCD point clouds (the Point Cloud Library's format): ``DATA ascii`` and ``DATA binary``;
-``binary_compressed`` is refused with a message.
+"""PCD point clouds (the Point Cloud Library's format): ``DATA ascii``, ``binary`` and
+``binary_compressed`` (LZF, ``io/lzf.py``; the fields stored one after another, each for every
+point, as PCL writes them).
 
 Every header field is checked before anything is allocated: each key once, FIELDS named once,
 SIZE/TYPE/COUNT per field and in range, WIDTH x HEIGHT = POINTS, VIEWPOINT of 7 numbers, and a
-body holding exactly POINTS rows (no missing and no extra data)."""
+body holding exactly POINTS rows (no missing and no extra data; for ``binary_compressed``, the
+two sizes before the stream, the stream's length and the size it decodes to)."""
 
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ import numpy as np
 
 from ..errors import InputError
 from .cloud import FileData, RawCloud
+from .lzf import lzf_decompress
 from .text import decode_text, parse_numbers
 
 PCD_KEYS: tuple[str, ...] = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT",
@@ -20,9 +23,16 @@ PCD_KEYS: tuple[str, ...] = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDT
 MAX_FIELD_COUNT: int = 4096
 """Largest COUNT of one field (PCL's widest point types, e.g. FPFH, have a few hundred)."""
 
+MAX_DECOMPRESSED: int = 1 << 30
+"""Most bytes a ``binary_compressed`` body may decode to (1 GiB: 10 million points of PCL's
+widest common point type, ``PointXYZRGBNormal`` at 48 bytes, take 480 MB)."""
+
+_BINARY_FIELDS: tuple[str, ...] = ("x", "y", "z", "normal_x", "normal_y", "normal_z")
+"""The fields read from a binary body (the rest are skipped)."""
+
 
 def read_pcd(file: FileData) -> RawCloud:
-    """A PCD file (PCL), ``DATA ascii`` or ``DATA binary``."""
+    """A PCD file (PCL), ``DATA ascii``, ``binary`` or ``binary_compressed``."""
     data, source = file.data, file.source
 
     def bad(problem: str) -> InputError:
@@ -140,18 +150,66 @@ def read_pcd(file: FileData) -> RawCloud:
         rec = np.frombuffer(data, dtype=np.dtype(dtypes), count=n_pts, offset=pos)
         col = {
             f: (rec[f] if rec[f].ndim == 1 else rec[f][:, 0]).astype(np.float64)
-            for f in ("x", "y", "z", "normal_x", "normal_y", "normal_z")
+            for f in _BINARY_FIELDS
             if f in fields
         }
     elif mode == "binary_compressed":
-        raise InputError(
-            f"{source}: PCD 'DATA binary_compressed' is not supported; re-save it as binary "
-            "or ascii (e.g. pcl_convert_pcd_ascii_binary in.pcd out.pcd 1)"
-        )
+        col = _compressed_columns(data, pos, fields, dtypes, n_pts, source)
     else:
-        raise bad(f"unknown DATA mode {' '.join(header['DATA'])!r} (ascii or binary)")
+        raise bad(
+            f"unknown DATA mode {' '.join(header['DATA'])!r} (ascii, binary or binary_compressed)"
+        )
     pts = np.column_stack([col["x"], col["y"], col["z"]])
     nrm = None
     if {"normal_x", "normal_y", "normal_z"} <= set(fields):
         nrm = np.column_stack([col["normal_x"], col["normal_y"], col["normal_z"]])
     return RawCloud(pts, nrm, int(n_pts), [])
+
+
+def _compressed_columns(
+    data: bytes,
+    pos: int,
+    fields: list[str],
+    dtypes: list[tuple[str, str] | tuple[str, str, tuple[int]]],
+    n_pts: int,
+    source: str,
+) -> dict[str, np.ndarray]:
+    """The columns of ``_BINARY_FIELDS`` of a ``DATA binary_compressed`` body starting at
+    ``pos``: two little-endian uint32 (the stream's length, the size it decodes to), the LZF
+    stream, then nothing; decoded, each field's values for every point, field after field."""
+    body = len(data) - pos
+    if body < 8:
+        raise InputError(
+            f"{source}: truncated PCD: the compressed data has no sizes ({body} bytes after the "
+            "header, 8 needed); re-save the cloud"
+        )
+    n_comp, n_raw = (int(v) for v in np.frombuffer(data, dtype="<u4", count=2, offset=pos))
+    item = [np.dtype(dt[1]).itemsize * (dt[2][0] if len(dt) == 3 else 1) for dt in dtypes]
+    need = n_pts * sum(item)
+    if n_raw != need:
+        raise InputError(
+            f"{source}: the PCD header declares {n_pts} points, the data has {n_raw} bytes "
+            f"once decompressed ({need} needed); the header is wrong or the file is corrupt: "
+            "re-save the cloud"
+        )
+    if need > MAX_DECOMPRESSED:
+        raise InputError(
+            f"{source}: the compressed PCD data decodes to {need} bytes, more than the "
+            f"{MAX_DECOMPRESSED} pregrasp reads; subsample the cloud first"
+        )
+    if body - 8 != n_comp:
+        what = "truncated PCD" if body - 8 < n_comp else f"{body - 8 - n_comp} bytes after the data"
+        raise InputError(
+            f"{source}: {what}: the header declares {n_comp} bytes of compressed data, the "
+            f"file holds {body - 8}; re-save the cloud"
+        )
+    raw = lzf_decompress(memoryview(data)[pos + 8 :], n_raw, source)
+    col: dict[str, np.ndarray] = {}
+    start = 0
+    for name, dt, size in zip(fields, dtypes, item, strict=True):
+        if name in _BINARY_FIELDS:
+            block = np.frombuffer(raw, dtype=dt[1], count=n_pts * size // np.dtype(dt[1]).itemsize,
+                                  offset=start)  # fmt: skip
+            col[name] = block.reshape(n_pts, -1)[:, 0].astype(np.float64)
+        start += n_pts * size
+    return col

@@ -520,11 +520,88 @@ def test_malformed_headers(name, data, match):
         load_point_cloud_bytes(data, name)
 
 
-def test_pcd_binary_compressed_refused():
-    head = (b"FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 20\nHEIGHT 1\nPOINTS 20\n"
-            b"DATA binary_compressed\n") + bytes(64)  # fmt: skip
-    with pytest.raises(InputError, match="binary_compressed' is not supported; re-save it as"):
-        load_point_cloud_bytes(head, "c.pcd")
+@pytest.mark.parametrize("organised", [False, True])
+def test_pcd_binary_compressed_written_by_pypcd4(tmp_path, organised):
+    """``DATA binary_compressed`` as another implementation writes it (pypcd4, its LZF from
+    liblzf): x y z, the normals and an rgb field between them, every float32 read exactly; an
+    organised cloud (WIDTH x HEIGHT, NaN where the sensor saw nothing) loses its NaN rows."""
+    from pypcd4 import Encoding
+    from pypcd4 import PointCloud as Pcd
+
+    u, v = np.meshgrid(np.arange(40), np.arange(30))  # a depth camera's 40 x 30 pixels
+    pts = np.column_stack([u.ravel() * 0.002, v.ravel() * 0.002, np.full(1200, 0.6)])
+    pts[(u.ravel() - 20) ** 2 + (v.ravel() - 15) ** 2 < 60, 2] = 0.55  # a box on the table
+    nrm = np.tile([0.0, 0.0, -1.0], (1200, 1))
+    if organised:
+        pts[::5] = np.nan
+    rgb = np.full(1200, 0x808080, dtype=np.uint32)  # (random floats do not compress: pypcd4
+    # would write them as DATA binary)
+    cols = [*pts.astype(np.float32).T, rgb, *nrm.astype(np.float32).T]
+    names = ("x", "y", "z", "rgb", "normal_x", "normal_y", "normal_z")
+    pc = Pcd.from_points(cols, names, (np.float32,) * 3 + (np.uint32,) + (np.float32,) * 3)
+    if organised:
+        pc.metadata.width, pc.metadata.height = 40, 30
+    path = tmp_path / "c.pcd"
+    pc.save(path, encoding=Encoding.BINARY_COMPRESSED)
+    assert b"DATA binary_compressed\n" in path.read_bytes()[:1000]
+    cloud = load_point_cloud(path, n_points=None)
+    keep = np.isfinite(pts).all(axis=1)
+    np.testing.assert_array_equal(cloud.points, f32(pts[keep]))
+    np.testing.assert_allclose(cloud.normals, nrm[keep], atol=1e-6)
+    assert cloud.info["n_dropped_nonfinite"] == (240 if organised else 0)
+
+
+def test_pcd_binary_compressed_fields_with_counts_and_padding():
+    """Fields of COUNT 2 and PCL's padding field ``_`` (each stored field after field, for every
+    point), x y z after them; the stream from liblzf's compressor (python-neo-lzf)."""
+    import struct
+
+    import lzf
+
+    pts, _ = known_cloud(300)
+    blocks = [np.arange(600, dtype="<i2").tobytes(), np.zeros(300, "<u4").tobytes()]
+    blocks += [np.ascontiguousarray(pts[:, i], dtype="<f8").tobytes() for i in range(3)]
+    raw = b"".join(blocks)
+    packed = lzf.compress(raw, 2 * len(raw))
+    head = (b"VERSION 0.7\nFIELDS h _ x y z\nSIZE 2 4 8 8 8\nTYPE I U F F F\nCOUNT 2 1 1 1 1\n"
+            b"WIDTH 300\nHEIGHT 1\nPOINTS 300\nDATA binary_compressed\n")  # fmt: skip
+    data = head + struct.pack("<II", len(packed), len(raw)) + packed
+    cloud = load_point_cloud_bytes(data, "c.pcd", n_points=None)
+    np.testing.assert_array_equal(cloud.points, pts)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(
+        st.tuples(st.binary(min_size=1, max_size=40), st.integers(1, 300)), min_size=1, max_size=12
+    )
+)
+def test_lzf_decodes_what_liblzf_encodes(pieces):
+    """Any bytes (pieces repeated up to 300 times: long and overlapping back references)
+    compressed by liblzf (python-neo-lzf) decode to themselves."""
+    import lzf
+
+    from pregrasp_core.io.lzf import lzf_decompress
+
+    raw = b"".join(p * k for p, k in pieces)
+    packed = lzf.compress(raw, len(raw) + len(raw) // 16 + 64)
+    assert lzf_decompress(packed, len(raw), "x.pcd") == raw
+
+
+@pytest.mark.parametrize(
+    ("stream", "size", "match"),
+    [(b"\x03ab", 4, "ends inside a token"),
+     (b"\x02abc", 2, "holds more than the 2 bytes declared"),
+     (b"\x00a\x20\x01", 9, "a back reference points before its start"),
+     (b"\x00a\xe0", 9, "ends inside a token"),
+     (b"\x00a\x20\x00", 9, "holds 4 bytes, the header declares 9"),
+     (b"\x00a", 10**6, "cannot hold the 1000000 bytes")],
+)  # fmt: skip
+def test_lzf_malformed_streams(stream, size, match):
+    from pregrasp_core.io.lzf import lzf_decompress
+
+    with pytest.raises(InputError, match=f"^x.pcd: .*{match}"):
+        lzf_decompress(stream, size, "x.pcd")
 
 
 def test_truncated_binary(tmp_path):

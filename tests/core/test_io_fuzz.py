@@ -25,6 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import lzf
 import numpy as np
 import pytest
 import trimesh
@@ -210,7 +211,18 @@ def pcd(c: Cloud, mode: str = "ascii", normals: bool = True, rgb: bool = False,
     rec = np.zeros(n, dtype=dt)
     for i, f in enumerate(fields[: floats.shape[1]]):
         rec[f] = floats[:, i]
-    return out + rec.tobytes()
+    return out + pcd_body(rec, mode)
+
+
+def pcd_body(rec: np.ndarray, mode: str) -> bytes:
+    """The binary body of the records ``rec``: as they are for ``binary``; for
+    ``binary_compressed``, field after field (each for every point) compressed by liblzf
+    (python-neo-lzf, the reference compressor), after the two sizes, as PCL writes it."""
+    if mode == "binary":
+        return rec.tobytes()
+    raw = b"".join(np.ascontiguousarray(rec[f]).tobytes() for f in rec.dtype.names)
+    packed = lzf.compress(raw, len(raw) + len(raw) // 16 + 64)  # liblzf's worst case
+    return struct.pack("<II", len(packed), len(raw)) + packed
 
 
 def _pcd_columns(specs: list[tuple[str, str, np.ndarray]], mode: str) -> bytes:
@@ -228,7 +240,7 @@ def _pcd_columns(specs: list[tuple[str, str, np.ndarray]], mode: str) -> bytes:
     rec = np.zeros(n, dtype=[(nm, t) for nm, t, _ in specs])
     for nm, _, v in specs:
         rec[nm] = v
-    return out + rec.tobytes()
+    return out + pcd_body(rec, mode)
 
 
 def text(c: Cloud, delim: str = " ", normals: bool = False, header: bool = False,
@@ -427,6 +439,7 @@ _BASES = {  # the files the breaking mutations start from: fields in the usual o
     "ply_binary": _ply_binary(False),
     "pcd_ascii": _pcd("ascii"),
     "pcd_binary": _pcd("binary"),
+    "pcd_compressed": _pcd("binary_compressed"),
 }
 _VALID = {  # valid files; PLY and PCD with their properties / fields in any order
     "ply_ascii": ("c.ply", _ply_ascii(True)),
@@ -434,6 +447,7 @@ _VALID = {  # valid files; PLY and PCD with their properties / fields in any ord
     "ply_mesh": ("m.ply", _ply_mesh),
     "pcd_ascii": ("c.pcd", _pcd("ascii", True)),
     "pcd_binary": ("c.pcd", _pcd("binary", True)),
+    "pcd_compressed": ("c.pcd", _pcd("binary_compressed", True)),
     "xyz": ("c.xyz", _text([" ", "\t", "  "])),
     "txt": ("c.txt", _text([" ", ","])),
     "csv": ("c.csv", _text([",", ", "])),
@@ -642,8 +656,6 @@ PCD_BREAKS: list[tuple[str, Mutation, str]] = [
                                                b"WIDTH", -k),
      "bytes after the|declares .* points, the data has"),
     ("unknown DATA", lambda b, d: replace_once(b, b"DATA ", b"DATA lz4_"), "unknown DATA mode"),
-    ("compressed", lambda b, d: re.sub(rb"DATA \w+", b"DATA binary_compressed", b, count=1),
-     "binary_compressed' is not supported"),
     ("TYPE F SIZE 2", lambda b, d: re.sub(rb"SIZE \d", b"SIZE 2", b, count=1),
      "unsupported TYPE F SIZE 2"),
     ("no DATA", lambda b, d: b[: b.index(b"DATA ")], "no DATA line"),
@@ -658,6 +670,57 @@ PCD_BREAKS: list[tuple[str, Mutation, str]] = [
 PCD_BINARY_BREAKS = PCD_BREAKS + [
     ("body cut", lambda b, d: b[: len(b) - d.draw(st.integers(1, 30))], "truncated PCD"),
     ("bytes appended", lambda b, d: b + bytes(d.draw(k_small)), "bytes after the"),
+    (
+        "read as compressed",
+        lambda b, d: re.sub(rb"DATA \w+", b"DATA binary_compressed", b, count=1),
+        "once decompressed|truncated PCD|bytes after the data",
+    ),
+]
+
+
+def _pcd_sizes(data: bytes, n_comp: int | None = None, n_raw: int | None = None) -> bytes:
+    """A compressed PCD with the sizes before its stream replaced."""
+    at = _pcd_data_start(data)
+    old = struct.unpack_from("<II", data, at)
+    new = (old[0] if n_comp is None else n_comp, old[1] if n_raw is None else n_raw)
+    return data[:at] + struct.pack("<II", *new) + data[at + 8 :]
+
+
+def _first_token(data: bytes) -> bytes:
+    """A compressed PCD whose stream starts with a back reference (before the start)."""
+    at = _pcd_data_start(data) + 8
+    return data[:at] + b"\x20\x05" + data[at + 2 :]
+
+
+PCD_COMPRESSED_BREAKS = PCD_BREAKS + [
+    ("stream cut", lambda b, d: b[: len(b) - d.draw(st.integers(1, 30))], "truncated PCD"),
+    ("bytes appended", lambda b, d: b + bytes(d.draw(k_small)), "bytes after the data"),
+    (
+        "sizes cut",
+        lambda b, d: b[: _pcd_data_start(b) + d.draw(st.integers(0, 7))],
+        "the compressed data has no sizes",
+    ),
+    (
+        "raw size",
+        lambda b, d: _pcd_sizes(
+            b,
+            n_raw=struct.unpack_from("<I", b, _pcd_data_start(b) + 4)[0]
+            + d.draw(st.integers(-8, 8).filter(bool)),
+        ),
+        "declares .* points, the data has .* bytes once decompressed \\(.* needed\\)",
+    ),
+    (
+        "stream shortened",
+        lambda b, d: (lambda k: _pcd_sizes(b[:-k], n_comp=len(b[:-k]) - _pcd_data_start(b) - 8))(
+            d.draw(st.integers(1, 8))
+        ),
+        "corrupt compressed PCD data",
+    ),
+    (
+        "reference before start",
+        lambda b, d: _first_token(b),
+        "corrupt compressed PCD data \\(a back reference points before its start",
+    ),
 ]
 PCD_ASCII_BREAKS = PCD_BREAKS + [
     ("rows cut", lambda b, d: b"\n".join(lines_of(b)[: -1 - d.draw(k_small)]) + b"\n",
@@ -957,6 +1020,7 @@ BREAKS: dict[str, list[tuple[str, Mutation, str]]] = {
     "ply_mesh": PLY_MESH_BREAKS,
     "pcd_ascii": PCD_ASCII_BREAKS,
     "pcd_binary": PCD_BINARY_BREAKS,
+    "pcd_compressed": PCD_COMPRESSED_BREAKS,
     "xyz": TEXT_BREAKS,
     "txt": TEXT_BREAKS,
     "csv": TEXT_BREAKS,
@@ -1028,12 +1092,19 @@ def test_upload_of_random_bytes(ext, data):
 def _huge_claims() -> dict[str, bytes]:
     c = make_cloud(3, 40)
     m = make_mesh(3, 1)
+    cz = pcd(c, "binary_compressed")  # x y z and normals, 4 bytes each: 24 bytes per point
     out = {
         "vertex.ply": _set_count(ply_cloud(c, "binary_little_endian"), b"element vertex", 10**12),
         "vertex_ascii.ply": _set_count(ply_cloud(c), b"element vertex", 2**40),
         "face.ply": _set_count(ply_mesh(m, "binary_little_endian"), b"element face", 10**11),
         "points.pcd": _set_count(_set_count(pcd(c, "binary"), b"POINTS", 10**11), b"WIDTH", 10**11),
         "count.pcd": re.sub(rb"COUNT 1", b"COUNT 1000000000", pcd(c, "binary"), count=1),
+        "compressed.pcd": _pcd_sizes(
+            _set_count(_set_count(cz, b"POINTS", 10**8), b"WIDTH", 10**8), n_raw=10**8 * 24
+        ),
+        "ratio.pcd": _pcd_sizes(
+            _set_count(_set_count(cz, b"POINTS", 10**7), b"WIDTH", 10**7), n_raw=10**7 * 24
+        ),
         "shape.npy": _npy_header_shape(npy(c.points), "(100000000000, 3)"),
         "member.npz": _zip_with("points.npy", _npy_header_shape(npy(c.points), "(10000000000, 3)")),
         "counts.off": _off_counts(off(m), 10**10, 10**10),
