@@ -29,6 +29,7 @@ from pregrasp_core.limits import MAX_SCALE, MIN_SCALE, check_real
 from pregrasp_core.paths import demo_depth_images, demo_objects
 from pregrasp_core.pregrasps.traversal import no_fit_hint
 from pregrasp_core.sensor import CameraFile, Intrinsics
+from pregrasp_core.sensor.camera_layouts import LAYOUT_KEYS
 
 from .result_file import ResultFile, looks_like_result, read_result_file
 from .scene import SceneRenderer
@@ -1144,10 +1145,12 @@ class Controller:
         return result
 
 
-CAMERA_FILE_KEYS = frozenset(
-    ("fx", "fy", "cx", "cy", "width", "height", "T_world_camera", "depth_scale")
+CAMERA_FILE_KEYS = (
+    frozenset(("fx", "fy", "cx", "cy", "width", "height", "T_world_camera", "depth_scale"))
+    | LAYOUT_KEYS
 )
-"""Keys that make an uploaded JSON object a depth camera's file rather than a result file."""
+"""Keys that make an uploaded JSON object a depth camera's file rather than a result file
+(pregrasp's, and those of the layouts other tools write: ``sensor/camera_layouts.py``)."""
 
 MAX_INTRINSICS_CHARS = 200
 """Longest text accepted in the intrinsics field."""

@@ -238,10 +238,13 @@ def _load(
     if is_depth_input(file, ext, opts.intrinsics):
         depth = read_depth_image(file, ext, opts.intrinsics)
         info = CloudInfo(format=fmt, kind="depth", n_read=depth.n_pixels, warnings=[])
+        for note in () if depth.camera is None else depth.camera.notes:
+            add_warning(info["warnings"], note)
         info["depth"] = {
             "intrinsics": depth.intrinsics.to_dict(),
             "intrinsics_from": depth.intrinsics_source,
             "camera_file": None if depth.camera is None else depth.camera.source,
+            "camera_layout": None if depth.camera is None else depth.camera.layout,
             "depth_scale": depth.depth_scale,
             "pose": depth.camera is not None and depth.camera.pose is not None,
         }

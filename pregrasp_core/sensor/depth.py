@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from .camera_layouts import to_pregrasp_keys
 
 MAX_DEPTH_M: float = 100.0
 """Largest depth accepted (metres): beyond it the file is not a depth camera's (or not metres)."""
@@ -160,7 +161,8 @@ class CameraFile:
     ``"depth_scale"`` (metres per stored depth unit: 0.001 for a PNG in millimetres, the
     default; 0.0001 for a RealSense at 0.1 mm; a float NPY is metres, 1). Any other key is
     refused; a ``"viewpoint"`` key is refused with a pointer to ``T_world_camera`` (a depth
-    image's viewpoint is its camera).
+    image's viewpoint is its camera). The layouts other tools write (RealSense, ROS CameraInfo
+    or calibration file, Open3D) are read too, into these keys (``sensor/camera_layouts.py``).
     """
 
     intrinsics: Intrinsics
@@ -173,6 +175,11 @@ class CameraFile:
     """Metres per stored depth unit; None = the format's (PNG: millimetres, NPY: metres)."""
     source: str = "camera file"
     """The file's path or name (quoted in messages)."""
+    layout: str = "pregrasp"
+    """Whose keys the file has: ``"pregrasp"``, ``"RealSense"``, ``"ROS CameraInfo"``, ``"ROS
+    calibration"`` or ``"Open3D"``."""
+    notes: tuple[str, ...] = ()
+    """What reading it left out (distortion coefficients not applied), one sentence each."""
 
     @property
     def T_world_camera(self) -> np.ndarray | None:
@@ -204,6 +211,7 @@ class CameraFile:
             raise InputError(
                 f"{source}: the intrinsics must be a JSON object with keys fx, fy, cx, cy"
             )
+        doc, layout, notes = to_pregrasp_keys(doc, source)
         if "viewpoint" in doc:
             raise InputError(
                 f"{source}: viewpoint: a depth image is seen from its camera; give the camera's "
@@ -237,7 +245,7 @@ class CameraFile:
             size = (int(h), int(w))
         pose = None if "T_world_camera" not in doc else _check_pose(doc["T_world_camera"], source)
         scale = None if "depth_scale" not in doc else _check_depth_scale(doc["depth_scale"], source)
-        return cls(Intrinsics(*vals), size, pose, scale, source)
+        return cls(Intrinsics(*vals), size, pose, scale, source, layout, tuple(notes))
 
     @classmethod
     def read(cls, path: str | Path) -> CameraFile:

@@ -503,6 +503,28 @@ def test_a_camera_file_uploaded_first_is_used_by_the_next_depth_upload(app) -> N
     assert is_camera_file(b'{"fy": 1}') and not is_camera_file(b"[1, 2]")
 
 
+def test_a_ros_camera_info_uploaded_is_a_camera_file(app) -> None:
+    """A ROS CameraInfo (as JSON) uploaded before its depth image is kept as the camera file
+    and gives the cloud of pregrasp's own camera file (``sensor/camera_layouts.py``)."""
+    import json
+
+    doc = json.loads(DEMO.with_suffix(".json").read_text())
+    fx, fy, cx, cy = (doc[k] for k in ("fx", "fy", "cx", "cy"))
+    info = {"header": {"frame_id": "depth"}, "height": doc["height"], "width": doc["width"],
+            "distortion_model": "plumb_bob", "D": [0.0] * 5,
+            "K": [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
+            "T_world_camera": doc["T_world_camera"]}  # fmt: skip
+    data = json.dumps(info).encode()
+    assert is_camera_file(data)
+    c = app.controller
+    c.load_upload("camera_info.json", data)
+    assert c.state.camera is not None and c.state.camera.layout == "ROS CameraInfo"
+    c.load_upload("frame.png", DEMO.read_bytes())
+    s = c.state
+    assert s.error == "" and s.cloud.info["depth"]["camera_layout"] == "ROS CameraInfo"
+    np.testing.assert_array_equal(s.cloud.points, load_point_cloud(DEMO, n_points=3000).points)
+
+
 def test_a_bad_uploaded_camera_file_names_the_file_and_the_field(app) -> None:
     c = app.controller
     c.load_upload("frame.png", DEMO.read_bytes())

@@ -375,3 +375,136 @@ def test_a_sidecar_that_is_not_utf8_or_too_large(tmp_path: Path) -> None:
     side.write_bytes(b" " * (2 << 20))
     with pytest.raises(InputError, match=r"frame\.json: .* bytes, more than"):
         load_point_cloud(png)
+
+
+# ------------------------------------------------------------------------------------------------
+# Camera files as other tools write them (sensor/camera_layouts.py)
+
+
+def _layouts(doc: dict) -> dict[str, dict]:
+    """The demo's camera in the layouts of other tools, each written as that tool's
+    documentation gives it (RealSense's rs2_intrinsics fields, ROS 1 and ROS 2
+    sensor_msgs/CameraInfo, camera_calibration's file, Open3D's PinholeCameraIntrinsic and
+    PinholeCameraParameters with their column-major matrices and world-to-camera extrinsic)."""
+    fx, fy, cx, cy = (doc[k] for k in K_KEYS)
+    w, h = doc["width"], doc["height"]
+    T = doc["T_world_camera"]
+    K = [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]
+    P = [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+    eye = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    o3d_K = np.asarray(K).reshape(3, 3).T.ravel().tolist()  # column-major
+    extrinsic = np.linalg.inv(np.asarray(T)).T.ravel().tolist()  # world -> camera, column-major
+    ros1 = {"header": {"seq": 0, "stamp": {"secs": 0, "nsecs": 0}, "frame_id": "depth_optical"},
+            "height": h, "width": w, "distortion_model": "plumb_bob", "D": [0.0] * 5, "K": K,
+            "R": eye, "P": P, "binning_x": 0, "binning_y": 0,
+            "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False},
+            "T_world_camera": T}  # fmt: skip
+    return {
+        "RealSense": {"width": w, "height": h, "ppx": cx, "ppy": cy, "fx": fx, "fy": fy,
+                      "model": "distortion.brown_conrady", "coeffs": [0.0] * 5,
+                      "depth_scale": 0.001, "T_world_camera": T},
+        "ROS CameraInfo": ros1,
+        "ROS 2 CameraInfo": {(k.lower() if len(k) == 1 else k): v for k, v in ros1.items()},
+        "ROS calibration": {"image_width": w, "image_height": h, "camera_name": "depth",
+                            "camera_matrix": {"rows": 3, "cols": 3, "data": K},
+                            "distortion_model": "plumb_bob",
+                            "distortion_coefficients": {"rows": 1, "cols": 5, "data": [0.0] * 5},
+                            "rectification_matrix": {"rows": 3, "cols": 3, "data": eye},
+                            "projection_matrix": {"rows": 3, "cols": 4, "data": P},
+                            "T_world_camera": T},
+        "Open3D": {"class_name": "PinholeCameraParameters", "extrinsic": extrinsic,
+                   "intrinsic": {"width": w, "height": h, "intrinsic_matrix": o3d_K},
+                   "version_major": 1, "version_minor": 0},
+        "Open3D intrinsic": {"width": w, "height": h, "intrinsic_matrix": o3d_K,
+                             "T_world_camera": T},
+    }  # fmt: skip
+
+
+@pytest.mark.parametrize("layout", list(_layouts(DEMO_DOC)))
+def test_camera_files_of_other_tools_give_the_cloud_of_pregrasps_own(
+    tmp_path: Path, layout: str
+) -> None:
+    """Each layout beside the demo image gives the points of pregrasp's own camera file (the
+    same floats; Open3D's pose through the inverse of its extrinsic, to rounding), records
+    its layout and has no note (its distortion is zero)."""
+    png, _ = _demo_copy(tmp_path, "frame", _layouts(DEMO_DOC)[layout])
+    cloud = load_point_cloud(png, n_points=None, sensor=SensorOptions(scene=False))
+    (tmp_path / "own").mkdir()
+    ref = _raw(_demo_copy(tmp_path / "own", "frame")[0])
+    if layout == "Open3D":
+        np.testing.assert_allclose(cloud.points, ref, rtol=0, atol=1e-12)
+    else:
+        np.testing.assert_array_equal(cloud.points, ref)
+    name = layout.replace("ROS 2", "ROS").replace(" intrinsic", "")
+    assert cloud.info["depth"]["camera_layout"] == name
+    assert cloud.info["depth"]["intrinsics"] == {k: DEMO_DOC[k] for k in K_KEYS}
+    assert not cloud.info["warnings"]
+
+
+def test_distortion_of_another_tool_is_not_applied_and_says_so(tmp_path: Path) -> None:
+    """Coefficients that are not zero: the same points as without them, and a warning naming
+    the file and the coefficients."""
+    docs = _layouts(DEMO_DOC)
+    rs = {**docs["RealSense"], "coeffs": [0.12, -0.3, 0.0, 0.001, 0.0]}
+    ros = {**docs["ROS CameraInfo"], "D": [0.1, -0.2, 0.0, 0.0, 0.05, 0.0, 0.0, 0.0]}
+    base = _raw(_demo_copy(tmp_path, "frame")[0])
+    for i, doc in enumerate((rs, ros)):
+        png, side = _demo_copy(tmp_path, f"d{i}", doc)
+        cloud = load_point_cloud(png, n_points=None, sensor=SensorOptions(scene=False))
+        np.testing.assert_array_equal(cloud.points, base)
+        (note,) = cloud.info["warnings"]
+        assert note.startswith(f"{side}: the distortion ") and "is not applied" in note
+        assert ("0.12" if i == 0 else "0.05") in note
+
+
+def test_a_principal_point_pixel_of_a_ros_camera_lies_on_its_axis() -> None:
+    """Analytic: K of a ROS CameraInfo, a depth of 0.8 m at the pixel (row cy, column cx) is the
+    point (0, 0, 0.8) of the camera frame; one column on, x = 0.8 / fx; one row on, y = 0.8 / fy."""
+    from pregrasp_core.sensor import CameraFile, depth_to_points
+
+    doc = {"K": [500.0, 0.0, 3.0, 0.0, 400.0, 2.0, 0.0, 0.0, 1.0], "D": [], "width": 8,
+           "height": 5}  # fmt: skip
+    cam = CameraFile.parse(json.dumps(doc).encode(), "info.json")
+    assert cam.size == (5, 8) and cam.layout == "ROS CameraInfo"
+    dc = depth_to_points(np.full((5, 8), 0.8), cam.intrinsics)
+    at = {(int(r), int(c)): p for (r, c), p in zip(dc.pixels, dc.points, strict=True)}
+    np.testing.assert_allclose(at[2, 3], [0.0, 0.0, 0.8], atol=1e-15)
+    np.testing.assert_allclose(at[2, 4], [0.8 / 500.0, 0.0, 0.8], atol=1e-15)
+    np.testing.assert_allclose(at[3, 3], [0.0, 0.8 / 400.0, 0.8], atol=1e-15)
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [(("ROS CameraInfo", "K", [420.0, 1.5, 239.5, 0, 420.0, 179.5, 0, 0, 1]), "K has skew 1.5"),
+     (("ROS CameraInfo", "K", [420.0, 0, 239.5]), "K must be a list of 9 finite numbers"),
+     (("ROS CameraInfo", "K", [420.0, 0, 239.5, 0, 420.0, 179.5, 0, 0, 2]),
+      "K is not a pinhole camera matrix"),
+     (("ROS CameraInfo", "binning_x", 2), "binning_x 2: a binned image is not supported"),
+     (("ROS CameraInfo", "roi", {"x_offset": 8, "y_offset": 0, "height": 100, "width": 100}),
+      "a region of interest is not supported"),
+     (("ROS CameraInfo", "D", "plumb_bob"), "D must be a list of finite numbers"),
+     (("ROS CameraInfo", "fx", 420.0), r"unknown keys \['fx'\] for a ROS CameraInfo camera file"),
+     (("RealSense", "ppy", None), "the RealSense intrinsics lack ppy"),
+     (("RealSense", "coeffs", [0, 0]), "coeffs must be a list of 5 finite numbers"),
+     (("RealSense", "fy", 0), "fx and fy must be positive focal lengths"),
+     (("Open3D", "extrinsic", [2.0] + [0.0] * 15), "extrinsic's rotation is not a proper rotation"),
+     (("Open3D", "intrinsic", None), "the Open3D camera parameters lack an intrinsic object"),
+     (("Open3D", "T_world_camera", np.eye(4).tolist()), "give the camera pose once"),
+     (("ROS calibration", "camera_matrix", [1, 2]), "camera_matrix must be an object with rows"),
+     (("Open3D intrinsic", "intrinsic_matrix", [1.0] * 9),
+      r"intrinsic_matrix \(column-major\) has skew 1")],
+)  # fmt: skip
+def test_a_bad_camera_file_of_another_tool_names_the_file_and_the_field(
+    tmp_path: Path, change: tuple[str, str, object], match: str
+) -> None:
+    layout, key, value = change
+    doc = dict(_layouts(DEMO_DOC)[layout])
+    if value is None:
+        del doc[key]
+    else:
+        doc[key] = value
+    png, side = _demo_copy(tmp_path, "frame", doc)
+    with pytest.raises(InputError) as err:
+        load_point_cloud(png)
+    msg = str(err.value)
+    assert "\n" not in msg and re.search(match, msg) and msg.startswith(str(side)), msg
