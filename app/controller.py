@@ -132,6 +132,29 @@ def _in_range(v: float, lo: float, hi: float, what: str) -> None:
         raise ValueError(f"{what} must be in [{lo:g}, {hi:g}], got {v:g}")
 
 
+UP_AXES: dict[str, tuple[float, float, float]] = {
+    "+z": (0.0, 0.0, 1.0),
+    "-z": (0.0, 0.0, -1.0),
+    "+y": (0.0, 1.0, 0.0),
+    "-y": (0.0, -1.0, 0.0),
+    "+x": (1.0, 0.0, 0.0),
+    "-x": (-1.0, 0.0, 0.0),
+}
+"""The 'up' directions the viewer offers (the support plane's normal, ``--up``): the file's
+axes. Meshes from tools that are Y-up (glTF by its specification, Blender's default OBJ
+export, ShapeNet) stand along +y."""
+
+
+def up_label(up: Any) -> str:
+    """The :data:`UP_AXES` key of the direction ``up`` (normalised), or ``"custom"``."""
+    u = np.asarray(up, dtype=np.float64)
+    u = u / np.linalg.norm(u)
+    for key, axis in UP_AXES.items():
+        if np.allclose(u, axis, atol=1e-9):
+            return key
+    return "custom"
+
+
 def coerce_param(current: Any, value: Any, what: str) -> Any:
     """``value`` (from a GUI control) in the type of the parameter's ``current`` value; the
     parameter dataclass then checks its bounds. ``ValueError`` naming ``what`` when it is not
@@ -785,6 +808,19 @@ class Controller:
         params = dataclasses.replace(base, **{section: new_sub})
         return self._request(params=params)
 
+    def set_up(self, value: Any) -> AppState:
+        """Set the 'up' direction (``params.facemask.up``, the support plane's normal, as
+        ``--up``) to one of the file's axes (:data:`UP_AXES`: ``"+y"`` for a Y-up mesh) and
+        re-run everything downstream; ``"custom"`` keeps the direction in use (one given with
+        ``--up`` that is not an axis)."""
+        if value == "custom":
+            return self._state
+        if value not in UP_AXES:
+            raise ValueError(f"up must be one of {', '.join(UP_AXES)}, got {value!r}")
+        base = self.pending("params")
+        facemask = dataclasses.replace(base.facemask, up=UP_AXES[value])
+        return self._request(params=dataclasses.replace(base, facemask=facemask))
+
     def _rerun(self, gen: int) -> AppState:
         """Re-run the stages downstream of a threshold change outside the lock and commit the
         new scene (boxes, masks, pool) under it; when grasps were planned, re-plan (the
@@ -1247,6 +1283,7 @@ __all__ = [
     "coerce_param",
     "intrinsics_text",
     "is_camera_file",
+    "up_label",
     "is_depth_upload",
     "loaded_result_notice",
     "parse_intrinsics",

@@ -27,7 +27,15 @@ from pregrasp_core.planner.rank import score_text
 from pregrasp_core.shape import GRASP_TYPES
 
 from .compare_layer import compare_markdown
-from .controller import N_POINTS_RANGE, SEED_RANGE, SPEED_RANGE, Controller, intrinsics_text
+from .controller import (
+    N_POINTS_RANGE,
+    SEED_RANGE,
+    SPEED_RANGE,
+    UP_AXES,
+    Controller,
+    intrinsics_text,
+    up_label,
+)
 from .safe_text import md_text
 from .scene import SceneRenderer
 from .scene_data import (
@@ -238,6 +246,12 @@ class Gui:
         with gui.add_folder("Face masks and pre-grasps"):
             for spec in POOL_CONTROLS:
                 self._add_param(*spec)
+            self.up = gui.add_dropdown(
+                "up (table normal)",
+                (*UP_AXES, "custom"),
+                initial_value=up_label(c.state.params.facemask.up),
+            )
+            self.up.on_update(lambda e: self._coalesced(e, "up", self._up_choice, e.target.value))
             self.show_masks = gui.add_checkbox("face masks", c.state.view.show_face_masks)
             self.show_masks.on_update(
                 lambda e: self._do(e, c.set_face_masks_visible, e.target.value)
@@ -377,6 +391,20 @@ class Gui:
     def _upload(self, handle: Any) -> Any:
         value = handle.value
         return self.controller.load_upload(str(value.name), bytes(value.content))
+
+    def _up_choice(self, value: Any) -> Any:
+        """An 'up' chosen: an axis re-plans along it; "custom" (a direction given with ``--up``
+        that is no axis) keeps the one in use, and the dropdown shows it again."""
+        if value != "custom":
+            return self.controller.set_up(value)
+        label = up_label(self.controller.state.params.facemask.up)
+        if label != "custom":
+            self._local.syncing = True
+            try:
+                self.up.value = label
+            finally:
+                self._local.syncing = False
+        return self.controller.state
 
     def _units(self, value: Any) -> Any:
         if value == "custom":  # keep the factor in use, as typed in the scale field
@@ -603,6 +631,7 @@ class Gui:
         for (sec, name), h in self.params.items():
             v = getattr(getattr(s.params, sec), name)
             out.append((f"param.{sec}.{name}", h, v.value if isinstance(v, enum.Enum) else v))
+        out.append(("up", self.up, up_label(s.params.facemask.up)))
         out += [
             ("show_masks", self.show_masks, s.view.show_face_masks),
             ("show_ghosts", self.show_ghosts, s.view.show_ghosts),

@@ -17,6 +17,7 @@ from typing import Any, Literal
 
 import numpy as np
 import viser
+from scipy.spatial.transform import Rotation
 
 from .scene_data import (
     GHOST_THICKNESS,
@@ -150,6 +151,8 @@ class SceneRenderer:
         at most :data:`~app.scene_data.HIDDEN_POINTS`)."""
         self.n_faces_shown = (0, 0)
         """(free, blocked) face quads currently in the scene."""
+        self._up: tuple[float, ...] = (0.0, 0.0, 1.0)
+        """The scene's up direction now (:meth:`_frame_object`)."""
         server.scene.set_up_direction("+z")
         configure_lighting(server)
 
@@ -207,8 +210,8 @@ class SceneRenderer:
         new_cloud = lres.cloud is not res.cloud
         level_changed = new_cloud or lres.tree is not res.tree
         level_changed = level_changed or last.shown_level != state.shown_level
-        if new_cloud:
-            self._draw_cloud(state)
+        if new_cloud or support_of(state, None)[0].tolist() != list(self._up):
+            self._draw_cloud(state)  # (and the camera and the table, along the new up)
         elif level_changed:
             self._recolor_cloud(state)
         if level_changed or lv.selected_node != v.selected_node:
@@ -255,7 +258,7 @@ class SceneRenderer:
             self._remove("cloud")
             box = state.tree.root.box  # a cube of the box's diagonal: framed as its cloud would be
             h = float(np.linalg.norm(box.extents)) / (2.0 * np.sqrt(3.0))
-            self._frame_object(np.asarray(box.center) + np.array([[-h] * 3, [h] * 3]))
+            self._frame_object(np.asarray(box.center) + np.array([[-h] * 3, [h] * 3]), state)
             return
         diag = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0))) if len(pts) else 1.0
         self._handles["cloud"] = self.server.scene.add_point_cloud(
@@ -268,7 +271,7 @@ class SceneRenderer:
             point_shading=CLOUD_SHADING,
         )
         self._draw_scene(state, max(diag * 0.004, 1e-4))
-        self._frame_object(np.asarray(state.cloud.points, dtype=np.float64))
+        self._frame_object(np.asarray(state.cloud.points, dtype=np.float64), state)
 
     def _draw_scene(self, state: AppState, point_size: float) -> None:
         """The depth-camera scene around the object (table grey, other objects brown), or
@@ -288,11 +291,17 @@ class SceneRenderer:
             point_shading=CLOUD_SHADING,
         )
 
-    def _frame_object(self, pts: np.ndarray) -> None:
-        """Aim every camera at a new object and put a table grid under it."""
+    def _frame_object(self, pts: np.ndarray, state: AppState) -> None:
+        """Aim every camera at a new object, from above along its 'up' (:func:`support_of`),
+        which becomes the scene's up direction, and put a table grid under it in the support
+        plane."""
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         center, diag = (lo + hi) / 2.0, max(float(np.linalg.norm(hi - lo)), 1e-3)
-        eye = center + camera_offset(diag, float(self.server.initial_camera.fov))
+        up, height = support_of(state, pts)
+        turn = z_to(up)
+        self._up = tuple(float(v) for v in up)
+        self.server.scene.set_up_direction(up)
+        eye = center + turn.apply(camera_offset(diag, float(self.server.initial_camera.fov)))
         cam = self.server.initial_camera
         cam.look_at, cam.position = center, eye
         for client in self.server.get_clients().values():
@@ -305,7 +314,8 @@ class SceneRenderer:
             height=TABLE_EXTENT * diag,
             cell_size=diag / 20,
             section_size=diag / 4,
-            position=(center[0], center[1], lo[2]),
+            wxyz=turn.as_quat(scalar_first=True),
+            position=center - (float(center @ up) - height) * up,
             shadow_opacity=0.0,
         )
 
@@ -607,6 +617,30 @@ FRAME_FILL = 0.85
 when the camera frames a new object."""
 VIEW_DIRECTION = np.array([1.0, -1.25, 0.8]) / np.linalg.norm([1.0, -1.25, 0.8])
 """Unit direction from the object's centre to the camera (front right, from above)."""
+
+
+def support_of(state: AppState, pts: np.ndarray | None) -> tuple[np.ndarray, float]:
+    """``(up, height)``: the support plane of ``state``'s face masks (its unit normal and its
+    offset along it), else the plane perpendicular to ``params.facemask.up`` at the lowest of
+    ``pts`` (0 without them)."""
+    masks = attr_or_none(state.result, "masks")
+    support = None if masks is None else masks.support
+    if support is not None:
+        return np.asarray(support.normal, dtype=np.float64), float(support.height)
+    up = np.asarray(state.params.facemask.up, dtype=np.float64)
+    up = up / np.linalg.norm(up)
+    return up, 0.0 if pts is None or not len(pts) else float((pts @ up).min())
+
+
+def z_to(up: np.ndarray) -> Rotation:
+    """The shortest rotation that takes +z to the unit vector ``up`` (a half turn about x for
+    -z)."""
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(z, up)
+    s, c = float(np.linalg.norm(axis)), float(z @ up)
+    if s < 1e-12:
+        return Rotation.identity() if c > 0 else Rotation.from_rotvec([np.pi, 0.0, 0.0])
+    return Rotation.from_rotvec(axis / s * np.arctan2(s, c))
 
 
 def camera_offset(diag: float, fov: float, fill: float = FRAME_FILL) -> np.ndarray:

@@ -166,6 +166,8 @@ def sample_mesh(
             f"{source}: {n_flipped} closed part(s) of the mesh are wound inside-out; "
             "their normals were flipped outwards",
         )
+    if fmt in ("glb", "gltf"):
+        add_warning(warns, gltf_up_notice(source))
     info = CloudInfo(
         format=fmt,
         kind="mesh",
@@ -176,6 +178,15 @@ def sample_mesh(
         warnings=warns,
     )
     return finish_cloud(pts, normals, source, info, scale=scale, n_points=None, seed=seed)
+
+
+def gltf_up_notice(source: str) -> str:
+    """The notice of every glTF input: its coordinates are read as they are, z up."""
+    return (
+        f"{source}: glTF is Y-up by its specification, and pregrasp reads every file z-up "
+        "(the table below its lowest z): if the object stands along +y, plan it with --up 0 1 "
+        "0 (in the viewer: 'up (table normal)' +y)"
+    )
 
 
 def inside_out_faces(

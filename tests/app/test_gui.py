@@ -506,3 +506,49 @@ def test_legend_names_every_colour_of_the_scene(app):
     for gt in GHOST_RGB:  # one row per grasp type of the ghosts
         assert gt.replace("_", "-") + " pre-grasps" in text
     assert "epsilon" in text and "not force closure" in text
+
+
+def test_the_up_dropdown_plans_a_y_up_mesh_standing_and_turns_the_view(make_app, tmp_path):
+    """The default object turned to stand along +y (as glTF, Blender's and ShapeNet's files
+    are) opens lying on its side (up +z: its support plane is its side); 'up' +y plans it
+    standing: the pool is the core's with ``FaceMaskParams(up=(0, 1, 0))`` on the same cloud,
+    the table grid lies in the plane y = its lowest y, the scene's up is +y and the camera
+    looks from above along it."""
+    import trimesh
+    from scipy.spatial.transform import Rotation
+
+    from pregrasp_core.facemask import FaceMaskParams
+    from pregrasp_core.paths import DEFAULT_OBJECT
+    from pregrasp_core.pipeline import run_pipeline
+
+    mesh = trimesh.load(DEFAULT_OBJECT, force="mesh")
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1.0, 0.0, 0.0]))
+    path = tmp_path / "mug_y.obj"
+    mesh.export(path)
+    app = make_app(input=path)
+    s = app.controller.state
+    assert app.gui.up.value == "+z" and np.allclose(s.result.masks.support.normal, [0, 0, 1])
+    app.gui.up.value = "+y"
+    s = app.controller.state
+    assert s.error == "" and s.params.facemask.up == (0.0, 1.0, 0.0)
+    ref = run_pipeline(
+        s.cloud, dataclasses.replace(s.params, facemask=FaceMaskParams(up=(0.0, 1.0, 0.0))),
+        until="pool",
+    )  # fmt: skip
+    assert np.array_equal(s.result.pool.T_world_hand, ref.pool.T_world_hand)
+    support = s.result.masks.support
+    assert np.allclose(support.normal, [0, 1, 0])
+    assert support.height == pytest.approx(float(s.cloud.points[:, 1].min()))
+    grid = app.server.scene.get_handle_by_name("/table")
+    normal = Rotation.from_quat(grid.wxyz, scalar_first=True).apply([0.0, 0.0, 1.0])
+    np.testing.assert_allclose(normal, [0.0, 1.0, 0.0], atol=1e-12)
+    assert grid.position[1] == pytest.approx(support.height)
+    assert app.scene._up == (0.0, 1.0, 0.0)
+    eye = np.asarray(app.server.initial_camera.position) - app.server.initial_camera.look_at
+    assert eye[1] > 0.3 * np.linalg.norm(eye)  # from above along +y
+    # "custom" keeps the direction in use; an unknown one is refused
+    app.gui.up.value = "custom"
+    assert app.controller.state.params.facemask.up == (0.0, 1.0, 0.0)
+    assert app.gui.up.value == "+y"
+    with pytest.raises(ValueError, match="up must be one of"):
+        app.controller.set_up("up")

@@ -347,6 +347,10 @@ def test_mesh_sampled_on_cube_surface(tmp_path, kind):
     np.testing.assert_array_equal(cloud.points, same.points)
     np.testing.assert_array_equal(cloud.normals, same.normals)
     assert not np.allclose(cloud.points, other.points)
+    gltf_note = [w for w in cloud.info["warnings"] if "glTF is Y-up" in w]
+    assert len(gltf_note) == (kind == "glb")  # a glTF says how its up is read
+    if gltf_note:
+        assert gltf_note[0].startswith(f"{path}: ") and "--up 0 1 0" in gltf_note[0]
 
 
 def test_mesh_sampling_is_area_uniform_and_rigid_motion_invariant(tmp_path):

@@ -359,3 +359,35 @@ def test_the_no_fit_sentence_names_a_grasp_type_that_would_fit(hand):
     assert "spherical across 0.2 m" in text
     assert "a three_finger_tip grip of part" in text and "would fit" in text
     assert "--scale" not in text
+
+
+@pytest.mark.parametrize("name", ["mug_handle", "bottle"])
+def test_a_y_up_copy_planned_with_up_y_is_the_z_up_plan_turned(hand, tmp_path, name):
+    """A rigid motion of the input: the demo mesh turned so that it stands along +y (as glTF
+    files and Blender's or ShapeNet's OBJ files do) and planned with ``up`` = +y gives the
+    z-up plan turned by the same motion: the same parts, pool, kept grasps and best epsilon,
+    the best hand pose turned. Planned as z-up (lying on its side) it is another object."""
+    import trimesh
+
+    from pregrasp_core.paths import OBJECTS_DIR
+
+    turn = trimesh.transformations.rotation_matrix(-np.pi / 2, [1.0, 0.0, 0.0])  # +z -> +y
+    mesh = trimesh.load(OBJECTS_DIR / f"{name}.obj", force="mesh")
+    mesh.apply_transform(turn)
+    mesh.export(tmp_path / f"{name}_y.obj")
+    z_up = load_point_cloud(OBJECTS_DIR / f"{name}.obj", n_points=8000)
+    y_up = load_point_cloud(tmp_path / f"{name}_y.obj", n_points=8000)
+    np.testing.assert_allclose(y_up.points, z_up.points @ turn[:3, :3].T, atol=1e-15)
+    p = PipelineParams()
+    py = dataclasses.replace(p, facemask=FaceMaskParams(up=(0.0, 1.0, 0.0)))
+    a = run_pipeline(z_up, p, hand, until="grasps")
+    b = run_pipeline(y_up, py, hand, until="grasps")
+    assert b.masks is not None and np.allclose(b.masks.support.normal, [0.0, 1.0, 0.0])
+    assert len(b.tree.leaves()) == len(a.tree.leaves()) and len(b.pool) == len(a.pool)
+    assert a.grasps is not None and b.grasps is not None
+    assert len(b.grasps.ranking) == len(a.grasps.ranking) > 0
+    ga, gb = a.grasps.grasps[a.grasps.best], b.grasps.grasps[b.grasps.best]
+    assert gb.epsilon == pytest.approx(ga.epsilon, rel=1e-6)
+    np.testing.assert_allclose(gb.T_world_hand, turn @ ga.T_world_hand, atol=1e-9)
+    side = run_pipeline(y_up, p, hand, until="pool")  # the same file with the default +z
+    assert len(side.pool) != len(a.pool)
