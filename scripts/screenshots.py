@@ -10,13 +10,16 @@ one), and ``depth_completed.png``: the same planned with ``--occluded completed`
 completed and no hidden space (``--completed`` takes only that one). ``--rim`` takes only
 ``rim_pinch.png``: a torus 130 mm across, its best grasp a rim pinch (:func:`rim_pinch_shot`).
 ``--flying`` takes only ``flying_pixels.png``: the depth demo's view with every edge pixel
-mixed, opened with ``--flying-pixels`` (:func:`flying_pixels_shot`).
+mixed, opened with ``--flying-pixels`` (:func:`flying_pixels_shot`). ``--up`` takes only
+``up_lying.png`` and ``up_standing.png``: a Y-up bottle read z-up, then with up +y
+(:func:`up_shots`).
 
     .venv/bin/python scripts/screenshots.py [INPUT] [--out docs/screenshots] [--points 20000]
     .venv/bin/python scripts/screenshots.py --depth
     .venv/bin/python scripts/screenshots.py --completed
     .venv/bin/python scripts/screenshots.py --rim
     .venv/bin/python scripts/screenshots.py --flying
+    .venv/bin/python scripts/screenshots.py --up
 """
 
 from __future__ import annotations
@@ -85,18 +88,19 @@ def _view_behind_the_hand(server, state, elevation: float = 0.75) -> None:
     distance the app uses, 1.4 times."""
     import numpy as np
 
-    from app.scene import camera_offset
+    from app.scene import camera_offset, support_of
     from app.scene_data import selected_grasp
 
     pts = np.asarray(state.cloud.points)
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     center = (lo + hi) / 2.0
+    up = support_of(state, pts)[0]  # above the table the object stands on
     away = center - np.asarray(selected_grasp(state).T_world_hand)[:3, 3]
-    away[2] = 0.0
+    away -= (away @ up) * up
     away /= max(float(np.linalg.norm(away)), 1e-9)
     diag, fov = float(np.linalg.norm(hi - lo)), float(server.initial_camera.fov)
     dist = 1.4 * float(np.linalg.norm(camera_offset(diag, fov)))
-    d = np.cos(elevation) * away + np.array([0.0, 0.0, np.sin(elevation)])
+    d = np.cos(elevation) * away + np.sin(elevation) * up
     for client in server.get_clients().values():  # position first: it moves look_at along
         client.camera.position = center + dist * d
         client.camera.look_at = center
@@ -259,6 +263,49 @@ def rim_pinch_shot(out: Path, chromium: str) -> int:
     return 0
 
 
+def up_shots(out: Path, chromium: str) -> int:
+    """``out/up_lying.png`` and ``out/up_standing.png``: the bottle turned to stand along +y
+    (as a glTF file is) and saved as GLB, opened in the viewer with its best grasp planned on
+    start: first as every file is read (up +z: the bottle lies on its side), then with 'up
+    (table normal)' +y (standing, the view turned with it), each with its best grasp closed."""
+    import numpy as np
+    import trimesh
+    import viser
+
+    from app.server import ViewerConfig, run
+    from pregrasp_core.paths import OBJECTS_DIR
+
+    mesh = trimesh.load(OBJECTS_DIR / "bottle.obj", force="mesh")
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1.0, 0.0, 0.0]))
+    path = Path(tempfile.mkdtemp(prefix="pregrasp-up-")) / "bottle_y_up.glb"
+    path.write_bytes(mesh.export(file_type="glb"))
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    app = run(ViewerConfig(input=path, plan_on_start=True), server)
+    c = app.controller
+    try:
+        with _closed_grasp_page(server, app, chromium, "the Y-up bottle") as page:
+            if page is None:
+                return 1
+            for name, up in (("up_lying", None), ("up_standing", "+y")):
+                if up is not None:
+                    c.set_up(up)
+                    _wait_idle(c)
+                    c.set_face_masks_visible(False)
+                    c.set_anim_t(1.0)
+                    _view_behind_the_hand(server, c.state)
+                    page.get_by_text(re.compile(r"^\d+ force-closure of \d+ kept$")).wait_for(
+                        timeout=120_000
+                    )
+                    _settle(page, app)
+                shot = out / f"{name}.png"
+                page.screenshot(path=str(shot), timeout=180_000)
+                print(f"wrote {shot.relative_to(ROOT) if shot.is_relative_to(ROOT) else shot}")
+    finally:
+        app.close()
+        server.stop()
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description="documentation screenshots of the real app")
     ap.add_argument("input", nargs="?", type=Path, help="object to show (default: the mug)")
@@ -272,7 +319,12 @@ def main() -> int:
     ap.add_argument("--rim", action="store_true", help=rim_help)
     flying_help = "only the depth demo's view with flying pixels, dropped (flying_pixels.png)"
     ap.add_argument("--flying", action="store_true", help=flying_help)
+    up_help = "only a Y-up bottle (GLB) read z-up, then with up +y (up_lying/up_standing.png)"
+    ap.add_argument("--up", action="store_true", help=up_help)
     args = ap.parse_args()
+    if args.up:
+        args.out.mkdir(parents=True, exist_ok=True)
+        return up_shots(args.out, args.chromium)
     if args.flying:
         args.out.mkdir(parents=True, exist_ok=True)
         return flying_pixels_shot(args.out, args.chromium)
