@@ -596,3 +596,27 @@ def test_flying_pixels_need_a_scene(app) -> None:
     assert app.gui.flying.disabled  # the default mug is a complete cloud
     with pytest.raises(InputError, match="flying pixels are dropped from a depth-camera scene"):
         app.controller.set_flying_pixels(True)
+
+
+def test_a_depth_image_in_its_camera_frame_is_shown_on_its_table(make_app, tmp_path) -> None:
+    """The demo's depth image without its pose (the points in the camera frame, where the
+    table is no horizontal plane): the view's up is the normal of the table the scene found
+    (it points at the camera's side, about 55 degrees from the camera's -y here), and the table
+    grid lies in that plane."""
+    from scipy.spatial.transform import Rotation
+
+    from pregrasp_core.io import SensorOptions
+
+    png = tmp_path / "frame.png"
+    png.write_bytes(DEMO.read_bytes())  # no frame.json beside it: intrinsics as numbers
+    sensor = SensorOptions(intrinsics=(420.0, 420.0, 239.5, 179.5))
+    app = make_app(input=png, n_points=3000, sensor=sensor)
+    s = app.controller.state
+    support = s.result.masks.support
+    assert s.cloud.info["depth"]["pose"] is False
+    assert float(support.normal @ [0.0, -1.0, 0.0]) > 0.5  # not +z: the camera frame's table
+    np.testing.assert_allclose(app.scene._up, support.normal, atol=1e-12)
+    grid = app.server.scene.get_handle_by_name("/table")
+    normal = Rotation.from_quat(grid.wxyz, scalar_first=True).apply([0.0, 0.0, 1.0])
+    np.testing.assert_allclose(normal, support.normal, atol=1e-9)
+    assert float(np.asarray(grid.position) @ support.normal) == pytest.approx(support.height)
