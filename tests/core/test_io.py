@@ -195,7 +195,63 @@ def test_csv_header_line_skipped(tmp_path):
     assert p.read_text().startswith("x,y,z\n")
     cloud = load_point_cloud(p)
     np.testing.assert_array_equal(cloud.points, pts)
-    assert any("skipped the header line 'x,y,z'" in w for w in cloud.warnings)
+    assert any("read the header line 'x,y,z' as column names" in w for w in cloud.warnings)
+    np.savetxt(p, pts, delimiter=",", fmt="%.17g", header="east,north,height", comments="")
+    cloud = load_point_cloud(p)  # names without x y z: skipped, the columns in order
+    np.testing.assert_array_equal(cloud.points, pts)
+    assert any("skipped the header line 'east,north,height'" in w for w in cloud.warnings)
+
+
+def _columns_file(path: Path, cols: list[np.ndarray], header: str | None = None, sep=" "):
+    rows = np.column_stack(cols)
+    np.savetxt(path, rows, delimiter=sep, fmt="%.17g", header=header or "", comments="")
+    if header is None:
+        path.write_text(path.read_text().lstrip("\n"))
+
+
+@pytest.mark.parametrize(
+    ("layout", "header", "normals_at", "ignored"),
+    [("x y z r g b nx ny nz", "//X,Y,Z,R,G,B,Nx,Ny,Nz", "7-9", "4-6"),  # CloudCompare, CSV
+     ("x y z r g b nx ny nz", None, "7-9", "4-6"),  # the same without its header
+     ("x y z nx ny nz r g b", None, "4-6", "7-9"),
+     ("i x y z nx ny nz", "intensity x y z nx ny nz", "5-7", "1"),  # names in any order
+     ("x y z i", None, None, "4"),  # a scanner's x y z intensity
+     ("x y z r g b a", None, None, "4-7"),
+     ("x y z r g b nx ny nz", "x y z r g b normal_x normal_y normal_z", "7-9", "4-6")],
+)  # fmt: skip
+def test_text_clouds_with_colours_intensities_and_normals(tmp_path, layout, header, normals_at,
+                                                          ignored):  # fmt: skip
+    """Rows as CloudCompare, MeshLab and scanners export them: x y z and the normals found by
+    their header names or, without names, as the first unit-vector columns after x y z; every
+    other column ignored with a warning naming it; the values read exactly."""
+    pts, nrm = known_cloud(300)
+    rng = np.random.default_rng(5)
+    cols = {"x": pts[:, 0], "y": pts[:, 1], "z": pts[:, 2], "nx": nrm[:, 0], "ny": nrm[:, 1],
+            "nz": nrm[:, 2], "i": rng.uniform(0, 1, 300), "a": np.full(300, 255.0)}  # fmt: skip
+    cols.update({c: rng.integers(0, 256, 300).astype(float) for c in "rgb"})
+    path = tmp_path / ("c.csv" if header and "," in header else "c.xyz")
+    sep = "," if path.suffix == ".csv" else " "
+    _columns_file(path, [cols[c] for c in layout.split()], header, sep)
+    cloud = load_point_cloud(path, n_points=None)
+    np.testing.assert_array_equal(cloud.points, pts)
+    if normals_at is None:
+        assert cloud.normals is None
+    else:  # (the loader makes them unit to the last bit)
+        np.testing.assert_allclose(cloud.normals, nrm, rtol=0, atol=1e-15)
+    (note,) = [w for w in cloud.warnings if "as x y z" in w]
+    if normals_at is not None:
+        assert f"and {normals_at} as normals" in note
+    assert f"ignored column(s) {ignored} " in note
+
+
+def test_text_normals_named_but_not_unit_are_not_read(tmp_path):
+    pts, nrm = known_cloud(300)
+    path = tmp_path / "c.xyz"
+    _columns_file(path, [pts, 2.0 * nrm], "x y z nx ny nz")
+    cloud = load_point_cloud(path, n_points=None)
+    np.testing.assert_array_equal(cloud.points, pts)
+    assert cloud.normals is None
+    assert any("the columns named nx ny nz are not unit vectors" in w for w in cloud.warnings)
 
 
 def test_text_with_normals_and_with_colours(tmp_path):
@@ -628,7 +684,7 @@ def test_truncated_binary(tmp_path):
 @pytest.mark.parametrize(
     "name,text,match",
     [
-        ("a.xyz", "1 2 3 4\n" * 20, "wrong column count 4; expected 3"),
+        ("a.xyz", " ".join(["1"] * 65) + "\n" * 20, "wrong column count 65; expected 3"),
         ("a.txt", "1,2\n" * 20, "wrong column count 2; expected 3"),
         ("a.xyz", "1 2 3\n" * 5 + "1 2\n", "different numbers of columns"),
         ("a.xyz", "x y z\n1 2 3\n" + "4 5 six\n" * 12, "non-numeric data"),

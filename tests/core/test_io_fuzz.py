@@ -755,8 +755,8 @@ TEXT_BREAKS: list[tuple[str, Mutation, str]] = [
     ("collinear", lambda b, d: "\n".join(f"{t:.17g} {2 * t:.17g} {-t:.17g}" for t in np.linspace(
         0, 0.1, d.draw(st.integers(MIN_POINTS, 40)))).encode() + b"\n", "lie on one line"),
     ("all NaN", lambda b, d: b"nan nan nan\n" * d.draw(st.integers(1, 40)), "only 0 finite points"),
-    ("4 columns", lambda b, d: "\n".join("0.1 0.2 0.3 0.4" for _ in range(20)).encode(),
-     "wrong column count 4"),
+    ("65 columns", lambda b, d: "\n".join(" ".join(["0.1"] * 65) for _ in range(20)).encode(),
+     "wrong column count 65"),
     ("only comments", lambda b, d: b"# nothing\n\n# here\n", "no data rows"),
 ]  # fmt: skip
 
