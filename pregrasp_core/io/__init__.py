@@ -5,8 +5,9 @@ Formats (the file name's extension picks the reader in ``READERS``, case-insensi
 - point clouds: PLY without faces (ascii, binary little/big endian; ``ply``), PCD (PCL's format;
   ascii, binary and binary_compressed, whose LZF ``lzf`` decodes; ``pcd``), XYZ/TXT/CSV (x y z
   first, then optional normals, colours, intensities; whitespace or comma separated; ``#``
-  comments; a column-name first line naming x y z picks the columns; ``text``), NPY (``allow_pickle=False``) and NPZ (key ``points`` or a single
-  array; optional ``normals``; ``numpy_format``);
+  comments; a column-name first line naming x y z picks the columns; ``text``), NPY
+  (``allow_pickle=False``) and NPZ (key ``points`` or a single array; optional ``normals``;
+  ``numpy_format``);
 - meshes: OBJ, STL, OFF, GLB/GLTF and PLY with faces (``mesh``), sampled uniformly on the surface
   to ``n_points`` points with ``seed`` (area-weighted, the face normal of each sample kept as its
   normal). Same bytes + same ``n_points`` + same ``seed`` = same cloud.
