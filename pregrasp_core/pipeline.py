@@ -573,7 +573,8 @@ def occupied_of(
 def with_cloud(params: PipelineParams, cloud: PointCloud) -> PipelineParams:
     """``params`` completed by what a single view knows: the camera (``cloud.viewpoint``) as
     the normals' viewpoint unless one is given, and the scene's table
-    (``cloud.sensor.plane``) as the support plane unless ``support_height`` is given."""
+    (``cloud.sensor.plane``, or a complete scene's ``cloud.support``) as the support plane
+    unless ``support_height`` is given."""
     normals = params.planner.normals
     if cloud.viewpoint is not None and normals.viewpoint is None:
         x, y, z = (float(v) for v in cloud.viewpoint)
@@ -586,6 +587,15 @@ def with_cloud(params: PipelineParams, cloud: PointCloud) -> PipelineParams:
         params = dataclasses.replace(
             params, facemask=cloud.sensor.face_mask_params(params.facemask)
         )
+    elif cloud.support is not None and params.facemask.support_height is None:
+        n = cloud.support.normal  # a complete scene's table
+        facemask = dataclasses.replace(
+            params.facemask,
+            support=True,
+            up=(float(n[0]), float(n[1]), float(n[2])),
+            support_height=float(cloud.support.height),
+        )
+        params = dataclasses.replace(params, facemask=facemask)
     return params
 
 

@@ -58,8 +58,10 @@ class InputOptions:
     """In a scene, keep the object cluster nearest this point (metres) instead of the largest."""
     scene: bool | None = None
     """Read the input as a scene: the table found by RANSAC becomes the support plane, the
-    object cluster is kept and its unseen back completed. Default: for depth images and PCD
-    files with a VIEWPOINT; --no-scene reads every point as the object."""
+    object cluster is kept and, for a single view (a viewpoint known), its unseen back
+    completed; without a viewpoint, a complete scene (a scan or mesh with its table: the object
+    kept whole). Default: for depth images and PCD files with a VIEWPOINT; --no-scene reads
+    every point as the object."""
     viewpoint: tuple[float, float, float] | None = None
     """The camera position (from --viewpoint, shared with the normals' option)."""
     flying_pixels: bool = False

@@ -15,6 +15,7 @@ from ..errors import DegenerateGeometryError, InputError
 from ..tolerances import FLAT_EXTENT, GEOM_EPS, UNIT_NORMAL_TOL
 
 if TYPE_CHECKING:
+    from ..facemask import SupportPlane
     from ..sensor import SensorView
 
 logger = logging.getLogger(__name__)
@@ -120,6 +121,10 @@ class PointCloud:
     sensor: SensorView | None = None
     """A scene's object (:class:`~pregrasp_core.sensor.SensorView`: the support plane, which
     points are assumed, their normals), or None. Its ``points`` are this cloud's points."""
+    support: SupportPlane | None = None
+    """The table the object of a complete scene stood on (a mesh or a fused scan read with
+    ``--scene`` and no viewpoint: its table found and removed), or None; the pipeline takes it
+    as the support plane, as a single view's ``sensor.plane``."""
 
     @property
     def assumed(self) -> np.ndarray | None:

@@ -25,6 +25,7 @@ from ..sensor.veils import VeilParams
 from .cloud import (
     DEFAULT_MAX_BYTES,
     DEFAULT_N_POINTS,
+    MAX_POINTS,
     MIN_POINTS,
     SUPPORTED_EXTENSIONS,
     CloudInfo,
@@ -262,7 +263,10 @@ def _load(
         def units(pts: np.ndarray, notices: list[str]) -> float | None:
             return _units(pts, None, seed, notices)
 
-        cloud = sample_mesh(parsed, file.source, fmt, n_points, seed, scale, units)
+        n_sample = n_points
+        if opts.scene and opts.viewpoint is None and n_points is not None:
+            n_sample = min(MAX_POINTS, SCENE_OVERSAMPLE * n_points)  # most of it is table
+        cloud = sample_mesh(parsed, file.source, fmt, n_sample, seed, scale, units)
         return _scene_or_view(cloud, opts.viewpoint, opts, n_points, seed, bool(opts.scene))
     warns = list(parsed.warnings)
     # (from the bytes: an uploaded PCD's VIEWPOINT counts as a file's)
@@ -305,13 +309,15 @@ def _scene_or_view(
         if opts.pick is not None:
             raise InputError(f"{cloud.source}: --pick needs a scene (--scene)")
         if viewpoint is None:
-            return cloud
+            return _with_table_hint(cloud)
         return dataclasses.replace(cloud, viewpoint=np.asarray(viewpoint, dtype=np.float64))
     if viewpoint is None:
-        raise InputError(
-            f"{cloud.source}: a scene needs the camera position: pass --viewpoint X Y Z "
-            "(metres, the cloud's frame)"
-        )
+        if opts.flying_pixels:
+            raise InputError(
+                f"{cloud.source}: flying pixels are a camera's: pass --viewpoint X Y Z (metres, "
+                "the cloud's frame) with --flying-pixels"
+            )
+        return complete_scene_object(cloud, opts.pick, n_points, seed)
     try:
         view = scene_object(
             cloud,
@@ -368,6 +374,104 @@ def _alone(
     info["warnings"] = warns
     pts, nrm = subsample(cloud.points, cloud.normals, n_points, seed, info)
     return PointCloud(points=pts, normals=nrm, source=cloud.source, info=info, viewpoint=viewpoint)
+
+
+def complete_scene_object(
+    scene: PointCloud, pick: tuple[float, float, float] | None, n_points: int | None, seed: int
+) -> PointCloud:
+    """The object of a complete scene (a mesh or a fused scan with its table, read with
+    ``--scene`` and no viewpoint): the table found by RANSAC and removed, the largest cluster
+    above it kept (or the one nearest ``pick``) with its normals, cut to ``n_points``; nothing
+    is completed (every side was scanned) and the table becomes the cloud's ``support``. Up is
+    the side along +z unless the table is within 60 degrees of vertical (then the side with
+    more points); a table with a bottom (a box in a scene mesh) is its top: a plane parallel to
+    the one found, above it, holding at least half as many points, replaces it (twice at
+    most)."""
+    from ..sensor import segment_table
+
+    pts = np.asarray(scene.points)
+    idx = np.arange(len(pts))  # the points ``seg`` was found on
+    try:
+        seg = segment_table(pts, pick=pick, side=(0.0, 0.0, 1.0))
+        for _ in range(2):  # a table with a bottom: its top is the parallel plane above it
+            above = idx[pts[idx] @ seg.plane.normal - seg.plane.height > seg.band]
+            try:
+                top = segment_table(pts[above], pick=pick, side=seg.plane.normal)
+            except PregraspError:
+                break
+            parallel = float(top.plane.normal @ seg.plane.normal) > np.cos(np.radians(5.0))
+            if not (parallel and top.table_mask.sum() >= 0.5 * seg.table_mask.sum()):
+                break
+            seg, idx = top, above
+    except PregraspError as exc:
+        msg = (
+            f"{scene.source}: the scene's table and object: {exc} (without --scene the points "
+            "are read as one object)"
+        )
+        if isinstance(exc, NoTableError):
+            raise NoTableError(msg, exc.behind) from None
+        raise type(exc)(msg) from None
+    mask = np.zeros(len(pts), dtype=bool)
+    mask[idx[seg.object_mask]] = True
+    if int(mask.sum()) < MIN_POINTS:
+        raise InputError(
+            f"{scene.source}: the object above the table has only {int(mask.sum())} points; at "
+            f"least {MIN_POINTS} are needed (--pick X Y Z chooses another object)"
+        )
+    info = scene.info.copy()
+    warns = list(info.get("warnings", []))
+    add_warning(
+        warns,
+        f"{scene.source}: read as a complete scene (no viewpoint): the table removed "
+        f"({len(pts) - int(mask.sum())} points with what lies under it), the object kept whole, "
+        "nothing completed; for a single view give the camera with --viewpoint X Y Z",
+    )
+    info["warnings"] = warns
+    info["scene"] = {
+        "n_scene": scene.n_points,
+        "n_table": int(np.count_nonzero(seg.table_mask)),
+        "n_object": int(np.count_nonzero(mask)),
+        "n_clusters": int(seg.n_clusters),
+        "plane": seg.plane.to_dict(),
+        "complete": True,
+    }
+    nrm = None if scene.normals is None else np.asarray(scene.normals)[mask]
+    obj, nrm = subsample(pts[mask], nrm, n_points, seed, info)
+    return PointCloud(obj, nrm, scene.source, info, support=seg.plane)
+
+
+SCENE_OVERSAMPLE: int = 8
+"""A mesh read as a complete scene is sampled to this many times ``n_points`` (the table takes
+most of them), then its object cut to ``n_points``."""
+
+TABLE_HINT_BAND: float = 0.003
+"""Half-width (metres) of the lowest layer along +z that :func:`_with_table_hint` looks at."""
+
+
+def _with_table_hint(cloud: PointCloud) -> PointCloud:
+    """``cloud`` with a warning when it looks like an object on a patch of its table (a scan):
+    at least a quarter of its points in the lowest 3 mm along +z, that layer at least 25 cm
+    across, and what stands above it at most 60 % as wide along x and y (a box lying on its
+    side has its bottom face as wide as itself)."""
+    pts = np.asarray(cloud.points)
+    z = pts[:, 2]
+    low = z <= float(z.min()) + 2.0 * TABLE_HINT_BAND
+    if low.mean() < 0.25 or low.all():
+        return cloud
+    span_low = np.ptp(pts[low, :2], axis=0)
+    span_up = np.ptp(pts[~low, :2], axis=0)
+    if span_low.max() < 0.25 or np.any(span_up > 0.6 * span_low):
+        return cloud
+    info = cloud.info.copy()
+    warns = list(info.get("warnings", []))
+    add_warning(
+        warns,
+        f"{cloud.source}: {100.0 * low.mean():.0f} % of the points lie in one plane at its "
+        f"lowest z, {span_low[0]:.2f} x {span_low[1]:.2f} m, wider than what stands on it: if "
+        "that is a table, read the file with --scene (the table found and removed)",
+    )
+    info["warnings"] = warns
+    return dataclasses.replace(cloud, info=info)
 
 
 def scene_object(

@@ -451,8 +451,13 @@ def segment_table(
     viewpoint: np.ndarray | tuple[float, float, float] | None = None,
     pick: np.ndarray | tuple[float, float, float] | None = None,
     params: SegmentParams | None = None,
+    side: np.ndarray | tuple[float, float, float] | None = None,
 ) -> TableSegmentation:
-    """Find the table in a scene cloud and the object standing on it (see the module)."""
+    """Find the table in a scene cloud and the object standing on it (see the module).
+
+    Which side of the plane the object is on: the camera's (``viewpoint``); without one, the
+    side along ``side`` (a complete scene's up) unless the plane is within 60 degrees of
+    parallel to it; else the side with more points."""
     params = SegmentParams() if params is None else params
     pts = as_points(points)
     if not np.all(np.isfinite(pts)):
@@ -473,8 +478,11 @@ def segment_table(
     if in_band.sum() >= 3:
         n, h = plane_from_points(pts[in_band])
     dist = pts @ n - h
+    up = None if side is None else np.asarray(side, dtype=np.float64)
     if vp is not None:
         flip = float(vp @ n - h) < 0.0
+    elif up is not None and abs(float(n @ up)) >= 0.5 * float(np.linalg.norm(up)):
+        flip = float(n @ up) < 0.0
     else:
         flip = int(np.sum(dist < -band)) > int(np.sum(dist > band))
     if flip:

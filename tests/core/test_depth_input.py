@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from pregrasp_core.errors import InputError
@@ -508,3 +509,84 @@ def test_a_bad_camera_file_of_another_tool_names_the_file_and_the_field(
         load_point_cloud(png)
     msg = str(err.value)
     assert "\n" not in msg and re.search(match, msg) and msg.startswith(str(side)), msg
+
+
+# ------------------------------------------------------------------------------------------------
+# Complete scenes: a mesh or a fused scan with its table, read with --scene and no viewpoint
+
+
+def _scan_scene(tmp_path: Path, table: str) -> tuple[Path, np.ndarray, int, int]:
+    """A scan of the mug with a handle and the soda can on a table, as an XYZ file of points
+    sampled on each surface (labels known outside the loader): ``table`` ``"patch"`` (a
+    one-sided patch, as a phone scan keeps) or ``"box"`` (a 2 cm slab with its bottom, as a
+    scene mesh has). Returns (path, labels 0 table / 1 mug / 2 can, index of the can's first
+    point, points)."""
+    mug = trimesh.load(OBJECTS_DIR / "mug_handle.obj", force="mesh")
+    can = trimesh.load(OBJECTS_DIR / "can_soda.obj", force="mesh")
+    can.apply_translation((0.2, 0.12, 0.0))
+    if table == "patch":
+        slab = trimesh.Trimesh([[-0.25, -0.2, 0], [0.35, -0.2, 0], [0.35, 0.3, 0], [-0.25, 0.3, 0]],
+                               [[0, 1, 2], [0, 2, 3]])  # fmt: skip
+    else:
+        slab = trimesh.creation.box((0.6, 0.5, 0.02))
+        slab.apply_translation((0.05, 0.05, -0.01))
+    parts = []
+    for k, (m, n) in enumerate(((slab, 40000), (mug, 12000), (can, 6000))):
+        pts, _ = trimesh.sample.sample_surface(m, n, seed=k)
+        parts.append((np.asarray(pts), np.full(n, k)))
+    pts = np.concatenate([p for p, _ in parts])
+    labels = np.concatenate([lab for _, lab in parts])
+    path = tmp_path / f"scan_{table}.xyz"
+    np.savetxt(path, pts, fmt="%.9f")
+    return path, labels, 52000, len(pts)
+
+
+@pytest.mark.parametrize("table", ["patch", "box"])
+def test_a_complete_scene_keeps_its_object_whole_on_the_table_found(tmp_path, table) -> None:
+    """``--scene`` without a viewpoint on a scan: the table found within 1 degree and 2 mm of
+    the true top z = 0 (a slab's top, not its bottom 2 cm below), the object kept is the mug,
+    at least 99 % of its points above the table's plane (its bottom face lies in that plane)
+    and nothing of the can nor of the table beyond the mug's foot; ``pick`` near the can keeps
+    the can; nothing is completed and the table becomes the support plane of the pipeline."""
+    from pregrasp_core.pipeline import with_cloud
+
+    path, labels, _, n = _scan_scene(tmp_path, table)
+    truth = np.loadtxt(path)
+    cloud = load_point_cloud(path, n_points=None, sensor=SensorOptions(scene=True))
+    sc = cloud.info["scene"]
+    assert sc["complete"] and cloud.viewpoint is None and cloud.sensor is None
+    normal, height = np.asarray(sc["plane"]["normal"]), sc["plane"]["height"]
+    assert np.degrees(np.arccos(min(1.0, normal @ [0, 0, 1]))) < 1.0 and abs(height) < 0.002
+    kept = {tuple(p) for p in np.round(cloud.points, 9)}
+    got = np.array([tuple(p) in kept for p in np.round(truth, 9)])
+    up = truth[:, 2] > 0.003  # the mug's bottom face lies in the table's plane: the table's
+    assert got[(labels == 1) & up].mean() >= 0.99 and not got[labels == 2].any()
+    foot = truth[got & (labels == 0)]  # the table under the mug's rim (its foot) at most
+    gap, _ = cKDTree(truth[labels == 1, :2]).query(foot[:, :2])
+    assert len(foot) < 100 and gap.max(initial=0.0) < 0.005
+    assert cloud.support is not None and cloud.assumed is None
+    fm = with_cloud(PipelineParams(), cloud).facemask
+    assert fm.support_height == pytest.approx(height) and np.allclose(fm.up, normal)
+    can = load_point_cloud(path, n_points=None,
+                           sensor=SensorOptions(scene=True, pick=(0.2, 0.12, 0.06)))  # fmt: skip
+    kept = {tuple(p) for p in np.round(can.points, 9)}
+    got = np.array([tuple(p) in kept for p in np.round(truth, 9)])
+    assert got[(labels == 2) & up].mean() >= 0.99 and not got[labels == 1].any()
+    assert any("read as a complete scene" in w for w in cloud.info["warnings"])
+    assert n == len(truth)
+
+
+def test_a_scan_with_its_table_read_as_one_object_says_so(tmp_path) -> None:
+    """Without ``--scene`` a scan keeps its table patch, with a warning that names the plane
+    and the flag; a box lying on its side (its bottom face as wide as itself) and the demo
+    objects get none."""
+    path, _, _, _ = _scan_scene(tmp_path, "patch")
+    cloud = load_point_cloud(path, n_points=None)
+    (hint,) = [w for w in cloud.info["warnings"] if "read the file with --scene" in w]
+    assert hint.startswith(f"{path}: ") and "0.60 x 0.50 m" in hint
+    lying = trimesh.creation.box((0.3, 0.2, 0.06))
+    lying.apply_translation((0, 0, 0.03))
+    lying.export(tmp_path / "lying.stl")
+    for p in [tmp_path / "lying.stl", *sorted(OBJECTS_DIR.glob("*.obj"))]:
+        c = load_point_cloud(p, n_points=4000)
+        assert not any("--scene" in w for w in c.info["warnings"]), p.name
