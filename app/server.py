@@ -7,6 +7,7 @@ creates the server, prints how to reach it and serves until interrupted.
 
 from __future__ import annotations
 
+import gc
 import getpass
 import logging
 import socket
@@ -156,6 +157,7 @@ def run(config: ViewerConfig, server: Any) -> App:
     from pregrasp_core.hand import Hand
 
     protect(server, config.host)
+    settle_heap()
 
     planner = None
     notices: list[Controller] = []  # the controller, once made: the worker's failure notices
@@ -173,6 +175,26 @@ def run(config: ViewerConfig, server: Any) -> App:
         if planner is not None:
             planner.close()
         raise
+
+
+def settle_heap() -> None:
+    """Collect the process's garbage, then freeze what is left (``gc.freeze``) before the app
+    is built: the imported modules, numba (imported here: every plan needs it) and whatever
+    the process held before.
+
+    The viewer's browsers are answered by Python threads, and a full collection holds the
+    global lock while it walks every object of the heap: 0.1 s in the viewer alone, 0.3-0.6 s
+    in a process that holds more (a test run's, or one where numba compiled kernels), long
+    enough to stall every browser's answers mid-plan (measured, ``docs/app.md``, "Slow
+    actions"). Frozen objects are never walked again, so later collections see only what came
+    after: the app's own objects, which stay collectable (the app is built after the freeze, so
+    a closed app's cycles are freed). Objects alive now stay alive as they would anyway; what
+    dies among them later is still freed by reference counting."""
+    from pregrasp_core.jit import import_numba
+
+    import_numba()
+    gc.collect()
+    gc.freeze()
 
 
 def _build(
