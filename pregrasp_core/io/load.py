@@ -15,7 +15,9 @@ from ..errors import InputError, PregraspError
 from ..sensor import (
     CompletionParams,
     NoTableError,
+    SegmentParams,
     SensorView,
+    TableSegmentation,
     complete_view,
     detect_units,
     pcd_viewpoint_of,
@@ -343,6 +345,7 @@ def _scene_or_view(
     }
     if opts.flying_pixels:
         info["scene"]["n_flying"] = view.n_flying
+    _note_background(info, view.segmentation, cloud.source)
     if "n_subsampled_from" in info:
         del info["n_subsampled_from"]
     return PointCloud(
@@ -386,13 +389,19 @@ def complete_scene_object(
     the side along +z unless the table is within 60 degrees of vertical (then the side with
     more points); a table with a bottom (a box in a scene mesh) is its top: a plane parallel to
     the one found, above it, holding at least half as many points, replaces it (twice at
-    most)."""
+    most). A scene upside down along z (nothing above the table along +z, the objects under
+    it: a z-down export) is read with up -z, with a warning."""
     from ..sensor import segment_table
 
     pts = np.asarray(scene.points)
     idx = np.arange(len(pts))  # the points ``seg`` was found on
+    down = False
     try:
-        seg = segment_table(pts, pick=pick, side=(0.0, 0.0, 1.0))
+        try:
+            seg = segment_table(pts, pick=pick, side=(0.0, 0.0, 1.0))
+        except NoTableError:
+            seg = segment_table(pts, pick=pick, side=(0.0, 0.0, -1.0))
+            down = True
         for _ in range(2):  # a table with a bottom: its top is the parallel plane above it
             above = idx[pts[idx] @ seg.plane.normal - seg.plane.height > seg.band]
             try:
@@ -426,6 +435,12 @@ def complete_scene_object(
         f"({len(pts) - int(mask.sum())} points with what lies under it), the object kept whole, "
         "nothing completed; for a single view give the camera with --viewpoint X Y Z",
     )
+    if down:
+        add_warning(
+            warns,
+            f"{scene.source}: the objects lie under the table along +z: the scene is read "
+            "upside down (up -z)",
+        )
     info["warnings"] = warns
     info["scene"] = {
         "n_scene": scene.n_points,
@@ -435,9 +450,27 @@ def complete_scene_object(
         "plane": seg.plane.to_dict(),
         "complete": True,
     }
+    _note_background(info, seg, scene.source)
     nrm = None if scene.normals is None else np.asarray(scene.normals)[mask]
     obj, nrm = subsample(pts[mask], nrm, n_points, seed, info)
     return PointCloud(obj, nrm, scene.source, info, support=seg.plane)
+
+
+def _note_background(info: CloudInfo, seg: TableSegmentation, source: str) -> None:
+    """``info`` with the scene's background planes (``SegmentParams.background_span``, a wall
+    behind the table): ``scene.n_background`` and a warning naming each, when there are any."""
+    planes = seg.background
+    if not planes:
+        return
+    info["scene"]["n_background"] = int(sum(b.n_points for b in planes))
+    warns = list(info.get("warnings", []))
+    add_warning(
+        warns,
+        f"{source}: set aside as background, not an object (a wall, a board: flat and at least "
+        f"{SegmentParams().background_span:g} m long): "
+        f"{'; '.join(b.describe() for b in planes)}; --pick X Y Z on one keeps it",
+    )
+    info["warnings"] = warns
 
 
 SCENE_OVERSAMPLE: int = 8

@@ -20,6 +20,11 @@ the table in it) and returns a :class:`TableSegmentation`:
    table point inside their footprint), unless nothing else is left. Clusters of at least
    ``merge_min_points`` points within ``merge_gap`` of the chosen one join it (the object's own
    occlusion cuts a handle off its body).
+   Before that, clusters at least ``background_span`` across are searched for background
+   planes (:func:`background_planes`: a wall behind the table, a shelf board; flat, at least
+   ``background_span`` by ``background_width``), whose points are set aside and the rest
+   clustered anew; when the object then stands on such a plane and not on the plane found
+   first (a wall seen larger than the table), the scene is segmented again on that plane.
 4. **The object's foot**: the object's points inside the band (the bottom of its walls, within
    the noise of the table) are given back to the object: band points whose projection on the
    plane lies within ``max(band, foot_radius)`` of the projection of one of the object's points
@@ -152,6 +157,17 @@ class SegmentParams:
     hull of its projection on the plane). An object hides the table under it, so its ratio is
     far above 1; the points of a noisy table's Gaussian tail that clear the band are a few per
     hundred table points, however many of them chain into one cluster (0: off)."""
+    background_span: float = 0.5
+    """A plane above the table whose points span at least this along one direction (and
+    ``background_width`` across it) is background, not an object: a wall behind the table, a
+    shelf board, a cabinet's side. No object the hand grasps has a flat face this large (the
+    demo objects' largest extent is 0.36 m), while a depth camera that sees a table against a
+    wall sees more wall than object. Its points are set aside (neither table nor object,
+    never chosen nor merged); when the object stands on such a plane and not on the one
+    found first (a wall seen larger than the table), that plane is the table (0: off)."""
+    background_width: float = 0.1
+    """Smallest extent of a background plane across its span: a ruler or a lath lying on the
+    table (long but narrow) stays an object."""
     seed: int = 0
     """Seed of the RANSAC sampling: same seed, same result."""
 
@@ -164,7 +180,8 @@ class SegmentParams:
                      "foot_window"):  # fmt: skip
             put(name, check_real(name, getattr(self, name), 0.0, MAX_LENGTH, lo_open=True,
                                  what="a length", unit=" m"))  # fmt: skip
-        for name in ("foot_height", "merge_gap", "hidden_gap"):
+        for name in ("foot_height", "merge_gap", "hidden_gap", "background_span",
+                     "background_width"):  # fmt: skip
             put(name, check_real(name, getattr(self, name), 0.0, MAX_LENGTH, what="a length",
                                  unit=" m"))  # fmt: skip
         for name in ("band_sigmas", "foot_sigmas"):
@@ -178,6 +195,30 @@ class SegmentParams:
             put(name, check_int(name, getattr(self, name), 1, MAX_MIN_POINTS))
         put("noise_cover", check_real("noise_cover", self.noise_cover, 0.0, MAX_SPACINGS))
         put("seed", check_int("seed", self.seed, 0, MAX_SEED))
+
+
+@dataclass(frozen=True)
+class BackgroundPlane:
+    """A plane above the table set aside as background (a wall, a board): see
+    ``SegmentParams.background_span``."""
+
+    normal: tuple[float, float, float]
+    """Unit normal (its sign arbitrary)."""
+    height: float
+    """Offset: the plane is ``normal . x = height`` (m)."""
+    span: float
+    """Extent of its points along their longest direction in the plane (1st to 99th
+    percentile, m)."""
+    width: float
+    """Extent across it (m)."""
+    n_points: int
+    """Points set aside with it."""
+    band: float
+    """Half-width of its noise band (m)."""
+
+    def describe(self) -> str:
+        """E.g. ``"a plane of 1.02 x 0.24 m (58098 points)"``."""
+        return f"a plane of {self.span:.2f} x {self.width:.2f} m ({self.n_points} points)"
 
 
 @dataclass(frozen=True, eq=False)
@@ -203,6 +244,11 @@ class TableSegmentation:
     """(3,) the camera position in the points' frame, or None."""
     n_clusters: int = field(default=0)
     """Clusters found above the table."""
+    background_mask: np.ndarray | None = None
+    """(N,) bool: the points of the background planes set aside (``SegmentParams.background_span``;
+    neither table nor object), or None when there are none."""
+    background: tuple[BackgroundPlane, ...] = ()
+    """The background planes set aside, largest first."""
 
     @property
     def object_points(self) -> np.ndarray:
@@ -457,7 +503,10 @@ def segment_table(
 
     Which side of the plane the object is on: the camera's (``viewpoint``); without one, the
     side along ``side`` (a complete scene's up) unless the plane is within 60 degrees of
-    parallel to it; else the side with more points."""
+    parallel to it; else the side with more points. When the plane found first is not what
+    the object stands on but one of the background planes above it is (a wall seen larger than
+    the table: the table is then a plane above the wall, on the camera's side), the scene is
+    segmented again on that plane."""
     params = SegmentParams() if params is None else params
     pts = as_points(points)
     if not np.all(np.isfinite(pts)):
@@ -467,10 +516,73 @@ def segment_table(
         vp = np.asarray(viewpoint, dtype=np.float64)
         if vp.shape != (3,) or not np.all(np.isfinite(vp)):
             raise ValueError(f"viewpoint must be a finite 3-vector, got {viewpoint!r}")
+    up = None if side is None else np.asarray(side, dtype=np.float64)
     rng = np.random.default_rng(params.seed)
     n, h, inl = fit_plane_ransac(
         pts, params.ransac_threshold, params.iterations, params.sample, rng
     )
+    seg = _segment_on(pts, n, h, inl, vp, pick, params, up, rng)
+    support = _support_plane(seg, params)
+    if support is not None:
+        n2 = np.asarray(support.normal, dtype=np.float64)
+        inl2 = np.abs(pts @ n2 - support.height) < params.ransac_threshold
+        try:
+            seg2 = _segment_on(pts, n2, support.height, inl2, vp, pick, params, up, rng)
+        except InputError:
+            seg2 = None
+        if seg2 is not None and _stands_on(seg2, params):
+            logger.info(
+                "table: the object stands on %s above the plane found first, not on that "
+                "plane: the table is that plane", support.describe(),
+            )  # fmt: skip
+            seg = seg2
+    logger.info(
+        "table: normal %s height %.4f m, sigma %.2g m, %d table points, object %d points "
+        "(%d clusters, %d background planes)",
+        np.round(seg.plane.normal, 4).tolist(), seg.plane.height, seg.sigma,
+        int(seg.table_mask.sum()), int(seg.object_mask.sum()), seg.n_clusters,
+        len(seg.background),
+    )  # fmt: skip
+    return seg
+
+
+def _stands_on(seg: TableSegmentation, params: SegmentParams) -> bool:
+    """Whether the object of ``seg`` reaches its plane: some point within the band plus one
+    cluster voxel (its foot, or its bottom when the foot was a background plane's)."""
+    obj = seg.points[seg.object_mask]
+    if len(obj) == 0:
+        return False
+    d = obj @ seg.plane.normal - seg.plane.height
+    return float(np.min(np.abs(d))) <= seg.band + params.cluster_radius
+
+
+def _support_plane(seg: TableSegmentation, params: SegmentParams) -> BackgroundPlane | None:
+    """The background plane the object of ``seg`` stands on when it does not stand on
+    ``seg.plane`` (within the plane's band plus one cluster voxel), the largest of those;
+    None otherwise."""
+    if not seg.background or _stands_on(seg, params):
+        return None
+    obj = seg.points[seg.object_mask]
+    for b in seg.background:  # largest first; a few planes at most
+        d = obj @ np.asarray(b.normal) - b.height
+        if float(np.min(np.abs(d))) <= b.band + params.cluster_radius:
+            return b
+    return None
+
+
+def _segment_on(
+    pts: np.ndarray,
+    n: np.ndarray,
+    h: float,
+    inl: np.ndarray,
+    vp: np.ndarray | None,
+    pick: np.ndarray | tuple[float, float, float] | None,
+    params: SegmentParams,
+    up: np.ndarray | None,
+    rng: np.random.Generator,
+) -> TableSegmentation:
+    """:func:`segment_table` on the plane ``n . x = h`` (inliers ``inl`` within the RANSAC
+    threshold): its noise band, its side, the clusters above it, the object and its foot."""
     res = pts[inl] @ n - h
     sigma = MAD_TO_SIGMA * float(np.median(np.abs(res - np.median(res))))
     band = max(params.band_sigmas * sigma, params.min_band)
@@ -478,7 +590,6 @@ def segment_table(
     if in_band.sum() >= 3:
         n, h = plane_from_points(pts[in_band])
     dist = pts @ n - h
-    up = None if side is None else np.asarray(side, dtype=np.float64)
     if vp is not None:
         flip = float(vp @ n - h) < 0.0
     elif up is not None and abs(float(n @ up)) >= 0.5 * float(np.linalg.norm(up)):
@@ -498,9 +609,25 @@ def segment_table(
         above = above[count >= params.min_neighbours]
     labels = np.full(len(pts), -1, dtype=np.int64)
     object_mask = np.zeros(len(pts), dtype=bool)
+    background_mask: np.ndarray | None = None
+    planes: tuple[BackgroundPlane, ...] = ()
     n_clusters = 0
     if len(above):
         lab = voxel_clusters(pts[above], params.cluster_radius)
+        if params.background_span > 0.0:
+            bg, found = background_planes(pts[above], lab, params, rng)
+            if found and not _picks_background(pts[above], bg, pick):
+                rest = voxel_clusters(pts[above][~bg], params.cluster_radius)
+                if len(rest) and np.bincount(rest).max() >= params.min_cluster:
+                    background_mask = np.zeros(len(pts), dtype=bool)
+                    background_mask[above[bg]] = True
+                    planes = found
+                    above, lab = above[~bg], rest
+                else:
+                    logger.info(
+                        "table: only background planes stand above the table (%s): kept as "
+                        "clusters", "; ".join(b.describe() for b in found),
+                    )  # fmt: skip
         labels[above] = lab
         counts = np.bincount(lab)
         n_clusters = len(counts)
@@ -577,14 +704,9 @@ def segment_table(
             "view holds no object"
         )
     table_mask = in_band & ~object_mask
-    logger.info(
-        "table: normal %s height %.4f m, sigma %.2g m, %d table points, object %d points "
-        "(%d clusters)",
-        np.round(n, 4).tolist(), h, sigma, int(table_mask.sum()), int(object_mask.sum()),
-        n_clusters,
-    )  # fmt: skip
-    for arr in (labels, object_mask, table_mask):
-        arr.setflags(write=False)
+    for arr in (labels, object_mask, table_mask, background_mask):
+        if arr is not None:
+            arr.setflags(write=False)
     pts_ro = pts.copy()
     pts_ro.setflags(write=False)
     return TableSegmentation(
@@ -597,4 +719,85 @@ def segment_table(
         sigma=float(sigma),
         viewpoint=vp,
         n_clusters=n_clusters,
+        background_mask=background_mask,
+        background=planes,
     )
+
+
+def _picks_background(
+    above: np.ndarray, bg: np.ndarray, pick: np.ndarray | tuple[float, float, float] | None
+) -> bool:
+    """Whether ``pick`` asks for a background plane: the point above the table nearest it is
+    one of the plane's (the user pointed at the board: it is kept as a cluster)."""
+    if pick is None or not np.any(bg):
+        return False
+    pk = np.asarray(pick, dtype=np.float64)
+    if pk.shape != (3,) or not np.all(np.isfinite(pk)):
+        raise ValueError(f"pick must be a finite 3-vector, got {pick!r}")
+    return bool(bg[int(np.argmin(np.sum((above - pk) ** 2, axis=1)))])
+
+
+MAX_BACKGROUND_PLANES: int = 4
+"""Background planes looked for per cluster (a corner shows two walls and a shelf board)."""
+
+
+def background_planes(
+    above: np.ndarray, lab: np.ndarray, params: SegmentParams, rng: np.random.Generator
+) -> tuple[np.ndarray, tuple[BackgroundPlane, ...]]:
+    """``(mask (A,) bool, planes)``: the points of ``above`` (cluster labels ``lab``) on
+    background planes (``SegmentParams.background_span``) and those planes, largest first.
+
+    Each cluster at least ``background_span`` across (its bounding box's diagonal) is searched
+    for its dominant plane by RANSAC, with the table's rules (the band ``band_sigmas`` robust
+    deviations of the plane's inliers, at least ``min_band``); when the band's points span
+    ``background_span`` by ``background_width`` (1st to 99th percentile along their principal
+    directions in the plane) they are set aside and the rest of the cluster searched again, up
+    to :data:`MAX_BACKGROUND_PLANES` times. A wall with an object leaning on it loses its plane
+    and keeps the object; a box's face, a pan's bottom, a ruler are smaller. The points set
+    aside are those within twice the band (the plane's noise tail with it)."""
+    mask = np.zeros(len(above), dtype=bool)
+    planes: list[BackgroundPlane] = []
+    if len(lab) == 0:
+        return mask, ()
+    counts = np.bincount(lab)
+    for c in np.nonzero(counts >= params.min_cluster)[0]:  # loop over the clusters
+        members = np.flatnonzero(lab == c)
+        if float(np.linalg.norm(np.ptp(above[members], axis=0))) < params.background_span:
+            continue
+        for _ in range(MAX_BACKGROUND_PLANES):
+            m = members[~mask[members]]
+            if len(m) < params.min_cluster:
+                break
+            q = above[m]
+            n, h, inl = fit_plane_ransac(
+                q, params.ransac_threshold, params.iterations, params.sample, rng
+            )
+            res = q[inl] @ n - h
+            sigma = MAD_TO_SIGMA * float(np.median(np.abs(res - np.median(res))))
+            band = max(params.band_sigmas * sigma, params.min_band)
+            on = np.abs(q @ n - h) <= band
+            if on.sum() < params.min_cluster:
+                break
+            flat = (q[on] - q[on].mean(axis=0)) @ _plane_basis(n)  # (K, 2)
+            _, vecs = np.linalg.eigh(flat.T @ flat)
+            along = flat @ vecs  # principal directions, smallest first
+            lo, hi = np.percentile(along, [1.0, 99.0], axis=0)
+            width, span = (float(v) for v in hi - lo)
+            if span < params.background_span or width < params.background_width:
+                break
+            # set aside with the plane: its Gaussian tail out to twice the band (a few
+            # hundred points of a wall that would otherwise come back as a second plane)
+            aside = np.abs(q @ n - h) <= 2.0 * band
+            mask[m[aside]] = True
+            planes.append(
+                BackgroundPlane(
+                    normal=(float(n[0]), float(n[1]), float(n[2])),
+                    height=float(h),
+                    span=span,
+                    width=width,
+                    n_points=int(aside.sum()),
+                    band=float(band),
+                )  # fmt: skip
+            )
+    planes.sort(key=lambda b: -b.n_points)
+    return mask, tuple(planes)

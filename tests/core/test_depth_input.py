@@ -576,6 +576,42 @@ def test_a_complete_scene_keeps_its_object_whole_on_the_table_found(tmp_path, ta
     assert n == len(truth)
 
 
+def test_a_complete_scene_upside_down_or_against_a_wall_keeps_its_object(tmp_path) -> None:
+    """The same scan turned upside down (180 degrees about x: the objects under the table along
+    +z, as a z-down export has them) is read with up -z, with a warning, and keeps the mug; with
+    a 60 x 50 cm wall standing at the table's back edge the wall is set aside as background (the
+    largest cluster above the table before) and the mug is kept, its points as before."""
+    path, labels, _, _ = _scan_scene(tmp_path, "patch")
+    truth = np.loadtxt(path)
+    up = truth[:, 2] > 0.003
+
+    def kept_of(cloud) -> np.ndarray:
+        kept = {tuple(p) for p in np.round(cloud.points, 9)}
+        return np.array([tuple(p) in kept for p in np.round(truth, 9)])
+
+    turned = truth * [1.0, -1.0, -1.0]
+    np.savetxt(tmp_path / "turned.xyz", turned, fmt="%.9f")
+    cloud = load_point_cloud(tmp_path / "turned.xyz", n_points=None,
+                             sensor=SensorOptions(scene=True))  # fmt: skip
+    assert any("read upside down (up -z)" in w for w in cloud.info["warnings"])
+    assert np.allclose(cloud.info["scene"]["plane"]["normal"], [0, 0, -1], atol=0.02)
+    kept = {tuple(p) for p in np.round(cloud.points * [1.0, -1.0, -1.0], 9)}
+    got = np.array([tuple(p) in kept for p in np.round(truth, 9)])
+    assert got[(labels == 1) & up].mean() >= 0.99 and not got[labels == 2].any()
+    wall = trimesh.Trimesh([[-0.25, 0.3, 0], [0.35, 0.3, 0], [0.35, 0.3, 0.5], [-0.25, 0.3, 0.5]],
+                           [[0, 1, 2], [0, 2, 3]])  # fmt: skip
+    wall_pts, _ = trimesh.sample.sample_surface(wall, 40000, seed=9)
+    np.savetxt(tmp_path / "wall.xyz", np.vstack([truth, wall_pts]), fmt="%.9f")
+    cloud = load_point_cloud(tmp_path / "wall.xyz", n_points=None,
+                             sensor=SensorOptions(scene=True))  # fmt: skip
+    assert cloud.info["scene"]["n_background"] > 0.9 * len(wall_pts)
+    assert any("set aside as background" in w for w in cloud.info["warnings"])
+    got = kept_of(cloud)
+    assert got[(labels == 1) & up].mean() >= 0.99 and not got[labels == 2].any()
+    far, _ = cKDTree(truth).query(cloud.points)
+    assert far.max() < 1e-6  # nothing of the wall
+
+
 def test_a_scan_with_its_table_read_as_one_object_says_so(tmp_path) -> None:
     """Without ``--scene`` a scan keeps its table patch, with a warning that names the plane
     and the flag; a box lying on its side (its bottom face as wide as itself) and the demo
