@@ -413,13 +413,9 @@ def complete_scene_object(
                 break
             seg, idx = top, above
     except PregraspError as exc:
-        msg = (
-            f"{scene.source}: the scene's table and object: {exc} (without --scene the points "
-            "are read as one object)"
-        )
-        if isinstance(exc, NoTableError):
-            raise NoTableError(msg, exc.behind) from None
-        raise type(exc)(msg) from None
+        raise _scene_failure(
+            scene.source, exc, "without --scene the points are read as one object"
+        ) from None
     mask = np.zeros(len(pts), dtype=bool)
     mask[idx[seg.object_mask]] = True
     if int(mask.sum()) < MIN_POINTS:
@@ -454,6 +450,15 @@ def complete_scene_object(
     nrm = None if scene.normals is None else np.asarray(scene.normals)[mask]
     obj, nrm = subsample(pts[mask], nrm, n_points, seed, info)
     return PointCloud(obj, nrm, scene.source, info, support=seg.plane)
+
+
+def _scene_failure(source: str, exc: PregraspError, hint: str) -> PregraspError:
+    """``exc`` of a scene's segmentation as the loader reports it: the file named, ``hint`` in
+    brackets, its type kept (a :class:`NoTableError` with its points behind the plane)."""
+    msg = f"{source}: the scene's table and object: {exc} ({hint})"
+    if isinstance(exc, NoTableError):
+        return NoTableError(msg, exc.behind)
+    return type(exc)(msg)
 
 
 def _note_background(info: CloudInfo, seg: TableSegmentation, source: str) -> None:
@@ -529,13 +534,11 @@ def scene_object(
         tol = max(0.003, 3.0 * view.segmentation.sigma)
         done = complete_view(obj, viewpoint, view.plane, CompletionParams(tolerance=tol))
     except PregraspError as exc:
-        msg = (
-            f"{scene.source}: the scene's table and object: {exc} (--no-scene reads the points "
-            "as one object, its normals facing the camera)"
-        )
-        if isinstance(exc, NoTableError):
-            raise NoTableError(msg, exc.behind) from None
-        raise type(exc)(msg) from None
+        raise _scene_failure(
+            scene.source,
+            exc,
+            "--no-scene reads the points as one object, its normals facing the camera",
+        ) from None
     if len(done.points) < MIN_POINTS:
         raise InputError(
             f"{scene.source}: the object above the table has only {len(done.points)} points; "
