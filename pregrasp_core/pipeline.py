@@ -391,15 +391,27 @@ def _run_stages(
     if prev is not None and prev.occupied is not None and prev.occluded_used == mode:
         hidden.append(prev.occupied)  # the same cloud and setting: the same space
 
+    scene_obstacles = (
+        None
+        if cloud.obstacles is None or not len(cloud.obstacles)
+        else (np.asarray(cloud.obstacles, dtype=np.float64))
+    )
+
     def obstacles() -> tuple[np.ndarray, OccupiedSpace | None]:
-        """The points the pool and the planner must clear, and the hidden space or None."""
+        """The points the pool and the planner must clear (the cloud's, then the hidden
+        space's, then the rest of the scene's), and the hidden space or None."""
         if not hidden:
             try:
                 hidden.append(occupied_of(cloud, params, mode))
             except WorkLimitError as exc:  # auto falls back on this one (a WorkLimitError)
                 raise _HiddenSpaceLimit(str(exc)) from exc
         occ = hidden[0]
-        return (points if occ is None else np.concatenate([points, occ.points])), occ
+        parts = [points]
+        if occ is not None:
+            parts.append(occ.points)
+        if scene_obstacles is not None:
+            parts.append(scene_obstacles)
+        return (points if len(parts) == 1 else np.concatenate(parts)), occ
 
     timings: dict[str, float] = {}
     reused: list[str] = []
@@ -517,9 +529,14 @@ def _run_stages(
             masks = out["masks"]
             normals, assumed = out["normals"], cloud.assumed
             geom, occ = obstacles()
-            if occ is not None:  # the obstacle points after the cloud's (planner/assumed.py)
-                normals = np.concatenate([normals, occ.normals])
-                assumed = np.concatenate([assumed, np.zeros(len(occ.points), dtype=bool)])
+            n_extra = len(geom) - len(points)  # the obstacle points after the cloud's
+            if n_extra:  # (planner/assumed.py: never contacts)
+                extra = [] if occ is None else [occ.normals]
+                if scene_obstacles is not None:
+                    extra.append(_obstacle_normals(scene_obstacles, cloud, masks))
+                normals = np.concatenate([normals, *extra])
+                seen = np.zeros(len(points), dtype=bool) if assumed is None else assumed
+                assumed = np.concatenate([seen, np.zeros(n_extra, dtype=bool)])
             gs = planner(
                 geom,
                 normals,
@@ -530,7 +547,7 @@ def _run_stages(
                 progress=_plan_progress,
                 assumed=assumed,
             )
-            if occ is not None:
+            if n_extra:
                 gs = without_occupied(
                     gs, points, out["normals"], cloud.assumed, run_hand, params.planner,
                     len(out["pool"]),
@@ -554,6 +571,19 @@ def _run_stages(
         occluded_used=mode if cloud.sensor is not None else "completed",
         **out,
     )
+
+
+def _obstacle_normals(obstacles: np.ndarray, cloud: PointCloud, masks: Any) -> np.ndarray:
+    """(K, 3) unit normals for the scene's obstacle points: toward the camera of a single view,
+    else the support plane's up, else +z. The planner never keeps a contact on them
+    (``without_occupied``), so they only orient a contact it moves to the cloud."""
+    if cloud.viewpoint is not None:
+        d = np.asarray(cloud.viewpoint, dtype=np.float64) - obstacles
+        length = np.linalg.norm(d, axis=1, keepdims=True)
+        return np.where(length > 0.0, d / np.maximum(length, 1e-300), [0.0, 0.0, 1.0])
+    sp = None if masks is None else getattr(masks, "support", None)
+    up = np.asarray(getattr(sp, "normal", (0.0, 0.0, 1.0)), dtype=np.float64)
+    return np.tile(up / np.linalg.norm(up), (len(obstacles), 1))
 
 
 def occupied_of(

@@ -125,6 +125,10 @@ class PointCloud:
     """The table the object of a complete scene stood on (a mesh or a fused scan read with
     ``--scene`` and no viewpoint: its table found and removed), or None; the pipeline takes it
     as the support plane, as a single view's ``sensor.plane``."""
+    obstacles: np.ndarray | None = None
+    """(K, 3) float64: the rest of a scene near the object (its other objects, a wall behind
+    it: ``sensor.table.scene_obstacles``), which the hand must clear and never touches; None
+    for a cloud without a scene."""
 
     @property
     def assumed(self) -> np.ndarray | None:
@@ -156,6 +160,12 @@ class PointCloud:
             raise ValueError(
                 f"sensor holds {len(self.sensor.points)} points but the cloud {len(pts)}"
             )
+        if self.obstacles is not None:
+            obs = np.array(self.obstacles, dtype=np.float64).reshape(-1, 3)
+            if not np.all(np.isfinite(obs)):
+                raise ValueError("obstacles must be finite")
+            obs.setflags(write=False)
+            object.__setattr__(self, "obstacles", obs)
 
     @property
     def n_points(self) -> int:

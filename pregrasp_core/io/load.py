@@ -22,6 +22,7 @@ from ..sensor import (
     detect_units,
     pcd_viewpoint_of,
     prepare_view,
+    scene_obstacles,
 )
 from ..sensor.veils import VeilParams
 from .cloud import (
@@ -346,6 +347,7 @@ def _scene_or_view(
     if opts.flying_pixels:
         info["scene"]["n_flying"] = view.n_flying
     _note_background(info, view.segmentation, cloud.source)
+    obstacles = _scene_obstacles(info, view.segmentation, view.points, view.viewpoint)
     if "n_subsampled_from" in info:
         del info["n_subsampled_from"]
     return PointCloud(
@@ -355,6 +357,7 @@ def _scene_or_view(
         info=info,
         viewpoint=view.viewpoint,
         sensor=view,
+        obstacles=obstacles,
     )
 
 
@@ -447,9 +450,10 @@ def complete_scene_object(
         "complete": True,
     }
     _note_background(info, seg, scene.source)
+    obstacles = _scene_obstacles(info, seg, pts[mask])
     nrm = None if scene.normals is None else np.asarray(scene.normals)[mask]
     obj, nrm = subsample(pts[mask], nrm, n_points, seed, info)
-    return PointCloud(obj, nrm, scene.source, info, support=seg.plane)
+    return PointCloud(obj, nrm, scene.source, info, support=seg.plane, obstacles=obstacles)
 
 
 def _scene_failure(source: str, exc: PregraspError, hint: str) -> PregraspError:
@@ -459,6 +463,37 @@ def _scene_failure(source: str, exc: PregraspError, hint: str) -> PregraspError:
     if isinstance(exc, NoTableError):
         return NoTableError(msg, exc.behind)
     return type(exc)(msg)
+
+
+def _scene_obstacles(
+    info: CloudInfo,
+    seg: TableSegmentation,
+    near: np.ndarray,
+    viewpoint: np.ndarray | None = None,
+) -> np.ndarray | None:
+    """The scene's obstacles near the object ``near`` (``sensor.table.scene_obstacles``: its
+    other objects and background planes within reach, thinned), and with a ``viewpoint`` the
+    hidden space behind each other object within reach (``sensor.occluded.neighbour_shadows``),
+    counted in ``scene.n_obstacles``; None when there are none."""
+    from ..sensor.occluded import neighbour_shadows
+    from ..sensor.table import OBSTACLE_MARGIN, OBSTACLE_VOXEL
+
+    obstacles = scene_obstacles(seg, near)
+    if viewpoint is not None and seg.obstacle_mask is not None and len(near):
+        lab = seg.cluster_labels
+        objects = seg.obstacle_mask & (lab >= 0)  # not the background planes (label -1)
+        if seg.background_mask is not None:
+            objects &= ~seg.background_mask
+        lo, hi = near.min(axis=0) - OBSTACLE_MARGIN, near.max(axis=0) + OBSTACLE_MARGIN
+        objects &= np.all((seg.points >= lo) & (seg.points <= hi), axis=1)
+        shadows = neighbour_shadows(
+            seg.points, lab, np.unique(lab[objects]), viewpoint, seg.plane, OBSTACLE_VOXEL
+        )
+        obstacles = np.concatenate([obstacles, shadows])
+    if len(obstacles) == 0:
+        return None
+    info["scene"]["n_obstacles"] = len(obstacles)
+    return obstacles
 
 
 def _note_background(info: CloudInfo, seg: TableSegmentation, source: str) -> None:

@@ -31,6 +31,7 @@ from .table import (
     TableSegmentation,
     fit_plane_ransac,
     remove_outliers,
+    scene_obstacles,
     segment_table,
     voxel_clusters,
 )
@@ -62,6 +63,7 @@ __all__ = [
     "prepare_view",
     "read_depth_file",
     "remove_outliers",
+    "scene_obstacles",
     "segment_table",
     "voxel_clusters",
 ]

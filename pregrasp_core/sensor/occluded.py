@@ -228,3 +228,41 @@ def occupied_space(
     for a in (pts, nrm, grid):
         a.setflags(write=False)
     return OccupiedSpace(pts, nrm, grid, lo @ F.T, F, v)
+
+
+NEIGHBOUR_DEPTH_MAX: float = 0.15
+"""Metres: the deepest a neighbour is assumed to reach behind its seen surface (its hidden
+space's margin is its width along the table, at least ``OccludedParams.margin``, at most
+this)."""
+
+
+def neighbour_shadows(
+    points: np.ndarray,
+    labels: np.ndarray,
+    clusters: np.ndarray,
+    viewpoint: np.ndarray,
+    plane: SupportPlane,
+    voxel: float,
+) -> np.ndarray:
+    """(K, 3) the hidden space behind each neighbour of a view's object, as obstacle points:
+    for each of ``clusters`` (labels into ``labels`` over ``points``: the other objects on the
+    table), :func:`occupied_space` of its seen points, with a margin of its width along the
+    table (a can seen from the front is as deep as it is wide; at least 2 cm, at most
+    :data:`NEIGHBOUR_DEPTH_MAX`) on a grid of ``voxel``. A hand that reaches behind a can
+    through its unseen back would otherwise find no point there. A neighbour whose grid passes
+    :data:`MAX_OCCLUDED_VOXELS` keeps only its seen points."""
+    out = [np.zeros((0, 3))]
+    n = np.asarray(plane.normal, dtype=np.float64)
+    for c in clusters:  # loop over the few neighbours within reach
+        cp = points[labels == c]
+        if len(cp) < 3:
+            continue
+        flat = cp - np.outer(cp @ n, n)
+        width = float(np.linalg.norm(np.ptp(flat, axis=0)))
+        margin = min(max(DEFAULT_OCCLUDED.margin, width), NEIGHBOUR_DEPTH_MAX)
+        params = OccludedParams(voxel=voxel, margin=margin)
+        try:
+            out.append(occupied_space(cp, cp, viewpoint, plane, params).points)
+        except WorkLimitError:
+            continue
+    return np.concatenate(out)

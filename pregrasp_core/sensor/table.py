@@ -249,6 +249,10 @@ class TableSegmentation:
     neither table nor object), or None when there are none."""
     background: tuple[BackgroundPlane, ...] = ()
     """The background planes set aside, largest first."""
+    obstacle_mask: np.ndarray | None = None
+    """(N,) bool: what else stands above the table (the other clusters of at least
+    ``min_cluster`` points that are not the table's noise tail, and the background planes):
+    the scene the hand must clear (:func:`scene_obstacles`); None when there is nothing."""
 
     @property
     def object_points(self) -> np.ndarray:
@@ -610,6 +614,7 @@ def _segment_on(
     labels = np.full(len(pts), -1, dtype=np.int64)
     object_mask = np.zeros(len(pts), dtype=bool)
     background_mask: np.ndarray | None = None
+    obstacle_mask: np.ndarray | None = None
     planes: tuple[BackgroundPlane, ...] = ()
     n_clusters = 0
     if len(above):
@@ -678,6 +683,12 @@ def _segment_on(
             # 4 cm ball), not a piece of the part
             joinable = counts if pick is None else np.where(counts <= counts[chosen], counts, 0)
             mine = merge_hidden(pts[above], lab, mine, joinable, vp, plane, params)
+        others = np.isin(lab, eligible) & ~mine
+        if np.any(others) or background_mask is not None:
+            obstacle_mask = np.zeros(len(pts), dtype=bool)
+            obstacle_mask[above[others]] = True
+            if background_mask is not None:
+                obstacle_mask |= background_mask
         object_mask[above[mine]] = True
         # the object's foot inside the band: band points whose neighbourhood stands above the
         # table, then the band points under the lowest slice of all that
@@ -704,7 +715,9 @@ def _segment_on(
             "view holds no object"
         )
     table_mask = in_band & ~object_mask
-    for arr in (labels, object_mask, table_mask, background_mask):
+    if obstacle_mask is not None:
+        obstacle_mask &= ~object_mask  # the foot's band points are the object's
+    for arr in (labels, object_mask, table_mask, background_mask, obstacle_mask):
         if arr is not None:
             arr.setflags(write=False)
     pts_ro = pts.copy()
@@ -721,7 +734,40 @@ def _segment_on(
         n_clusters=n_clusters,
         background_mask=background_mask,
         background=planes,
+        obstacle_mask=obstacle_mask,
     )
+
+
+OBSTACLE_MARGIN: float = 0.3
+"""Metres: the scene's other points farther than this from the object's bounding box (grown
+along every axis) are not obstacles: beyond the hand's reach from any pre-grasp around it (the
+hand is 0.2 m from palm base to fingertip)."""
+
+OBSTACLE_VOXEL: float = 0.004
+"""Metres: the obstacle points are thinned to one per voxel of this side; the planner and the
+pool test points inside link boxes at least 20 mm wide, so a 4 mm lattice leaves no gap a link
+slips through (a wall of 80,000 points becomes about 10,000)."""
+
+
+def scene_obstacles(
+    seg: TableSegmentation,
+    near: np.ndarray,
+    margin: float = OBSTACLE_MARGIN,
+    voxel: float = OBSTACLE_VOXEL,
+) -> np.ndarray:
+    """(K, 3) the scene's obstacles near an object: the points of ``seg.obstacle_mask`` inside
+    the bounding box of ``near`` (the object's points, completed or not) grown by ``margin``,
+    one per ``voxel`` (the first in the points' order); empty when there are none."""
+    if seg.obstacle_mask is None or len(near) == 0:
+        return np.zeros((0, 3))
+    pts = seg.points[seg.obstacle_mask]
+    lo, hi = near.min(axis=0) - margin, near.max(axis=0) + margin
+    pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
+    if len(pts) == 0:
+        return np.zeros((0, 3))
+    ijk = np.floor((pts - lo) / voxel).astype(np.int64)
+    _, first = np.unique(ijk, axis=0, return_index=True)
+    return pts[np.sort(first)]
 
 
 def _picks_background(
