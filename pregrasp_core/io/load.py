@@ -368,16 +368,14 @@ def _alone(
     ``viewpoint``: cut to ``n_points`` by :func:`~.cloud.subsample`, as a cloud is (the same
     points as ``--no-scene``), with the warning that says so."""
     info = cloud.info.copy()
-    warns = list(info.get("warnings", []))
     cam = ", ".join(f"{v:.4g}" for v in viewpoint)
-    add_warning(
-        warns,
+    _warn(
+        info,
         f"{cloud.source}: no table in the view (nothing stands above the plane the table search "
         f"found, {why.behind} points lie behind it): read as one object seen from the camera at "
         f"({cam}), its normals facing the camera; its unseen back is not completed (keep the "
         "table in the view for that)",
     )
-    info["warnings"] = warns
     pts, nrm = subsample(cloud.points, cloud.normals, n_points, seed, info)
     return PointCloud(points=pts, normals=nrm, source=cloud.source, info=info, viewpoint=viewpoint)
 
@@ -427,20 +425,18 @@ def complete_scene_object(
             f"least {MIN_POINTS} are needed (--pick X Y Z chooses another object)"
         )
     info = scene.info.copy()
-    warns = list(info.get("warnings", []))
-    add_warning(
-        warns,
+    _warn(
+        info,
         f"{scene.source}: read as a complete scene (no viewpoint): the table removed "
         f"({len(pts) - int(mask.sum())} points with what lies under it), the object kept whole, "
         "nothing completed; for a single view give the camera with --viewpoint X Y Z",
     )
     if down:
-        add_warning(
-            warns,
+        _warn(
+            info,
             f"{scene.source}: the objects lie under the table along +z: the scene is read "
             "upside down (up -z)",
         )
-    info["warnings"] = warns
     info["scene"] = {
         "n_scene": scene.n_points,
         "n_table": int(np.count_nonzero(seg.table_mask)),
@@ -454,6 +450,13 @@ def complete_scene_object(
     nrm = None if scene.normals is None else np.asarray(scene.normals)[mask]
     obj, nrm = subsample(pts[mask], nrm, n_points, seed, info)
     return PointCloud(obj, nrm, scene.source, info, support=seg.plane, obstacles=obstacles)
+
+
+def _warn(info: CloudInfo, text: str) -> None:
+    """``info`` with the warning ``text`` added (``add_warning``: each warning once)."""
+    warns = list(info.get("warnings", []))
+    add_warning(warns, text)
+    info["warnings"] = warns
 
 
 def _scene_failure(source: str, exc: PregraspError, hint: str) -> PregraspError:
@@ -503,14 +506,12 @@ def _note_background(info: CloudInfo, seg: TableSegmentation, source: str) -> No
     if not planes:
         return
     info["scene"]["n_background"] = int(sum(b.n_points for b in planes))
-    warns = list(info.get("warnings", []))
-    add_warning(
-        warns,
+    _warn(
+        info,
         f"{source}: set aside as background, not an object (a wall, a board: flat and at least "
         f"{SegmentParams().background_span:g} m long): "
         f"{'; '.join(b.describe() for b in planes)}; --pick X Y Z on one keeps it",
     )
-    info["warnings"] = warns
 
 
 SCENE_OVERSAMPLE: int = 8
@@ -536,14 +537,12 @@ def _with_table_hint(cloud: PointCloud) -> PointCloud:
     if span_low.max() < 0.25 or np.any(span_up > 0.6 * span_low):
         return cloud
     info = cloud.info.copy()
-    warns = list(info.get("warnings", []))
-    add_warning(
-        warns,
+    _warn(
+        info,
         f"{cloud.source}: {100.0 * low.mean():.0f} % of the points lie in one plane at its "
         f"lowest z, {span_low[0]:.2f} x {span_low[1]:.2f} m, wider than what stands on it: if "
         "that is a table, read the file with --scene (the table found and removed)",
     )
-    info["warnings"] = warns
     return dataclasses.replace(cloud, info=info)
 
 

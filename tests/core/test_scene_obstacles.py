@@ -9,12 +9,11 @@ rendered from: the wall's plane and the neighbour's mesh."""
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
-from scipy.spatial.transform import Rotation
+from test_depth_input import write_scene_pcd
 
 from pregrasp_core.hand import Hand
 from pregrasp_core.io import SensorOptions, load_point_cloud
@@ -22,20 +21,6 @@ from pregrasp_core.paths import OBJECTS_DIR
 from pregrasp_core.pipeline import PipelineParams, run_pipeline, with_cloud
 from pregrasp_core.sensor import Intrinsics
 from pregrasp_core.sensor.synthetic import orbit_camera, render_view
-
-
-def _pcd(path: Path, points: np.ndarray, T: np.ndarray) -> Path:
-    """A binary PCD of ``points`` with the camera pose ``T`` as its VIEWPOINT."""
-    qx, qy, qz, qw = Rotation.from_matrix(T[:3, :3]).as_quat()
-    tx, ty, tz = T[:3, 3]
-    head = (
-        "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
-        f"WIDTH {len(points)}\nHEIGHT 1\n"
-        f"VIEWPOINT {tx:.9g} {ty:.9g} {tz:.9g} {qw:.9g} {qx:.9g} {qy:.9g} {qz:.9g}\n"
-        f"POINTS {len(points)}\nDATA binary\n"
-    )
-    path.write_bytes(head.encode() + np.asarray(points, dtype="<f4").tobytes())
-    return path
 
 
 def _view(
@@ -77,7 +62,9 @@ def test_a_wall_behind_the_object_keeps_every_grasp_out_of_it(tmp_path, hand) ->
     wall = trimesh.creation.box((3.0, 0.001, 1.7))
     wall.apply_translation((0.0, 0.0805, 0.65))
     pts, T = _view([mug, wall.subdivide_to_size(0.05)], 270.0, seed=3)
-    cloud = load_point_cloud(_pcd(tmp_path / "wall.pcd", pts, T), n_points=None)
+    cloud = load_point_cloud(
+        write_scene_pcd(tmp_path / "wall.pcd", pts, T, binary=True), n_points=None
+    )
     assert cloud.obstacles is not None and cloud.info["scene"]["n_obstacles"] > 1000
     assert np.all(np.abs(cloud.obstacles[:, 1] - 0.08) < 0.01)  # the wall, not the mug
     params = with_cloud(PipelineParams(), cloud)
@@ -99,8 +86,8 @@ def test_a_neighbour_in_clutter_is_not_touched_by_the_grasps_of_the_object(tmp_p
     can = trimesh.creation.cylinder(radius=0.033, height=0.12, sections=48)
     can.apply_translation((0.098, 0.0, 0.06))
     pts, T = _view([ball, can], 250.0, seed=4)
-    cloud = load_point_cloud(_pcd(tmp_path / "clutter.pcd", pts, T), n_points=None,
-                             sensor=SensorOptions(pick=(0.0, 0.0, 0.035)))  # fmt: skip
+    path = write_scene_pcd(tmp_path / "clutter.pcd", pts, T, binary=True)
+    cloud = load_point_cloud(path, n_points=None, sensor=SensorOptions(pick=(0.0, 0.0, 0.035)))
     assert cloud.obstacles is not None
     obs = cloud.obstacles  # the can's seen points and the space hidden behind it
     assert np.all(obs[:, 0] > 0.098 - 0.033 - 0.005)
