@@ -31,6 +31,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -191,8 +192,7 @@ def _legend_shot(server, app, chromium: str, what: str, legend_row: str, path: P
                 page.evaluate(
                     "() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))"
                 )
-            page.screenshot(path=str(path), timeout=180_000)
-            print(f"wrote {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}")
+            _screenshot(page, path)
     finally:
         app.close()
         server.stop()
@@ -255,8 +255,7 @@ def rim_pinch_shot(out: Path, chromium: str) -> int:
             if page is None:
                 return 1
             shot = out / "rim_pinch.png"
-            page.screenshot(path=str(shot), timeout=180_000)
-            print(f"wrote {shot.relative_to(ROOT) if shot.is_relative_to(ROOT) else shot}")
+            _screenshot(page, shot)
     finally:
         app.close()
         server.stop()
@@ -298,12 +297,17 @@ def up_shots(out: Path, chromium: str) -> int:
                     )
                     _settle(page, app)
                 shot = out / f"{name}.png"
-                page.screenshot(path=str(shot), timeout=180_000)
-                print(f"wrote {shot.relative_to(ROOT) if shot.is_relative_to(ROOT) else shot}")
+                _screenshot(page, shot)
     finally:
         app.close()
         server.stop()
     return 0
+
+
+def _screenshot(page: Any, path: Path) -> None:
+    """Write the page's screenshot to ``path`` and say so."""
+    page.screenshot(path=str(path), timeout=180_000)
+    print(f"wrote {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}")
 
 
 def main() -> int:
@@ -366,8 +370,7 @@ def main() -> int:
                 _settle(page, app)
                 _close_notifications(page)
                 path = args.out / f"{name}.png"
-                page.screenshot(path=str(path), timeout=180_000)
-                print(f"wrote {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}")
+                _screenshot(page, path)
 
             c.set_ghosts_visible(False)
             c.set_face_masks_visible(False)
