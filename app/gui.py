@@ -44,6 +44,7 @@ from .scene_data import (
     contact_arrays,
     ghost_selection,
     mask_matrix,
+    neighbour_hidden_points,
     ranked_grasps,
     unit_fix,
     unit_label,
@@ -743,6 +744,7 @@ class Gui:
         self._set("pick_mode.disabled", self.pick_mode, "disabled", not scene)
         self._set("flying.disabled", self.flying, "disabled", not scene or s.loaded is not None)
         hidden = getattr(s.result, "occupied", None) is not None  # --occluded occupied views
+        hidden = hidden or len(neighbour_hidden_points(s.cloud)) > 0  # behind other objects
         self._set("show_hidden.disabled", self.show_hidden, "disabled", not hidden)
         if s.loaded is not None:  # a result file: nothing to plan or export again
             self._set("plan.disabled", self.plan, "disabled", True)
@@ -816,6 +818,13 @@ class Gui:
             text += (
                 f"\n\nhidden space (occupied): {occ.volume * 1e6:.0f} cm^3, "
                 f"{len(occ.points)} obstacle points, {self.scene.n_hidden_points_shown} drawn"
+            )
+        obstacles = getattr(s.cloud, "obstacles", None)
+        if obstacles is not None and len(obstacles):  # the rest of the scene near the object
+            behind = len(neighbour_hidden_points(s.cloud))
+            text += (
+                f"\n\nscene obstacles: {len(obstacles)} points (other objects and walls near the "
+                f"object; {behind} of them the space hidden behind the other objects)"
             )
         view = getattr(s.cloud, "sensor", None) is not None
         if view and s.planned and (note := occluded_note(s.result)):  # which setting planned it
@@ -1020,7 +1029,8 @@ LEGEND = (
     (
         "pale blue points",
         "the space hidden behind a single depth view, kept free of the hand (--occluded "
-        "occupied; the boundary of its 3 mm voxels; tick 'hidden space' to show or hide it)",
+        "occupied; the boundary of its 3 mm voxels), and behind the scene's other objects "
+        "(always: their unseen backs); tick 'hidden space' to show or hide it",
     ),
     ("orange dots and cones", "contacts on assumed (dark) points: the grasp rests on a guess"),
     ("light grey points", "the table of a depth-camera scene (removed from the object)"),

@@ -19,6 +19,8 @@ import numpy as np
 import viser
 from scipy.spatial.transform import Rotation
 
+from pregrasp_core.sensor.table import OBSTACLE_VOXEL
+
 from .scene_data import (
     GHOST_THICKNESS,
     HIDDEN_POINTS,
@@ -39,6 +41,7 @@ from .scene_data import (
     ghost_selection,
     hand_ghost_segments,
     hidden_space_points,
+    neighbour_hidden_points,
     node_color,
     node_colors,
     pool_types,
@@ -419,19 +422,27 @@ class SceneRenderer:
 
     def _draw_hidden(self, state: AppState) -> None:
         """The space hidden behind a single depth view that the pool and the planner kept the
-        hand out of (``--occluded occupied``): its boundary voxels as one pale point cloud, or
-        nothing (a complete cloud, ``completed``, the layer switched off)."""
+        hand out of: the object's (``--occluded occupied``: its boundary voxels) and the other
+        objects' (their hidden space, an obstacle in every setting), as one pale point cloud
+        of at most ``HIDDEN_POINTS``, or nothing (a complete cloud, the layer switched off)."""
         occ = attr_or_none(state.result, "occupied")
-        pts = hidden_space_points(occ if state.view.show_hidden_space else None, HIDDEN_POINTS)
+        show = state.view.show_hidden_space
+        pts = hidden_space_points(occ if show else None, HIDDEN_POINTS)
+        others = neighbour_hidden_points(state.cloud) if show else np.zeros((0, 3))
+        room = HIDDEN_POINTS - len(pts)
+        if len(others) > room:
+            others = others[np.linspace(0, len(others) - 1, max(room, 0)).astype(np.int64)]
+        pts = np.concatenate([pts, others])
         self.n_hidden_points_shown = len(pts)
         if not len(pts):
             self._remove("hidden")
             return
+        voxel = float(occ.voxel) if occ is not None else OBSTACLE_VOXEL
         self._handles["hidden"] = self.server.scene.add_point_cloud(
             NAMES["hidden"],
             points=pts.astype(np.float32),
             colors=HIDDEN_RGB,
-            point_size=HIDDEN_POINT_SIZE * float(occ.voxel),
+            point_size=HIDDEN_POINT_SIZE * voxel,
             precision="float32",
             point_shape="rounded",
             point_shading=CLOUD_SHADING,

@@ -445,6 +445,19 @@ def scene_backdrop(sensor: Any, max_points: int = 30000) -> tuple[np.ndarray, np
     return np.concatenate([np.asarray(seg.points, dtype=np.float64)[idx], fly]), cols
 
 
+def neighbour_hidden_points(cloud: Any) -> np.ndarray:
+    """(K, 3) the space hidden behind the other objects of a single view's scene, which the
+    pool and the planner keep the hand out of (the last ``scene.n_obstacles_hidden`` points of
+    ``cloud.obstacles``: ``docs/limits.md``, "The rest of the scene as obstacles"); empty when
+    there is none."""
+    obstacles = attr_or_none(cloud, "obstacles")
+    info = attr_or_none(cloud, "info") or {}
+    n = int((info.get("scene") or {}).get("n_obstacles_hidden", 0) or 0)
+    if obstacles is None or n <= 0:
+        return np.zeros((0, 3))
+    return np.asarray(obstacles, dtype=np.float64)[-n:]
+
+
 def hidden_space_points(occupied: Any, max_points: int = HIDDEN_POINTS) -> np.ndarray:
     """(K, 3) what the hidden-space layer draws of an ``OccupiedSpace``: the centres of the
     hidden region's boundary voxels (hidden voxels with a face neighbour that is not hidden,

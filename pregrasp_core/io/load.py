@@ -476,8 +476,9 @@ def _scene_obstacles(
 ) -> np.ndarray | None:
     """The scene's obstacles near the object ``near`` (``sensor.table.scene_obstacles``: its
     other objects and background planes within reach, thinned), and with a ``viewpoint`` the
-    hidden space behind each other object within reach (``sensor.occluded.neighbour_shadows``),
-    counted in ``scene.n_obstacles``; None when there are none."""
+    hidden space behind each other object within reach (``sensor.occluded.neighbour_shadows``,
+    last, counted in ``scene.n_obstacles_hidden``), counted in ``scene.n_obstacles``; None when
+    there are none."""
     from ..sensor.occluded import neighbour_shadows
     from ..sensor.table import OBSTACLE_MARGIN, OBSTACLE_VOXEL
 
@@ -493,6 +494,8 @@ def _scene_obstacles(
             seg.points, lab, np.unique(lab[objects]), viewpoint, seg.plane, OBSTACLE_VOXEL
         )
         obstacles = np.concatenate([obstacles, shadows])
+        if len(shadows):
+            info["scene"]["n_obstacles_hidden"] = len(shadows)  # the last ones
     if len(obstacles) == 0:
         return None
     info["scene"]["n_obstacles"] = len(obstacles)
