@@ -12,7 +12,8 @@ completed and no hidden space (``--completed`` takes only that one). ``--rim`` t
 ``--flying`` takes only ``flying_pixels.png``: the depth demo's view with every edge pixel
 mixed, opened with ``--flying-pixels`` (:func:`flying_pixels_shot`). ``--up`` takes only
 ``up_lying.png`` and ``up_standing.png``: a Y-up bottle read z-up, then with up +y
-(:func:`up_shots`).
+(:func:`up_shots`). ``--clutter`` takes only ``clutter_obstacles.png``: a ball picked among a
+can, a box and a pen, the space hidden behind them drawn (:func:`clutter_shot`).
 
     .venv/bin/python scripts/screenshots.py [INPUT] [--out docs/screenshots] [--points 20000]
     .venv/bin/python scripts/screenshots.py --depth
@@ -20,6 +21,7 @@ mixed, opened with ``--flying-pixels`` (:func:`flying_pixels_shot`). ``--up`` ta
     .venv/bin/python scripts/screenshots.py --rim
     .venv/bin/python scripts/screenshots.py --flying
     .venv/bin/python scripts/screenshots.py --up
+    .venv/bin/python scripts/screenshots.py --clutter
 """
 
 from __future__ import annotations
@@ -205,8 +207,6 @@ def flying_pixels_shot(out: Path, chromium: str) -> int:
     more than 2 cm mixed (``add_mixed_pixels``, the time-of-flight model), written as a PCD scene
     and opened as ``pregrasp view SCENE.pcd --flying-pixels`` opens it: the dropped points in
     magenta behind the mug's outline, its best grasp planned on start and closed."""
-    import importlib.util
-
     import numpy as np
     import trimesh
     import viser
@@ -216,11 +216,7 @@ def flying_pixels_shot(out: Path, chromium: str) -> int:
     from pregrasp_core.paths import OBJECTS_DIR
     from pregrasp_core.sensor.synthetic import add_mixed_pixels
 
-    spec = importlib.util.spec_from_file_location("make_views", ROOT / "scripts" / "make_views.py")
-    assert spec is not None and spec.loader is not None
-    mv = importlib.util.module_from_spec(spec)
-    sys.modules["make_views"] = mv
-    spec.loader.exec_module(mv)
+    mv = _make_views()
     name, azimuth, noise = mv.DEMO
     mesh = trimesh.load(OBJECTS_DIR / f"{name}.obj", force="mesh")
     view = mv.make_view(mesh, azimuth, noise, mv.view_seed(name, 0, noise))
@@ -232,6 +228,61 @@ def flying_pixels_shot(out: Path, chromium: str) -> int:
     config = ViewerConfig(input=path, sensor=SensorOptions(flying_pixels=True), plan_on_start=True)
     return _legend_shot(server, run(config, server), chromium, "the veiled view",
                         "magenta points", out / "flying_pixels.png")  # fmt: skip
+
+
+def clutter_shot(out: Path, chromium: str) -> int:
+    """``out/clutter_obstacles.png``: a depth view (1 mm of noise, camera at 150 degrees and 40
+    up) of a soda-can cylinder, a 4 cm ball, a small box and a pen lying down, 4-5 cm apart,
+    written as a PCD scene and opened with the ball picked and ``--occluded completed``: the
+    other objects brown, the space hidden behind them in pale blue (the hand's obstacles with
+    their points, ``docs/limits.md``), the ball's best grasp planned on start and closed."""
+    import numpy as np
+    import trimesh
+    import viser
+
+    from app.server import ViewerConfig, run
+    from pregrasp_core.io import SensorOptions
+    from pregrasp_core.pipeline import PipelineParams
+    from pregrasp_core.sensor import Intrinsics
+    from pregrasp_core.sensor.synthetic import LABEL_OBJECT, orbit_camera, render_view
+
+    rot = trimesh.transformations.rotation_matrix
+    parts = [
+        (trimesh.creation.cylinder(0.033, 0.12, sections=48), (0.0, 0.0)),
+        (trimesh.creation.icosphere(3, 0.02), (0.09, 0.02)),
+        (trimesh.creation.box([0.05, 0.03, 0.02]), (-0.05, 0.09)),
+        (trimesh.creation.cylinder(0.005, 0.14).apply_transform(rot(np.pi / 2, [0, 1, 0])),
+         (0.0, -0.09)),
+    ]  # fmt: skip
+    for m, (x, y) in parts:
+        m.apply_translation([x, y, -m.bounds[0, 2]])
+    mesh = trimesh.util.concatenate([m for m, _ in parts])
+    T = orbit_camera(np.zeros(3), 0.55, np.radians(150.0), np.radians(40.0))
+    view = render_view(mesh.vertices, mesh.faces, T, Intrinsics(420.0, 420.0, 239.5, 179.5),
+                       480, 360, table_half=0.35, noise=0.001,
+                       rng=np.random.default_rng(1))  # fmt: skip
+    pts, lab = view.points_world()
+    mv = _make_views()
+    path = Path(tempfile.mkdtemp(prefix="pregrasp-clutter-")) / "clutter.pcd"
+    path.write_bytes(mv.pcd_bytes(pts, np.where(lab == LABEL_OBJECT, 2, 1), T))
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    pick = SensorOptions(pick=(0.09, 0.02, 0.02))
+    params = PipelineParams(occluded="completed")
+    config = ViewerConfig(input=path, sensor=pick, params=params, plan_on_start=True)
+    return _legend_shot(server, run(config, server), chromium, "the clutter scene",
+                        "pale blue points", out / "clutter_obstacles.png")  # fmt: skip
+
+
+def _make_views():
+    """``scripts/make_views.py`` as a module (its PCD writer and the demo view)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("make_views", ROOT / "scripts" / "make_views.py")
+    assert spec is not None and spec.loader is not None
+    mv = importlib.util.module_from_spec(spec)
+    sys.modules["make_views"] = mv
+    spec.loader.exec_module(mv)
+    return mv
 
 
 def rim_pinch_shot(out: Path, chromium: str) -> int:
@@ -325,7 +376,12 @@ def main() -> int:
     ap.add_argument("--flying", action="store_true", help=flying_help)
     up_help = "only a Y-up bottle (GLB) read z-up, then with up +y (up_lying/up_standing.png)"
     ap.add_argument("--up", action="store_true", help=up_help)
+    clutter_help = "only a ball picked in clutter, its neighbours' hidden space drawn"
+    ap.add_argument("--clutter", action="store_true", help=clutter_help)
     args = ap.parse_args()
+    if args.clutter:
+        args.out.mkdir(parents=True, exist_ok=True)
+        return clutter_shot(args.out, args.chromium)
     if args.up:
         args.out.mkdir(parents=True, exist_ok=True)
         return up_shots(args.out, args.chromium)
