@@ -23,6 +23,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # one BLAS thread, before nu
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
+import importlib.util  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -32,7 +33,6 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
-from scipy.spatial.transform import Rotation  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this checkout's pregrasp_core, not an installed one
@@ -42,23 +42,21 @@ from pregrasp_core.io import SensorOptions, load_point_cloud  # noqa: E402
 from pregrasp_core.paths import OBJECTS_DIR  # noqa: E402
 from pregrasp_core.pipeline import PipelineParams, run_pipeline, with_cloud  # noqa: E402
 from pregrasp_core.sensor import Intrinsics  # noqa: E402
-from pregrasp_core.sensor.synthetic import orbit_camera, render_view  # noqa: E402
+from pregrasp_core.sensor.synthetic import clutter_meshes, orbit_camera, render_view  # noqa: E402
 
 K = Intrinsics(420.0, 420.0, 239.5, 179.5)
+_spec = importlib.util.spec_from_file_location("make_views", ROOT / "scripts" / "make_views.py")
+assert _spec is not None and _spec.loader is not None
+MAKE_VIEWS = importlib.util.module_from_spec(_spec)
+sys.modules["make_views"] = MAKE_VIEWS
+_spec.loader.exec_module(MAKE_VIEWS)
 INTO_MM = 4.0
 
 
 def write_pcd(path: Path, points: np.ndarray, T: np.ndarray) -> Path:
-    """A binary PCD of ``points`` with the camera pose ``T`` as its VIEWPOINT."""
-    qx, qy, qz, qw = Rotation.from_matrix(T[:3, :3]).as_quat()
-    tx, ty, tz = T[:3, 3]
-    head = (
-        "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
-        f"WIDTH {len(points)}\nHEIGHT 1\n"
-        f"VIEWPOINT {tx:.9g} {ty:.9g} {tz:.9g} {qw:.9g} {qx:.9g} {qy:.9g} {qz:.9g}\n"
-        f"POINTS {len(points)}\nDATA binary\n"
-    )
-    path.write_bytes(head.encode() + np.asarray(points, dtype="<f4").tobytes())
+    """``points`` as a user's PCD scene with the camera pose ``T`` as its VIEWPOINT
+    (``scripts/make_views.py``'s writer; every point labelled 1)."""
+    path.write_bytes(MAKE_VIEWS.pcd_bytes(points, np.ones(len(points), dtype=np.uint8), T))
     return path
 
 
@@ -117,16 +115,7 @@ def main() -> int:
         cloud = load_point_cloud(write_pcd(tmp / f"wall{wall_y}.pcd", pts, T), n_points=None)
         row(f"mug, wall at y = {wall_y:.2f}", cloud, hand, args.top,
             lambda v, y=wall_y: float(v[:, 1].max()) - y)  # fmt: skip
-    rot = trimesh.transformations.rotation_matrix
-    parts = {
-        "can": trimesh.creation.cylinder(0.033, 0.12, sections=48),
-        "ball": trimesh.creation.icosphere(3, 0.02),
-        "box": trimesh.creation.box([0.05, 0.03, 0.02]),
-        "pen": trimesh.creation.cylinder(0.005, 0.14).apply_transform(rot(np.pi / 2, [0, 1, 0])),
-    }
-    places = {"can": (0.0, 0.0), "ball": (0.09, 0.02), "box": (-0.05, 0.09), "pen": (0.0, -0.09)}
-    for name, m in parts.items():
-        m.apply_translation([*places[name], -m.bounds[0, 2]])
+    parts = clutter_meshes()
     for az in (30.0, 150.0, 270.0):
         T = orbit_camera(np.zeros(3), 0.55, np.radians(az), np.radians(40.0))
         path = write_pcd(tmp / f"clutter{int(az)}.pcd", render(list(parts.values()), T, 0.35), T)

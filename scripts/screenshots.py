@@ -244,19 +244,14 @@ def clutter_shot(out: Path, chromium: str) -> int:
     from pregrasp_core.io import SensorOptions
     from pregrasp_core.pipeline import PipelineParams
     from pregrasp_core.sensor import Intrinsics
-    from pregrasp_core.sensor.synthetic import LABEL_OBJECT, orbit_camera, render_view
+    from pregrasp_core.sensor.synthetic import (
+        LABEL_OBJECT,
+        clutter_meshes,
+        orbit_camera,
+        render_view,
+    )
 
-    rot = trimesh.transformations.rotation_matrix
-    parts = [
-        (trimesh.creation.cylinder(0.033, 0.12, sections=48), (0.0, 0.0)),
-        (trimesh.creation.icosphere(3, 0.02), (0.09, 0.02)),
-        (trimesh.creation.box([0.05, 0.03, 0.02]), (-0.05, 0.09)),
-        (trimesh.creation.cylinder(0.005, 0.14).apply_transform(rot(np.pi / 2, [0, 1, 0])),
-         (0.0, -0.09)),
-    ]  # fmt: skip
-    for m, (x, y) in parts:
-        m.apply_translation([x, y, -m.bounds[0, 2]])
-    mesh = trimesh.util.concatenate([m for m, _ in parts])
+    mesh = trimesh.util.concatenate(list(clutter_meshes().values()))
     T = orbit_camera(np.zeros(3), 0.55, np.radians(150.0), np.radians(40.0))
     view = render_view(mesh.vertices, mesh.faces, T, Intrinsics(420.0, 420.0, 239.5, 179.5),
                        480, 360, table_half=0.35, noise=0.001,

@@ -24,6 +24,8 @@ from ..sensor import (
     prepare_view,
     scene_obstacles,
 )
+from ..sensor.occluded import neighbour_shadows
+from ..sensor.table import OBSTACLE_MARGIN, OBSTACLE_VOXEL
 from ..sensor.veils import VeilParams
 from .cloud import (
     DEFAULT_MAX_BYTES,
@@ -479,9 +481,6 @@ def _scene_obstacles(
     hidden space behind each other object within reach (``sensor.occluded.neighbour_shadows``,
     last, counted in ``scene.n_obstacles_hidden``), counted in ``scene.n_obstacles``; None when
     there are none."""
-    from ..sensor.occluded import neighbour_shadows
-    from ..sensor.table import OBSTACLE_MARGIN, OBSTACLE_VOXEL
-
     obstacles = scene_obstacles(seg, near)
     if viewpoint is not None and seg.obstacle_mask is not None and len(near):
         lab = seg.cluster_labels

@@ -19,6 +19,7 @@ Noise: Gaussian along the ray, on the range (the distance from the camera), of s
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -260,3 +261,23 @@ def add_mixed_pixels(
     labels = view.labels.copy()
     labels[pick] = LABEL_MIXED
     return SyntheticView(mixed, labels, view.T_world_camera, view.intrinsics, view.noise)
+
+
+def clutter_meshes() -> dict[str, Any]:
+    """The clutter scene of the tests, the benchmarks and the documentation (trimesh meshes
+    standing on z = 0, 4-5 cm apart): ``can`` (a 66 mm cylinder, 12 cm tall) at the origin,
+    ``ball`` (4 cm) at (0.09, 0.02), ``box`` (5 x 3 x 2 cm) at (-0.05, 0.09) and ``pen`` (1 cm
+    thick, 14 cm long, lying along x) at (0, -0.09)."""
+    import trimesh
+
+    rot = trimesh.transformations.rotation_matrix
+    parts = {
+        "can": trimesh.creation.cylinder(0.033, 0.12, sections=48),
+        "ball": trimesh.creation.icosphere(3, 0.02),
+        "box": trimesh.creation.box([0.05, 0.03, 0.02]),
+        "pen": trimesh.creation.cylinder(0.005, 0.14).apply_transform(rot(np.pi / 2, [0, 1, 0])),
+    }
+    places = {"can": (0.0, 0.0), "ball": (0.09, 0.02), "box": (-0.05, 0.09), "pen": (0.0, -0.09)}
+    for name, m in parts.items():
+        m.apply_translation([*places[name], -m.bounds[0, 2]])
+    return parts

@@ -31,22 +31,18 @@ K = Intrinsics(300.0, 300.0, 159.5, 119.5)
 DEMO = OBJECTS_DIR / "mug_depth.png"
 
 
-def write_scene_pcd(path: Path, points: np.ndarray, T: np.ndarray, binary: bool = False) -> Path:
-    """A PCD of ``points`` (ascii, or binary float32) with the camera pose ``T`` as VIEWPOINT."""
+def write_scene_pcd(path: Path, points: np.ndarray, T: np.ndarray) -> None:
+    """An ascii PCD of ``points`` with the camera pose ``T`` as VIEWPOINT."""
     qx, qy, qz, qw = Rotation.from_matrix(T[:3, :3]).as_quat()
     tx, ty, tz = T[:3, 3]
     head = (
         "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
         f"WIDTH {len(points)}\nHEIGHT 1\n"
         f"VIEWPOINT {tx:.9g} {ty:.9g} {tz:.9g} {qw:.9g} {qx:.9g} {qy:.9g} {qz:.9g}\n"
-        f"POINTS {len(points)}\nDATA {'binary' if binary else 'ascii'}\n"
+        f"POINTS {len(points)}\nDATA ascii\n"
     )
-    if binary:
-        path.write_bytes(head.encode() + np.asarray(points, dtype="<f4").tobytes())
-    else:
-        body = "\n".join(" ".join(f"{v:.6f}" for v in p) for p in points)
-        path.write_text(head + body + "\n")
-    return path
+    body = "\n".join(" ".join(f"{v:.6f}" for v in p) for p in points)
+    path.write_text(head + body + "\n")
 
 
 def two_boxes() -> tuple[trimesh.Trimesh, np.ndarray, np.ndarray]:

@@ -13,7 +13,6 @@ import dataclasses
 import numpy as np
 import pytest
 import trimesh
-from test_depth_input import write_scene_pcd
 
 from pregrasp_core.hand import Hand
 from pregrasp_core.io import SensorOptions, load_point_cloud
@@ -53,7 +52,7 @@ def hand() -> Hand:
     return Hand.load()
 
 
-def test_a_wall_behind_the_object_keeps_every_grasp_out_of_it(tmp_path, hand) -> None:
+def test_a_wall_behind_the_object_keeps_every_grasp_out_of_it(tmp_path, hand, make_views) -> None:
     """The mug with a handle 4 cm in front of a wall (its back at y = 0.04, the wall at
     y = 0.08): with the wall as an obstacle no kept grasp's hand reaches more than 4 mm (the
     obstacle lattice) past the wall's plane and force closure remains; planned on the same
@@ -62,9 +61,9 @@ def test_a_wall_behind_the_object_keeps_every_grasp_out_of_it(tmp_path, hand) ->
     wall = trimesh.creation.box((3.0, 0.001, 1.7))
     wall.apply_translation((0.0, 0.0805, 0.65))
     pts, T = _view([mug, wall.subdivide_to_size(0.05)], 270.0, seed=3)
-    cloud = load_point_cloud(
-        write_scene_pcd(tmp_path / "wall.pcd", pts, T, binary=True), n_points=None
-    )
+    path = tmp_path / "wall.pcd"
+    path.write_bytes(make_views.pcd_bytes(pts, np.ones(len(pts), dtype=np.uint8), T))
+    cloud = load_point_cloud(path, n_points=None)
     assert cloud.obstacles is not None and cloud.info["scene"]["n_obstacles"] > 1000
     assert np.all(np.abs(cloud.obstacles[:, 1] - 0.08) < 0.01)  # the wall, not the mug
     params = with_cloud(PipelineParams(), cloud)
@@ -76,7 +75,9 @@ def test_a_wall_behind_the_object_keeps_every_grasp_out_of_it(tmp_path, hand) ->
     assert max(float(v[:, 1].max()) - 0.08 for v in _hands(bare, hand)) > 0.01
 
 
-def test_a_neighbour_in_clutter_is_not_touched_by_the_grasps_of_the_object(tmp_path, hand):
+def test_a_neighbour_in_clutter_is_not_touched_by_the_grasps_of_the_object(
+    tmp_path, hand, make_views
+):
     """A soda can 3 cm beside a 7 cm ball on the table: picking the ball, the obstacles are the
     can's seen points and the space hidden behind them (its unseen back), none near the ball;
     no kept grasp's hand enters the can (by the true cylinder: at most 4 mm inside); without
@@ -86,7 +87,8 @@ def test_a_neighbour_in_clutter_is_not_touched_by_the_grasps_of_the_object(tmp_p
     can = trimesh.creation.cylinder(radius=0.033, height=0.12, sections=48)
     can.apply_translation((0.098, 0.0, 0.06))
     pts, T = _view([ball, can], 250.0, seed=4)
-    path = write_scene_pcd(tmp_path / "clutter.pcd", pts, T, binary=True)
+    path = tmp_path / "clutter.pcd"
+    path.write_bytes(make_views.pcd_bytes(pts, np.ones(len(pts), dtype=np.uint8), T))
     cloud = load_point_cloud(path, n_points=None, sensor=SensorOptions(pick=(0.0, 0.0, 0.035)))
     assert cloud.obstacles is not None
     obs = cloud.obstacles  # the can's seen points and the space hidden behind it

@@ -38,6 +38,7 @@ from pregrasp_core.sensor import (
 from pregrasp_core.sensor.synthetic import (
     LABEL_OBJECT,
     LABEL_TABLE,
+    clutter_meshes,
     orbit_camera,
     render_mesh_depth,
     render_view,
@@ -520,16 +521,7 @@ def test_a_picked_small_part_in_clutter_does_not_take_in_its_larger_neighbour() 
     between them); a picked part now takes in only clusters no larger than itself, so the pick
     gives the pen, the box or the ball alone, by the true meshes. Without a pick the object is
     still the largest cluster, the can."""
-    rot = trimesh.transformations.rotation_matrix
-    parts = {
-        "can": trimesh.creation.cylinder(0.033, 0.12, sections=48),
-        "ball": trimesh.creation.icosphere(3, 0.02),
-        "box": trimesh.creation.box([0.05, 0.03, 0.02]),
-        "pen": trimesh.creation.cylinder(0.005, 0.14).apply_transform(rot(np.pi / 2, [0, 1, 0])),
-    }
-    places = {"can": [0.0, 0.0], "ball": [0.09, 0.02], "box": [-0.05, 0.09], "pen": [0.0, -0.09]}
-    for name, m in parts.items():
-        m.apply_translation([*places[name], -m.bounds[0, 2]])
+    parts = clutter_meshes()
     scene_mesh = trimesh.util.concatenate(list(parts.values()))
     T = orbit_camera(np.zeros(3), 0.55, np.radians(30.0), np.radians(40.0))
     view = render_view(scene_mesh.vertices, scene_mesh.faces, T,
