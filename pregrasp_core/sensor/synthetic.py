@@ -19,11 +19,14 @@ Noise: Gaussian along the ray, on the range (the distance from the camera), of s
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .depth import Intrinsics
+
+if TYPE_CHECKING:
+    import trimesh
 
 NEAR: float = 0.01
 """Metres: triangles with a vertex nearer than this to the camera plane are not drawn."""
@@ -263,7 +266,7 @@ def add_mixed_pixels(
     return SyntheticView(mixed, labels, view.T_world_camera, view.intrinsics, view.noise)
 
 
-def clutter_meshes() -> dict[str, Any]:
+def clutter_meshes() -> dict[str, trimesh.Trimesh]:
     """The clutter scene of the tests, the benchmarks and the documentation (trimesh meshes
     standing on z = 0, 4-5 cm apart): ``can`` (a 66 mm cylinder, 12 cm tall) at the origin,
     ``ball`` (4 cm) at (0.09, 0.02), ``box`` (5 x 3 x 2 cm) at (-0.05, 0.09) and ``pen`` (1 cm
