@@ -583,6 +583,29 @@ class Controller:
         sensor = dataclasses.replace(base, flying_pixels=bool(on))
         return self._load(dataclasses.replace(src, sensor=sensor))
 
+    def set_scene_obstacles(self, which: Any) -> AppState:
+        """Read the current scene again with ``which`` of its rest as obstacles for the hand
+        (``"all"``, ``"seen"`` or ``"off"``, as ``--scene-obstacles``; ``docs/input.md``,
+        "The rest of the scene as obstacles")."""
+        if which not in pio.SCENE_OBSTACLES:
+            raise ValueError(
+                f"scene obstacles: expected one of {', '.join(pio.SCENE_OBSTACLES)}, got {which!r}"
+            )
+        src = self._state.source
+        scene = getattr(self._state.cloud, "info", {}).get("scene")
+        if src is None or scene is None:
+            raise InputError(
+                "scene obstacles are the rest of a scene (a depth image, a PCD with a VIEWPOINT, "
+                "or pregrasp view FILE --scene)"
+            )
+        if self._state.loaded is not None:
+            raise InputError(loaded_result_notice(self._state.loaded, "change the scene obstacles"))
+        base = src.sensor if src.sensor is not None else pio.SensorOptions()
+        if which == base.obstacles:
+            return self._state
+        sensor = dataclasses.replace(base, obstacles=str(which))
+        return self._load(dataclasses.replace(src, sensor=sensor))
+
     def fix_units(self) -> AppState:
         """Apply the fix of the loader's unit hint (:func:`~app.scene_data.unit_fix`): metres
         for a cloud it read as millimetres, millimetres for one it only warned about."""

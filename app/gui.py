@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from pregrasp_core.io import SCENE_OBSTACLES
 from pregrasp_core.limits import MAX_SCALE, MIN_SCALE
 from pregrasp_core.paths import demo_depth_images, demo_objects
 from pregrasp_core.pipeline import occluded_note
@@ -231,6 +232,10 @@ class Gui:
             self.pick_mode = gui.add_checkbox("click picks the object", False, disabled=True)
             self.flying = gui.add_checkbox("drop flying pixels", False, disabled=True)
             self.flying.on_update(lambda e: self._do(e, c.set_flying_pixels, e.target.value))
+            self.obstacles = gui.add_dropdown(
+                "scene obstacles", SCENE_OBSTACLES, initial_value=SCENE_OBSTACLES[0], disabled=True
+            )
+            self.obstacles.on_update(lambda e: self._do(e, c.set_scene_obstacles, e.target.value))
             self.status = gui.add_markdown("")
         server.scene.on_click()(self._scene_click)
 
@@ -659,6 +664,8 @@ class Gui:
             out.append(("demo", self.demo, s.source.name))
             sensor = s.source.sensor
             out.append(("flying", self.flying, bool(sensor is not None and sensor.flying_pixels)))
+            which = SCENE_OBSTACLES[0] if sensor is None else sensor.obstacles
+            out.append(("obstacles", self.obstacles, which))
         if s.tree is not None:
             out.append(("level", self.level, s.shown_level))
         gn = ALL if s.view.ghost_node is None else f"node {s.view.ghost_node}"
@@ -743,6 +750,10 @@ class Gui:
         scene = getattr(s.cloud, "sensor", None) is not None
         self._set("pick_mode.disabled", self.pick_mode, "disabled", not scene)
         self._set("flying.disabled", self.flying, "disabled", not scene or s.loaded is not None)
+        any_scene = (getattr(s.cloud, "info", None) or {}).get("scene") is not None  # complete too
+        self._set(
+            "obstacles.disabled", self.obstacles, "disabled", not any_scene or s.loaded is not None
+        )
         hidden = getattr(s.result, "occupied", None) is not None  # --occluded occupied views
         hidden = hidden or len(neighbour_hidden_points(s.cloud)) > 0  # behind other objects
         self._set("show_hidden.disabled", self.show_hidden, "disabled", not hidden)
@@ -826,6 +837,9 @@ class Gui:
                 f"\n\nscene obstacles: {len(obstacles)} points (other objects and walls near the "
                 f"object; {behind} of them the space hidden behind the other objects)"
             )
+        which = ((getattr(s.cloud, "info", None) or {}).get("scene") or {}).get("obstacles")
+        if which == "off":
+            text += "\n\nscene obstacles: off (the hand may enter the other objects and walls)"
         view = getattr(s.cloud, "sensor", None) is not None
         if view and s.planned and (note := occluded_note(s.result)):  # which setting planned it
             text += f"\n\n{md_text(note)}"

@@ -19,6 +19,7 @@ from pregrasp_core.io import (
     DEFAULT_N_POINTS,
     MAX_POINTS,
     MIN_POINTS,
+    SCENE_OBSTACLES,
     SUPPORTED_EXTENSIONS,
     PointCloud,
     SensorOptions,
@@ -67,6 +68,11 @@ class InputOptions:
     flying_pixels: bool = False
     """In a scene, drop the flying pixels first: points strung along the camera's rays between
     an edge and what lies behind it, as time-of-flight cameras give them (docs/input.md)."""
+    scene_obstacles: str = "all"
+    """In a scene, what of the rest the hand must clear: all (the other objects, walls and, for
+    a single view, the space hidden behind the other objects), seen (their seen points only:
+    more grasps in dense clutter, but a hand may pass through a neighbour's unseen back) or off
+    (the object alone) (docs/input.md)."""
 
     def __post_init__(self) -> None:
         if not MIN_POINTS <= self.points <= MAX_POINTS:
@@ -101,6 +107,7 @@ class InputOptions:
             scene=self.scene,
             pick=self.pick,
             flying_pixels=self.flying_pixels,
+            obstacles=self.scene_obstacles,
         )
 
     def load(self, path: str | Path) -> PointCloud:
@@ -156,11 +163,12 @@ INPUT_OPTIONS: Options[InputOptions] = _InputSpec(
         "scale": Flag(metavar="F"),
         "pick": Flag(metavar=("X", "Y", "Z")),
         "flying_pixels": Flag(store_true=True),
+        "scene_obstacles": Flag(choices=SCENE_OBSTACLES),
     },
-    fields=("points", "seed", "scale", "pick", "flying_pixels"),
+    fields=("points", "seed", "scale", "pick", "flying_pixels", "scene_obstacles"),
 )
 """``--points``, ``--seed``, ``--scale``, ``--intrinsics``, ``--pick``, ``--flying-pixels``,
-``--scene`` (after the
+``--scene-obstacles``, ``--scene`` (after the
 positional INPUT of :func:`add_input_args`)."""
 
 FORMATS = ", ".join(e.lstrip(".").upper() for e in (*SUPPORTED_EXTENSIONS, *DEPTH_IMAGE_EXTENSIONS))

@@ -43,7 +43,13 @@ from .cloud import (
     PointCloud,
 )
 from .depth_image import DEPTH_IMAGE_EXTENSIONS
-from .load import READERS, SensorOptions, load_point_cloud, load_point_cloud_bytes
+from .load import (
+    READERS,
+    SCENE_OBSTACLES,
+    SensorOptions,
+    load_point_cloud,
+    load_point_cloud_bytes,
+)
 
 __all__ = [
     "CLOUD_EXTENSIONS",
@@ -59,6 +65,7 @@ __all__ = [
     "SUPPORTED_EXTENSIONS",
     "CloudInfo",
     "PointCloud",
+    "SCENE_OBSTACLES",
     "SensorOptions",
     "load_point_cloud",
     "load_point_cloud_bytes",

@@ -165,6 +165,10 @@ def check_size(size: int, max_bytes: int, source: str) -> None:
         )
 
 
+SCENE_OBSTACLES: tuple[str, ...] = ("all", "seen", "off")
+"""The settings of :attr:`SensorOptions.obstacles`, the first the default."""
+
+
 @dataclass(frozen=True)
 class SensorOptions:
     """How depth-camera input is read (``docs/input.md``, "Depth-camera input")."""
@@ -187,8 +191,18 @@ class SensorOptions:
     (:func:`~pregrasp_core.sensor.veils.flying_points`, ``docs/input.md``); off by default: on
     views without them it drops the last pixel of outlines and faces seen within 10 degrees of
     grazing, which measured worse (``docs/benchmarks.md``)."""
+    obstacles: str = "all"
+    """What of a scene's rest the hand must clear (``docs/input.md``, "The rest of the scene as
+    obstacles"): ``"all"``: the other objects, the background planes and, for a single view,
+    the space hidden behind each other object; ``"seen"``: their seen points only; ``"off"``:
+    nothing (the object alone, as before session 25)."""
 
     def __post_init__(self) -> None:
+        if self.obstacles not in SCENE_OBSTACLES:
+            raise ValueError(
+                f"scene obstacles must be one of {', '.join(SCENE_OBSTACLES)}, got "
+                f"{self.obstacles!r}"
+            )
         for name in ("viewpoint", "pick"):
             v = getattr(self, name)
             if v is not None:
@@ -322,7 +336,7 @@ def _scene_or_view(
                 f"{cloud.source}: flying pixels are a camera's: pass --viewpoint X Y Z (metres, "
                 "the cloud's frame) with --flying-pixels"
             )
-        return complete_scene_object(cloud, opts.pick, n_points, seed)
+        return complete_scene_object(cloud, opts.pick, n_points, seed, opts.obstacles)
     try:
         view = scene_object(
             cloud,
@@ -349,7 +363,9 @@ def _scene_or_view(
     if opts.flying_pixels:
         info["scene"]["n_flying"] = view.n_flying
     _note_background(info, view.segmentation, cloud.source)
-    obstacles = _scene_obstacles(info, view.segmentation, view.points, view.viewpoint)
+    obstacles = _scene_obstacles(
+        info, view.segmentation, view.points, opts.obstacles, view.viewpoint
+    )
     if "n_subsampled_from" in info:
         del info["n_subsampled_from"]
     return PointCloud(
@@ -383,12 +399,18 @@ def _alone(
 
 
 def complete_scene_object(
-    scene: PointCloud, pick: tuple[float, float, float] | None, n_points: int | None, seed: int
+    scene: PointCloud,
+    pick: tuple[float, float, float] | None,
+    n_points: int | None,
+    seed: int,
+    which_obstacles: str = "all",
 ) -> PointCloud:
     """The object of a complete scene (a mesh or a fused scan with its table, read with
     ``--scene`` and no viewpoint): the table found by RANSAC and removed, the largest cluster
     above it kept (or the one nearest ``pick``) with its normals, cut to ``n_points``; nothing
-    is completed (every side was scanned) and the table becomes the cloud's ``support``. Up is
+    is completed (every side was scanned) and the table becomes the cloud's ``support``; the
+    scene's rest near the object becomes its ``obstacles`` unless ``which_obstacles`` is ``"off"``
+    (:attr:`SensorOptions.obstacles`; a complete scene hides nothing). Up is
     the side along +z unless the table is within 60 degrees of vertical (then the side with
     more points); a table with a bottom (a box in a scene mesh) is its top: a plane parallel to
     the one found, above it, holding at least half as many points, replaces it (twice at
@@ -448,7 +470,7 @@ def complete_scene_object(
         "complete": True,
     }
     _note_background(info, seg, scene.source)
-    obstacles = _scene_obstacles(info, seg, pts[mask])
+    obstacles = _scene_obstacles(info, seg, pts[mask], which_obstacles)
     nrm = None if scene.normals is None else np.asarray(scene.normals)[mask]
     obj, nrm = subsample(pts[mask], nrm, n_points, seed, info)
     return PointCloud(obj, nrm, scene.source, info, support=seg.plane, obstacles=obstacles)
@@ -474,15 +496,20 @@ def _scene_obstacles(
     info: CloudInfo,
     seg: TableSegmentation,
     near: np.ndarray,
+    which: str,
     viewpoint: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """The scene's obstacles near the object ``near`` (``sensor.table.scene_obstacles``: its
-    other objects and background planes within reach, thinned), and with a ``viewpoint`` the
-    hidden space behind each other object within reach (``sensor.occluded.neighbour_shadows``,
-    last, counted in ``scene.n_obstacles_hidden``), counted in ``scene.n_obstacles``; None when
-    there are none."""
+    other objects and background planes within reach, thinned), and with a ``viewpoint`` and
+    ``which`` ``"all"`` the hidden space behind each other object within reach
+    (``sensor.occluded.neighbour_shadows``, last, counted in ``scene.n_obstacles_hidden``),
+    counted in ``scene.n_obstacles``; None when there are none or ``which`` is ``"off"``
+    (:attr:`SensorOptions.obstacles`, kept as ``scene.obstacles``)."""
+    info["scene"]["obstacles"] = which
+    if which == "off":
+        return None
     obstacles = scene_obstacles(seg, near)
-    if viewpoint is not None and seg.obstacle_mask is not None and len(near):
+    if which == "all" and viewpoint is not None and seg.obstacle_mask is not None and len(near):
         lab = seg.cluster_labels
         objects = seg.obstacle_mask & (lab >= 0)  # not the background planes (label -1)
         if seg.background_mask is not None:

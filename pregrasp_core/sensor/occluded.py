@@ -235,6 +235,10 @@ NEIGHBOUR_DEPTH_MAX: float = 0.15
 space's margin is its width along the table, at least ``OccludedParams.margin``, at most
 this)."""
 
+NEIGHBOUR_DEPTH_RATIO: float = 1.0
+"""A neighbour's assumed depth behind its seen surface, as a fraction of its width along the
+table (1: a can seen from the front is as deep as it is wide)."""
+
 
 def neighbour_shadows(
     points: np.ndarray,
@@ -259,7 +263,8 @@ def neighbour_shadows(
             continue
         flat = cp - np.outer(cp @ n, n)
         width = float(np.linalg.norm(np.ptp(flat, axis=0)))
-        margin = min(max(DEFAULT_OCCLUDED.margin, width), NEIGHBOUR_DEPTH_MAX)
+        depth = NEIGHBOUR_DEPTH_RATIO * width
+        margin = min(max(DEFAULT_OCCLUDED.margin, depth), NEIGHBOUR_DEPTH_MAX)
         params = OccludedParams(voxel=voxel, margin=margin)
         try:
             out.append(occupied_space(cp, cp, viewpoint, plane, params).points)

@@ -33,6 +33,7 @@ FLAGS: dict[str, tuple[list[str], str, object]] = {
     "--intrinsics": (["cam.json"], "input.intrinsics", ("cam.json",)),
     "--scene": ([], "input.scene", True),
     "--flying-pixels": ([], "input.flying_pixels", True),
+    "--scene-obstacles": (["seen"], "input.scene_obstacles", "seen"),
     "--no-scene": ([], "input.scene", False),
     "--volume-ratio": (["0.8"], "params.decomposition.volume_ratio", 0.8),
     "--min-points": (["300"], "params.decomposition.min_points", 300),
@@ -178,7 +179,8 @@ def test_commands_take_the_flags_of_their_stages():
     assert plan_pipeline == set(PIPELINE_FLAGS)
     assert _flags_of("view") == plan_pipeline | {"--points", "--seed", "--scale", "--pick",
                                                  "--intrinsics", "--scene", "--no-scene",
-                                                 "--flying-pixels", "--host", "--port",
+                                                 "--flying-pixels", "--scene-obstacles",
+                                                 "--host", "--port",
                                                  "--compare"}  # fmt: skip
 
 

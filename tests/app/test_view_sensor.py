@@ -31,6 +31,7 @@ from app.scene_data import (
     OTHER_RGB,
     TABLE_RGB,
     assumed_contacts,
+    neighbour_hidden_points,
     ranked_grasps,
     ray_pick,
     unit_fix,
@@ -70,7 +71,8 @@ def test_view_takes_the_sensor_flags_of_plan(monkeypatch, tmp_path: Path) -> Non
     seen: list[app.server.ViewerConfig] = []
     monkeypatch.setattr(app.server, "serve", seen.append)
     flags = ["--intrinsics", "420", "421", "239.5", "179.5", "--pick", "0", "0.15", "0.02",
-             "--no-scene", "--viewpoint", "0.4", "-0.3", "0.5", "--scale", "0.5"]  # fmt: skip
+             "--no-scene", "--viewpoint", "0.4", "-0.3", "0.5", "--scale", "0.5",
+             "--scene-obstacles", "off"]  # fmt: skip
     assert main(["view", str(DEMO), "--port", "0", *flags]) == 0
     (config,) = seen
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
@@ -81,6 +83,7 @@ def test_view_takes_the_sensor_flags_of_plan(monkeypatch, tmp_path: Path) -> Non
         viewpoint=(0.4, -0.3, 0.5),
         scene=False,
         pick=(0.0, 0.15, 0.02),
+        obstacles="off",
     )
     assert config.scale == 0.5 and config.input == DEMO
 
@@ -592,10 +595,42 @@ def test_the_flying_pixels_box_reads_the_scene_again(make_app, veiled_boxes) -> 
     assert not np.all(np.asarray(handle.colors) == FLYING_RGB, axis=1).any()
 
 
+def test_the_scene_obstacles_dropdown_reads_the_scene_again(make_app, boxes_scene) -> None:
+    """The object panel's "scene obstacles" reads the scene again as ``--scene-obstacles``
+    does: ``all`` (the other box and the space hidden behind it), ``seen`` (its seen points
+    only: the hidden-space layer has nothing of the other box to draw), ``off`` (nothing, said
+    in the pool panel); the object's cloud is the same in every setting."""
+    path = boxes_scene[0]
+    app = make_app(input=path, n_points=3000)
+    c, gui = app.controller, app.gui
+    s0 = c.state
+    assert not gui.obstacles.disabled and gui.obstacles.value == "all"
+    assert s0.cloud.info["scene"]["n_obstacles_hidden"] > 0 and not gui.show_hidden.disabled
+    for which in ("seen", "off", "all"):
+        _toggle(gui.obstacles, which)
+        _wait_idle(c)
+        s = c.state
+        assert s.error == "" and s.source.sensor.obstacles == which
+        expected = load_point_cloud(path, n_points=3000, sensor=SensorOptions(obstacles=which))
+        np.testing.assert_array_equal(s.cloud.points, s0.cloud.points)
+        if expected.obstacles is None:
+            assert which == "off" and s.cloud.obstacles is None
+        else:
+            np.testing.assert_array_equal(s.cloud.obstacles, expected.obstacles)
+        assert (len(neighbour_hidden_points(s.cloud)) > 0) == (which == "all")
+        assert ("scene obstacles: off" in gui.pool_info.content) == (which == "off")
+    np.testing.assert_array_equal(c.state.cloud.obstacles, s0.cloud.obstacles)
+
+
 def test_flying_pixels_need_a_scene(app) -> None:
     assert app.gui.flying.disabled  # the default mug is a complete cloud
     with pytest.raises(InputError, match="flying pixels are dropped from a depth-camera scene"):
         app.controller.set_flying_pixels(True)
+    assert app.gui.obstacles.disabled
+    with pytest.raises(InputError, match="scene obstacles are the rest of a scene"):
+        app.controller.set_scene_obstacles("seen")
+    with pytest.raises(ValueError, match="expected one of all, seen, off"):
+        app.controller.set_scene_obstacles("most")
 
 
 def test_a_depth_image_in_its_camera_frame_is_shown_on_its_table(make_app, tmp_path) -> None:

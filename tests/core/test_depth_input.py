@@ -574,6 +574,20 @@ def test_a_complete_scene_keeps_its_object_whole_on_the_table_found(tmp_path, ta
     assert got[(labels == 2) & up].mean() >= 0.99 and not got[labels == 1].any()
     assert any("read as a complete scene" in w for w in cloud.info["warnings"])
     assert n == len(truth)
+    # the can is the mug's obstacle (every point of it near the can's true points); a
+    # complete scan hides nothing, so "seen" is the same; "off" keeps the same object alone
+    assert cloud.obstacles is not None and "n_obstacles_hidden" not in sc
+    d, _ = cKDTree(truth[labels == 2]).query(cloud.obstacles)
+    assert d.max() < 0.004 and sc["obstacles"] == "all"
+    for which in ("seen", "off"):
+        other = load_point_cloud(path, n_points=None,
+                                 sensor=SensorOptions(scene=True, obstacles=which))  # fmt: skip
+        np.testing.assert_array_equal(other.points, cloud.points)
+        assert other.info["scene"]["obstacles"] == which
+        if which == "seen":
+            np.testing.assert_array_equal(other.obstacles, cloud.obstacles)
+        else:
+            assert other.obstacles is None and "n_obstacles" not in other.info["scene"]
 
 
 def test_a_complete_scene_upside_down_or_against_a_wall_keeps_its_object(tmp_path) -> None:

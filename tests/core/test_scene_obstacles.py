@@ -80,8 +80,10 @@ def test_a_neighbour_in_clutter_is_not_touched_by_the_grasps_of_the_object(
 ):
     """A soda can 3 cm beside a 7 cm ball on the table: picking the ball, the obstacles are the
     can's seen points and the space hidden behind them (its unseen back), none near the ball;
-    no kept grasp's hand enters the can (by the true cylinder: at most 4 mm inside); without
-    the obstacles some grasp passes through the can."""
+    no kept grasp's hand enters the can (by the true cylinder: at most 4 mm inside). With
+    ``--scene-obstacles seen`` the obstacles are the can's seen front only and some grasp
+    reaches through its unseen back; with ``off`` there are none (the object's cloud the
+    same) and some grasp passes through the can."""
     ball = trimesh.creation.icosphere(subdivisions=3, radius=0.035)
     ball.apply_translation((0.0, 0.0, 0.035))
     can = trimesh.creation.cylinder(radius=0.033, height=0.12, sections=48)
@@ -89,8 +91,9 @@ def test_a_neighbour_in_clutter_is_not_touched_by_the_grasps_of_the_object(
     pts, T = _view([ball, can], 250.0, seed=4)
     path = tmp_path / "clutter.pcd"
     path.write_bytes(make_views.pcd_bytes(pts, np.ones(len(pts), dtype=np.uint8), T))
-    cloud = load_point_cloud(path, n_points=None, sensor=SensorOptions(pick=(0.0, 0.0, 0.035)))
-    assert cloud.obstacles is not None
+    pick = SensorOptions(pick=(0.0, 0.0, 0.035))
+    cloud = load_point_cloud(path, n_points=None, sensor=pick)
+    assert cloud.obstacles is not None and cloud.info["scene"]["obstacles"] == "all"
     obs = cloud.obstacles  # the can's seen points and the space hidden behind it
     assert np.all(obs[:, 0] > 0.098 - 0.033 - 0.005)
     assert np.all(np.linalg.norm(obs - [0.0, 0.0, 0.035], axis=1) > 0.035 + 0.005)
@@ -105,5 +108,26 @@ def test_a_neighbour_in_clutter_is_not_touched_by_the_grasps_of_the_object(
     res = run_pipeline(cloud, params, hand, until="grasps")
     depths = [inside_can(v) for v in _hands(res, hand)]
     assert depths and max(depths) < 0.004, max(depths)
-    bare = run_pipeline(dataclasses.replace(cloud, obstacles=None), params, hand, until="grasps")
+
+    seen = load_point_cloud(path, n_points=None, sensor=dataclasses.replace(pick, obstacles="seen"))
+    assert seen.obstacles is not None and "n_obstacles_hidden" not in seen.info["scene"]
+    n_hidden = cloud.info["scene"]["n_obstacles_hidden"]
+    assert len(seen.obstacles) == len(obs) - n_hidden
+    np.testing.assert_array_equal(seen.obstacles, obs[: len(seen.obstacles)])  # seen first
+    radial = np.hypot(seen.obstacles[:, 0] - 0.098, seen.obstacles[:, 1])
+    on_can = (np.abs(radial - 0.033) < 0.006) | (np.abs(seen.obstacles[:, 2] - 0.12) < 0.006)
+    assert np.all(on_can)  # the can's seen wall and lid, nothing inside it
+    res_seen = run_pipeline(seen, params, hand, until="grasps")
+    assert max(inside_can(v) for v in _hands(res_seen, hand)) > 0.01
+
+    off = load_point_cloud(path, n_points=None, sensor=dataclasses.replace(pick, obstacles="off"))
+    assert off.obstacles is None and off.info["scene"]["obstacles"] == "off"
+    assert "n_obstacles" not in off.info["scene"]
+    np.testing.assert_array_equal(off.points, cloud.points)
+    bare = run_pipeline(off, params, hand, until="grasps")
     assert max(inside_can(v) for v in _hands(bare, hand)) > 0.01
+
+
+def test_scene_obstacles_setting_is_checked() -> None:
+    with pytest.raises(ValueError, match="scene obstacles must be one of all, seen, off"):
+        SensorOptions(obstacles="hidden")
