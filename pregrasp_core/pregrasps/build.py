@@ -31,7 +31,13 @@ from .collision import (
     hand_hits_points,
     hand_min_height,
 )
-from .params import MAX_POOL_SAMPLES, POOL_BYTES_PER_SAMPLE, SAMPLING_BOUNDS, SamplingParams
+from .params import (
+    MAX_POOL_SAMPLES,
+    POOL_BYTES_PER_SAMPLE,
+    SAMPLING_BOUNDS,
+    SamplingParams,
+    TraversalPolicy,
+)
 from .pinch import PINCH_SURFACE, pinch_count_bound, pinch_samples
 from .pool import DROP_REASONS, PreGraspPool
 from .surfaces import sample_node, total_samples
@@ -148,9 +154,18 @@ def build_pool(
     grid = cloud_grid(pts) if len(pts) else None
     # the types each candidate may use, in order: its own, then (fallback) the others that fit
     queue: dict[int, list[str]] = {}
+    own_type: dict[int, str] = {}
     for i in traversal.candidates:
-        own = grasp_type_name(shapes[i].grasp_type)
-        queue[i] = [own]
+        own = own_type[i] = grasp_type_name(shapes[i].grasp_type)
+        # a candidate too big for its own type (taken by the traversal's last resort, never
+        # under the ``all`` policy, which samples every node with its own type) starts with
+        # the others
+        own_fits = (
+            traversal.policy is TraversalPolicy.ALL
+            or grip_width(tree.nodes[i].box, own)
+            <= float(hand.aperture(own)) * params.aperture_scale
+        )
+        queue[i] = [own] if own_fits else []
         if params.fallback:
             queue[i] += [
                 t
@@ -172,8 +187,7 @@ def build_pool(
         )
         kept.append(got)
         placed = set(np.unique(got.node).tolist())
-        if attempt > 0:
-            fallback.update({i: queue[i][attempt] for i in placed})
+        fallback.update({i: queue[i][attempt] for i in placed if queue[i][attempt] != own_type[i]})
         todo = [i for i in todo if i not in placed and attempt + 1 < len(queue[i])]
         if not todo:
             break

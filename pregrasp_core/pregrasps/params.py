@@ -85,7 +85,9 @@ class SamplingParams:
     fallback: bool = True
     """When a candidate's own grasp type leaves no pre-grasp (every sample blocked or colliding),
     try the other types whose grip width fits the hand, in ``FALLBACK_ORDER``, and keep the
-    first that gives any (recorded in ``PreGraspPool.fallback``). ``False`` = the paper's fixed
+    first that gives any (recorded in ``PreGraspPool.fallback``); and when no part fits the
+    hand with its own type, the parts another type fits become candidates for those types
+    (:func:`~pregrasp_core.pregrasps.traversal.traverse`). ``False`` = the paper's fixed
     mapping only."""
 
     pinch: bool = True

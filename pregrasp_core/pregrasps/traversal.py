@@ -31,6 +31,17 @@ def grip_width(box: OrientedBox, grasp_type: str) -> float:
     return float({"cylindrical": e[1], "three_finger_tip": e[2]}.get(gt, e[0]))
 
 
+def fitting_types(box: OrientedBox, hand: Hand, params: SamplingParams) -> list[str]:
+    """The grasp types whose grip of the part in ``box`` fits the open hand
+    (:func:`grip_width` at most ``hand.aperture(type) * params.aperture_scale``), in
+    ``GRASP_TYPES`` order."""
+    return [
+        gt
+        for gt in GRASP_TYPES
+        if grip_width(box, gt) <= float(hand.aperture(gt)) * params.aperture_scale
+    ]
+
+
 def no_fit_hint(
     tree: BoxTree,
     shapes: Sequence[NodeShape],
@@ -109,7 +120,9 @@ def traverse(
 ) -> Traversal:
     """Visit the tree from the root down and pick the candidate nodes (see
     :class:`TraversalPolicy`). ``hand`` provides ``aperture(grasp_type) -> metres``;
-    ``shape_params.small_size`` decides which children are small."""
+    ``shape_params.small_size`` decides which children are small. With ``params.fallback``,
+    when no node fits its own type, the nodes the policy allows that another type fits are
+    the candidates (:func:`fitting_types`; ``docs/pregrasps.md``, section 6)."""
     params = SamplingParams() if params is None else params
     if len(shapes) != len(tree.nodes):
         raise ValueError(
@@ -123,6 +136,7 @@ def traverse(
         queue.extend(tree.nodes[i].children)
     reasons = [""] * len(tree.nodes)
     candidates: list[int] = []
+    too_big: list[int] = []  # structural nodes too big for their own type
     for i in order:
         nd = tree.nodes[i]
         gt = shapes[i].grasp_type
@@ -148,10 +162,18 @@ def traverse(
                     f"too big: {grasp_type_name(gt)} width {width:.3f} m > aperture "
                     f"{aperture:.3f} m",
                 )
+                too_big.append(i)
             else:
                 ok, why = True, "candidate"
         reasons[i] = why
         if ok:
             candidates.append(i)
+    if not candidates and params.fallback:
+        # no part fits the type its shape gives it: as a last resort the parts that another
+        # type fits (the pool then tries only those types, SamplingParams.fallback)
+        for i in too_big:  # loop over the few structural nodes, in traversal order
+            if fitting_types(tree.nodes[i].box, hand, params):
+                candidates.append(i)
+                reasons[i] += "; candidate by fallback (no part fits its own type)"
     logger.info("traversal (%s): candidates %s", params.policy.value, candidates)
     return Traversal(candidates=tuple(candidates), reasons=tuple(reasons), policy=params.policy)

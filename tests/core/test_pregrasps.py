@@ -457,6 +457,40 @@ def test_fallback_type_when_the_own_type_gives_nothing(hand):
     assert pool.grasp_type[0] != "three_finger_tip"
 
 
+def test_a_part_too_big_for_its_own_type_is_grasped_by_a_type_that_fits(hand):
+    """The traversal's last resort: a 3 x 14 x 20 cm board standing on the table, given the
+    spherical type (as the PCA of an unevenly sampled view gave a cereal box) whose grip, its
+    longest side, is wider than the hand opens (20 cm > 14.8 cm): no candidate with the paper's
+    fixed types; with the fallback (the default) the board is a candidate for the types whose
+    grip fits by its box sides (docs/pregrasps.md: cylindrical spans the middle side, 14 cm >
+    13.3 cm: no; the three-finger tip the 3 cm thickness: yes), and every pre-grasp is of
+    those types, none spherical."""
+    from pregrasp_core.pregrasps.traversal import fitting_types
+
+    rng = np.random.default_rng(4)
+    tree, pts = tree_from_parts([([-0.015, -0.07, 0.0], [0.015, 0.07, 0.20])], rng, 4000)
+    shapes = (shape_of(ShapeClass.THREE_D_LARGE),)
+    masks = compute_face_masks(tree, SupportPlane(UP, 0.0))
+    strict = SamplingParams(fallback=False)
+    t = traverse(tree, shapes, hand, strict)
+    assert t.candidates == () and t.reasons[0].startswith("too big: spherical width 0.200 m")
+    assert len(build_pool(pts, tree, shapes, masks, hand, strict, t)) == 0
+    t = traverse(tree, shapes, hand)
+    assert t.candidates == (0,) and t.reasons[0].endswith("candidate by fallback (no part fits "
+                                                          "its own type)")  # fmt: skip
+    e = np.array([0.20, 0.14, 0.03])  # the box's sides, longest first
+    fits = {g for g, w in zip(["spherical", "cylindrical", "three_finger_tip", "two_finger_tip"],
+                              [e[0], e[1], e[2], e[0]], strict=True)
+            if w <= hand.aperture(g)}  # fmt: skip
+    assert fits == {"three_finger_tip"}
+    assert set(fitting_types(tree.nodes[0].box, hand, SamplingParams())) == fits
+    pool = build_pool(pts, tree, shapes, masks, hand, SamplingParams(pinch=False), t)
+    assert len(pool) > 0 and set(pool.grasp_type.tolist()) <= fits
+    assert pool.fallback == {0: "three_finger_tip"}
+    with_pinches = build_pool(pts, tree, shapes, masks, hand, SamplingParams(), t)
+    assert "spherical" not in set(with_pinches.grasp_type.tolist())
+
+
 def test_pool_container(hand):
     *_, pool = box_on_table_pool(hand, pinch=False)
     P = len(pool)
