@@ -136,6 +136,11 @@ class SegmentParams:
     stay apart; one object partly hidden behind another within this distance joins it, except
     that a ``pick``ed cluster never takes in a larger one (in clutter, the can beside the picked
     ball). 0: off."""
+    stand_height: float = 0.005
+    """Metres above the band: a cluster with at least ``merge_min_points`` points this low
+    stands on the table. ``hidden_gap`` never joins a standing cluster to a standing object:
+    two things that each stand on the table are two objects, however one hides the other (a
+    cut-off handle, arm or rim hangs above the table). 0: off (session 26)."""
     foot_window: float = 0.008
     """Radius of the neighbourhood whose mean height above the plane decides whether a band
     point is part of the object's foot (a bottom that leaves the table at a shallow angle)."""
@@ -403,13 +408,17 @@ def merge_hidden(
     viewpoint: np.ndarray,
     plane: SupportPlane,
     params: SegmentParams,
+    band: float = 0.0,
 ) -> np.ndarray:
     """``mine`` (A,) bool over the points ``above`` the band (cluster labels ``lab``, sizes
     ``counts``) grown by the clusters that ``params.hidden_gap`` merges: the clusters of at least
     ``merge_min_points`` points whose image, seen from ``viewpoint``, touches the object's through
     bins where the camera saw something above the table (one 8-connected region of the
     :class:`~.completion.VisibilityMap` of the points above the band: only an occlusion parts
-    them) and that come within ``hidden_gap`` of it in space. Repeated until nothing joins."""
+    them) and that come within ``hidden_gap`` of it in space. Repeated until nothing joins.
+    When the object stands on the table (``params.stand_height`` above ``band``), a cluster
+    that stands on it too is another object and never joins (random clutter: 6 of 60 picked
+    objects took in a neighbour they partly hid or that hid them, none with this rule)."""
     vis = VisibilityMap(above, viewpoint, plane, IMAGE_BIN_FACTOR)
     region, _ = ndimage.label(np.isfinite(vis.D), structure=np.ones((3, 3), dtype=bool))
     uv, _ = vis.project(above)
@@ -418,6 +427,11 @@ def merge_hidden(
     mine = mine.copy()
     todo = [int(c) for c in np.nonzero(counts >= params.merge_min_points)[0]]
     todo = [c for c in todo if not np.any(mine & (lab == c))]
+    if params.stand_height > 0.0:
+        low = above @ np.asarray(plane.normal) - plane.height <= band + params.stand_height
+        standing = np.bincount(lab[low], minlength=len(counts)) >= params.merge_min_points
+        if np.count_nonzero(mine & low) >= params.merge_min_points:
+            todo = [c for c in todo if not standing[c]]
     grown = True
     while grown and todo:  # loop over merges (at most the number of clusters)
         grown = False
@@ -682,7 +696,7 @@ def _segment_on(
             # clutter that is the object standing behind or in front of it (a can next to a
             # 4 cm ball), not a piece of the part
             joinable = counts if pick is None else np.where(counts <= counts[chosen], counts, 0)
-            mine = merge_hidden(pts[above], lab, mine, joinable, vp, plane, params)
+            mine = merge_hidden(pts[above], lab, mine, joinable, vp, plane, params, band)
         others = np.isin(lab, eligible) & ~mine
         if np.any(others) or background_mask is not None:
             obstacle_mask = np.zeros(len(pts), dtype=bool)
