@@ -54,6 +54,20 @@ class DepthScene:
     """The camera file read (the sidecar, a JSON given, an upload's), None for numbers alone."""
     depth_scale: float = 0.001
     """Metres per stored depth unit used (a PNG's; 1 for an NPY in metres)."""
+    shape: tuple[int, int] = (0, 0)
+    """(height, width) of the image in pixels."""
+
+    def pixels(self, points: np.ndarray) -> np.ndarray:
+        """(N, 2) float ``(column, row)`` of world points (N, 3) in the image (the pinhole
+        projection through the camera pose; a point behind the camera gets NaN)."""
+        p = np.asarray(points, dtype=np.float64)
+        T = None if self.camera is None else self.camera.T_world_camera
+        if T is not None:
+            p = (p - T[:3, 3]) @ T[:3, :3]  # into the camera frame
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(p[:, 2] > 0.0, p[:, 2], np.nan)
+            K = self.intrinsics
+            return np.column_stack([K.fx * p[:, 0] / z + K.cx, K.fy * p[:, 1] / z + K.cy])
 
 
 def sidecar(path: Path | None) -> Path | None:
@@ -153,5 +167,12 @@ def read_depth_image(file: FileData, ext: str, intrinsics: IntrinsicsArg) -> Dep
         vp = T[:3, 3].copy()
     used = unit if unit is not None else (0.001 if ext == ".png" else 1.0)
     return DepthScene(
-        np.asarray(pts, dtype=np.float64), vp, int(depth.size), K, where, cam, float(used)
+        np.asarray(pts, dtype=np.float64),
+        vp,
+        int(depth.size),
+        K,
+        where,
+        cam,
+        float(used),
+        (int(depth.shape[0]), int(depth.shape[1])),
     )

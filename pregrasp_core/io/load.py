@@ -43,7 +43,13 @@ from .cloud import (
     finish_cloud,
     subsample,
 )
-from .depth_image import DEPTH_IMAGE_EXTENSIONS, IntrinsicsArg, is_depth_input, read_depth_image
+from .depth_image import (
+    DEPTH_IMAGE_EXTENSIONS,
+    DepthScene,
+    IntrinsicsArg,
+    is_depth_input,
+    read_depth_image,
+)
 from .gltf import read_glb, read_gltf
 from .mesh import TriangleMesh, sample_mesh
 from .numpy_format import read_npy, read_npz
@@ -273,9 +279,11 @@ def _load(
         scene = finish_cloud(
             depth.points, None, file.source, info, scale=scale, n_points=None, seed=seed
         )
-        return _scene_or_view(
+        out = _scene_or_view(
             scene, vp, opts, n_points, seed, opts.scene is not False, opts.scene is None
         )
+        _note_image_edge(out, depth, s)
+        return out
     parsed = _read(file, ext)
     if isinstance(parsed, TriangleMesh):
 
@@ -376,6 +384,50 @@ def _scene_or_view(
         viewpoint=view.viewpoint,
         sensor=view,
         obstacles=obstacles,
+    )
+
+
+IMAGE_EDGE_PIXELS: float = 1.5
+"""A depth image's object point this close to the image's edge (pixels from the outermost
+pixel centres) is on the edge."""
+IMAGE_EDGE_MIN_POINTS: int = 10
+"""Seen object points on the image's edge from which the object runs off the image."""
+
+
+def _note_image_edge(cloud: PointCloud, depth: DepthScene, scale: float) -> None:
+    """Warn (and count in ``scene.n_image_edge``) when the seen points of a depth image's
+    object reach the image's edge: the object runs off the image, the part beyond it is
+    unseen, and the completion takes the cut for the object's end (grasps around it can
+    reach into the real object: ``docs/limits.md``, "Cameras the generated views do not
+    use")."""
+    scene = cloud.info.get("scene")
+    if scene is None or scene.get("complete") or depth.shape == (0, 0):
+        return
+    seen = cloud.points if cloud.assumed is None else cloud.points[~cloud.assumed]
+    uv = depth.pixels(np.asarray(seen) / scale)
+    h, w = depth.shape
+    m = IMAGE_EDGE_PIXELS
+    edge = np.zeros(len(uv), dtype=bool)
+    sides = []
+    for name, hit in (  # loop over the four sides
+        ("left", uv[:, 0] <= m),
+        ("right", uv[:, 0] >= w - 1 - m),
+        ("top", uv[:, 1] <= m),
+        ("bottom", uv[:, 1] >= h - 1 - m),
+    ):
+        if np.count_nonzero(hit) >= IMAGE_EDGE_MIN_POINTS:
+            sides.append(name)
+        edge |= hit
+    if not sides:
+        return
+    scene["n_image_edge"] = int(np.count_nonzero(edge))
+    _warn(
+        cloud.info,
+        f"{cloud.source}: the object runs off the image ({' and '.join(sides)} edge: "
+        f"{scene['n_image_edge']} of its {len(seen)} seen points on it): what lies beyond is "
+        "unseen and the completion takes the cut for the object's end, so grasps there may "
+        "reach into the real object; frame the whole object (--pick another one, or move the "
+        "camera)",
     )
 
 

@@ -640,3 +640,50 @@ def test_a_scan_with_its_table_read_as_one_object_says_so(tmp_path) -> None:
     for p in [tmp_path / "lying.stl", *sorted(OBJECTS_DIR.glob("*.obj"))]:
         c = load_point_cloud(p, n_points=4000)
         assert not any("--scene" in w for w in c.info["warnings"]), p.name
+
+
+@pytest.mark.parametrize("shift", [0.0, 0.95])
+def test_an_object_running_off_the_depth_image_is_said(make_views, tmp_path, shift) -> None:
+    """The mug with a handle rendered as a depth image (``make_views``' PNG and camera file,
+    1 mm of noise) with the camera aimed beside it, the mug at the image's right edge
+    (``shift`` 0.95 of the half field of view: part of it out of the frame) or in the middle
+    (0): the first says that the object runs off the image's right edge and counts its points
+    there, by the pinhole projection (``DepthScene.pixels``, checked against the pixels the
+    points were back-projected from); the centred view and the committed demo say nothing."""
+    import imageio.v3 as iio
+
+    from pregrasp_core.io.cloud import FileData
+    from pregrasp_core.io.depth_image import read_depth_image
+
+    mesh = trimesh.load(OBJECTS_DIR / "mug_handle.obj", force="mesh")
+    target, dist, table_half = make_views.view_setup(mesh)
+    az = np.radians(60.0)
+    right = np.array([-np.sin(az), np.cos(az), 0.0])
+    half = dist * (make_views.WIDTH / 2.0) / make_views.INTRINSICS.fx
+    T = orbit_camera(target - right * half * shift, dist, az, np.radians(35.0))
+    view = render_view(mesh.vertices, mesh.faces, T, make_views.INTRINSICS, make_views.WIDTH,
+                       make_views.HEIGHT, table_half=table_half + 1.0, noise=0.001,
+                       rng=np.random.default_rng(3))  # fmt: skip
+    png = tmp_path / "edge.png"
+    iio.imwrite(png, make_views.depth_png(view))
+    png.with_suffix(".json").write_text(make_views.camera_json(view))
+    depth = read_depth_image(FileData(png.read_bytes(), str(png), png), ".png", None)
+    assert depth.shape == (make_views.HEIGHT, make_views.WIDTH)
+    rows, cols = np.nonzero(make_views.depth_png(view) > 0)  # row-major, as back-projected
+    np.testing.assert_allclose(depth.pixels(depth.points), np.column_stack([cols, rows]),
+                               atol=1e-6)  # fmt: skip
+    cloud = load_point_cloud(png, n_points=None)
+    said = [w for w in cloud.info["warnings"] if "runs off the image" in w]
+    if shift == 0.0:
+        assert said == [] and "n_image_edge" not in cloud.info["scene"]
+        demo = load_point_cloud(DEMO, n_points=None)
+        assert not any("runs off" in w for w in demo.info["warnings"])
+        return
+    n = cloud.info["scene"]["n_image_edge"]
+    assert n >= 10 and len(said) == 1 and "(right edge:" in said[0]
+    assert said[0].startswith(f"{png}: the object runs off the image")
+    seen = cloud.points[~cloud.assumed]
+    # the points on the edge are the mug's: within 3 mm of the true mesh
+    edge = depth.pixels(seen)[:, 0] >= make_views.WIDTH - 2.5
+    assert np.count_nonzero(edge) == n
+    assert np.all(np.abs(trimesh.proximity.signed_distance(mesh, seen[edge])) < 0.003)

@@ -1,0 +1,154 @@
+"""Single views from cameras the generated views do not use, checked against the TRUE mesh.
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_odd_views.py [--objects A,B]
+
+``scripts/make_views.py`` casts every demo object from three cameras at 35 degrees of
+elevation, at a distance where the object spans a third of the image. A user's camera is often
+elsewhere. Here each demo mesh is rendered (``sensor.synthetic``, 1 mm of noise unless said)
+from an azimuth of 60 degrees in five ways: ``top85`` (85 degrees of elevation: a camera over
+the table looking down, as for bin picking), ``low12`` (12 degrees: a camera at the table's
+height), ``far2.5x`` (2.5 times farther: few points), ``border`` (the object at the image's
+right edge, part of it cut off) and ``noise3mm`` (35 degrees, 3 mm of noise: beyond the
+issue's 2 mm). Each view is written as a user's PCD (``VIEWPOINT`` = the camera), loaded and
+planned at the default settings, and its best grasp (the best force-closure one, else the
+first ranked) checked against the mesh the view was cast from
+(``pregrasp_core.sensor.truth.check_grasp``): penetration of the hand's links, the farthest
+contact from the surface. ``off`` is the fraction of the object's cloud (seen and assumed)
+more than 3 mm off the true surface. A second table counts per camera the views whose best
+grasp is force closure and those that also pass both true-mesh checks (penetration at most
+2 mm, contacts within 3 mm).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # one BLAS thread, before numpy loads
+
+import argparse  # noqa: E402
+import importlib.util  # noqa: E402
+import platform  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import trimesh  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # this checkout's pregrasp_core, not an installed one
+
+from pregrasp_core.errors import PregraspError  # noqa: E402
+from pregrasp_core.hand import Hand  # noqa: E402
+from pregrasp_core.io import load_point_cloud  # noqa: E402
+from pregrasp_core.paths import OBJECTS_DIR, demo_objects  # noqa: E402
+from pregrasp_core.pipeline import PipelineParams, run_pipeline, with_cloud  # noqa: E402
+from pregrasp_core.sensor.synthetic import orbit_camera, render_view  # noqa: E402
+from pregrasp_core.sensor.truth import MeshDistance, check_grasp  # noqa: E402
+
+_spec = importlib.util.spec_from_file_location("make_views", ROOT / "scripts" / "make_views.py")
+assert _spec is not None and _spec.loader is not None
+MAKE_VIEWS = importlib.util.module_from_spec(_spec)
+sys.modules["make_views"] = MAKE_VIEWS
+_spec.loader.exec_module(MAKE_VIEWS)
+
+CAMERAS: dict[str, tuple[float, float, bool, float]] = {
+    "top85": (85.0, 1.0, False, 0.001),
+    "low12": (12.0, 1.0, False, 0.001),
+    "far2.5x": (35.0, 2.5, False, 0.001),
+    "border": (35.0, 1.0, True, 0.001),
+    "noise3mm": (35.0, 1.0, False, 0.003),
+}
+"""Name -> (elevation in degrees, distance factor, object at the image border, noise in m)."""
+AZIMUTH = np.radians(60.0)
+
+
+def camera(mesh: trimesh.Trimesh, elevation: float, factor: float, border: bool) -> np.ndarray:
+    """The camera pose (4, 4) of one case: ``make_views``' target and distance (times
+    ``factor``); with ``border`` the camera aimed beside the object so that it sits at the
+    image's right edge (its far half out of the frame)."""
+    target, distance, _ = MAKE_VIEWS.view_setup(mesh)
+    d = distance * factor
+    if border:
+        right = np.array([-np.sin(AZIMUTH), np.cos(AZIMUTH), 0.0])
+        half_width = d * (MAKE_VIEWS.WIDTH / 2.0) / MAKE_VIEWS.INTRINSICS.fx * 0.95
+        target = target - right * half_width
+    return orbit_camera(target, d, AZIMUTH, np.radians(elevation))
+
+
+def run(name: str, case: str, hand: Hand, tmp: Path) -> dict[str, object]:
+    """One view of the demo object ``name`` from camera ``case``, planned and checked."""
+    elevation, factor, border, noise = CAMERAS[case]
+    mesh = trimesh.load(OBJECTS_DIR / f"{name}.obj", force="mesh")
+    _, _, table_half = MAKE_VIEWS.view_setup(mesh)
+    T = camera(mesh, elevation, factor, border)
+    view = render_view(mesh.vertices, mesh.faces, T, MAKE_VIEWS.INTRINSICS, MAKE_VIEWS.WIDTH,
+                       MAKE_VIEWS.HEIGHT, table_half=table_half + (1.0 if border else 0.0),
+                       noise=noise, rng=np.random.default_rng(3))  # fmt: skip
+    pts, lab = view.points_world()
+    path = tmp / f"{name}_{case}.pcd"
+    path.write_bytes(MAKE_VIEWS.pcd_bytes(pts, lab, T))
+    row: dict[str, object] = {"seen": int(np.sum(lab == MAKE_VIEWS.LABEL_OBJECT))}
+    t0 = time.perf_counter()
+    try:
+        cloud = load_point_cloud(path, n_points=None)
+        res = run_pipeline(cloud, with_cloud(PipelineParams(), cloud), hand, until="grasps")
+    except PregraspError as exc:
+        row["error"] = str(exc).split(": ", 1)[-1][:80]
+        return row
+    row["time"] = time.perf_counter() - t0
+    truth = MeshDistance(mesh)
+    row["off"] = float(np.mean(np.abs(truth.signed(cloud.points)) > 0.003))
+    row["parts"] = len(res.tree.leaves()) if res.tree is not None else 0
+    row["pool"] = len(res.pool) if res.pool is not None else 0
+    gs = res.grasps
+    if gs is None or len(gs.ranking) == 0:
+        return row
+    row["fc"] = gs.n_force_closure
+    g = gs.grasps[gs.best if gs.best is not None else gs.ranking[0]]
+    check = check_grasp(g, res.hand, truth)
+    row.update(eps=g.epsilon, pen=check.penetration * 1000.0, contact=check.worst_contact * 1000.0)
+    return row
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--objects", default=None, help="comma-separated demo objects (default all)")
+    args = ap.parse_args()
+    names = args.objects.split(",") if args.objects else [p.stem for p in demo_objects()]
+    hand = Hand.load()
+    tmp = Path(tempfile.mkdtemp(prefix="pregrasp-odd-views-"))
+    print(f"# {platform.machine()}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
+          f"load {os.getloadavg()[0]:.2f}")  # fmt: skip
+    print("| object | camera | seen | off > 3 mm | parts | pool | force closure | best epsilon "
+          "| penetration (mm) | worst contact (mm) | plan (s) |")  # fmt: skip
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    counts = {c: [0, 0, 0] for c in CAMERAS}  # views, best force closure, all three
+    for name in names:  # loop over the demo objects
+        for case in CAMERAS:  # loop over the five cameras
+            r = run(name, case, hand, tmp)
+            counts[case][0] += 1
+            if "error" in r:
+                print(f"| {name} | {case} | {r['seen']} | | | | | error: {r['error']} | | | |")
+                continue
+            if "eps" not in r:
+                print(f"| {name} | {case} | {r['seen']} | {r['off']:.2f} | {r['parts']} | "
+                      f"{r['pool']} | 0 | no kept grasp | | | {r['time']:.2f} |")  # fmt: skip
+                continue
+            fc = float(r["eps"]) > 0.0  # type: ignore[arg-type]
+            ok = fc and float(r["pen"]) <= 2.0 and float(r["contact"]) <= 3.0  # type: ignore[arg-type]
+            counts[case][1] += int(fc)
+            counts[case][2] += int(ok)
+            print(f"| {name} | {case} | {r['seen']} | {r['off']:.2f} | {r['parts']} | "
+                  f"{r['pool']} | {r['fc']} | {r['eps']:.4f} | {r['pen']:.1f} | "
+                  f"{r['contact']:.1f} | {r['time']:.2f} |", flush=True)  # fmt: skip
+    print("\n| camera | views | best grasp force closure | and both true-mesh checks |")
+    print("|---|---:|---:|---:|")
+    for case, (n, fc, ok) in counts.items():
+        print(f"| {case} | {n} | {fc} | {ok} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
