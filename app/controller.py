@@ -575,13 +575,7 @@ class Controller:
                 "flying pixels are dropped from a depth-camera scene (a depth image, a PCD with "
                 "a VIEWPOINT, or pregrasp view FILE --scene --viewpoint X Y Z)"
             )
-        if self._state.loaded is not None:
-            raise InputError(loaded_result_notice(self._state.loaded, "drop flying pixels"))
-        base = src.sensor if src.sensor is not None else pio.SensorOptions()
-        if bool(on) == base.flying_pixels:
-            return self._state
-        sensor = dataclasses.replace(base, flying_pixels=bool(on))
-        return self._load(dataclasses.replace(src, sensor=sensor))
+        return self._reload_sensor("drop flying pixels", flying_pixels=bool(on))
 
     def set_scene_obstacles(self, which: Any) -> AppState:
         """Read the current scene again with ``which`` of its rest as obstacles for the hand
@@ -598,12 +592,20 @@ class Controller:
                 "scene obstacles are the rest of a scene (a depth image, a PCD with a VIEWPOINT, "
                 "or pregrasp view FILE --scene)"
             )
+        return self._reload_sensor("change the scene obstacles", obstacles=str(which))
+
+    def _reload_sensor(self, action: str, **change: Any) -> AppState:
+        """Read the current scene again with the depth-camera options ``change``d (nothing
+        when they are already so); ``action`` names it in the notice of a result file, which
+        cannot be read again."""
+        src = self._state.source
+        assert src is not None  # (the callers checked)
         if self._state.loaded is not None:
-            raise InputError(loaded_result_notice(self._state.loaded, "change the scene obstacles"))
+            raise InputError(loaded_result_notice(self._state.loaded, action))
         base = src.sensor if src.sensor is not None else pio.SensorOptions()
-        if which == base.obstacles:
+        sensor = dataclasses.replace(base, **change)
+        if sensor == base:
             return self._state
-        sensor = dataclasses.replace(base, obstacles=str(which))
         return self._load(dataclasses.replace(src, sensor=sensor))
 
     def fix_units(self) -> AppState:
