@@ -19,7 +19,9 @@ the table in it) and returns a :class:`TableSegmentation`:
    table's noise tail (:func:`noise_clusters`: fewer than ``noise_cover`` of their points per
    table point inside their footprint), unless nothing else is left. Clusters of at least
    ``merge_min_points`` points within ``merge_gap`` of the chosen one join it (the object's own
-   occlusion cuts a handle off its body).
+   occlusion cuts a handle off its body), and with a viewpoint those within ``hidden_gap``
+   whose image touches the object's (:func:`merge_hidden`), unless both stand on the table
+   (``stand_height``: then they are two objects).
    Before that, clusters at least ``background_span`` across are searched for background
    planes (:func:`background_planes`: a wall behind the table, a shelf board; flat, at least
    ``background_span`` by ``background_width``), whose points are set aside and the rest
@@ -185,7 +187,7 @@ class SegmentParams:
                      "foot_window"):  # fmt: skip
             put(name, check_real(name, getattr(self, name), 0.0, MAX_LENGTH, lo_open=True,
                                  what="a length", unit=" m"))  # fmt: skip
-        for name in ("foot_height", "merge_gap", "hidden_gap", "background_span",
+        for name in ("foot_height", "merge_gap", "hidden_gap", "stand_height", "background_span",
                      "background_width"):  # fmt: skip
             put(name, check_real(name, getattr(self, name), 0.0, MAX_LENGTH, what="a length",
                                  unit=" m"))  # fmt: skip
