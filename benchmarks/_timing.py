@@ -4,11 +4,14 @@ as ``python benchmarks/bench_x.py``, whose folder is then first on ``sys.path``)
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 
@@ -32,6 +35,18 @@ def pin_one_core() -> str:
         return "pinned to one CPU"
     except (AttributeError, OSError):
         return "not pinned"
+
+
+def make_views_module() -> ModuleType:
+    """``scripts/make_views.py`` (the generator of the single-view test data: its cameras, its
+    PCD, PNG and camera-file writers) as a module, registered as ``make_views``."""
+    path = Path(__file__).resolve().parents[1] / "scripts" / "make_views.py"
+    spec = importlib.util.spec_from_file_location("make_views", path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["make_views"] = mod
+    spec.loader.exec_module(mod)
+    return mod
 
 
 def views_manifest(views: Path) -> list[dict] | None:

@@ -22,7 +22,6 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # one BLAS thread, before numpy loads
 
 import argparse  # noqa: E402
-import importlib.util  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -34,14 +33,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this checkout's pregrasp_core, not an installed one
 
-
-def _make_views():
-    spec = importlib.util.spec_from_file_location("make_views", ROOT / "scripts" / "make_views.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["make_views"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+from _timing import make_views_module  # noqa: E402
 
 
 def main() -> int:
@@ -59,7 +51,7 @@ def main() -> int:
     from pregrasp_core.sensor.synthetic import add_mixed_pixels
     from pregrasp_core.sensor.truth import MeshDistance, check_grasp
 
-    mv = _make_views()
+    mv = make_views_module()
     tmp = Path(tempfile.mkdtemp(prefix="bench_flying_"))
     print(
         f"# {platform.machine()}, Python {platform.python_version()}, "

@@ -18,7 +18,6 @@ contact's distance to the true surface (mm), and whether it lifts the TRUE mesh 
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import sys
 import tempfile
 from pathlib import Path
@@ -29,16 +28,15 @@ import trimesh
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from _timing import make_views_module  # noqa: E402
+
 from pregrasp_core.io import load_point_cloud  # noqa: E402
 from pregrasp_core.pipeline import PipelineParams, run_pipeline  # noqa: E402
 from pregrasp_core.sensor.synthetic import LABEL_OBJECT, orbit_camera, render_view  # noqa: E402
 from pregrasp_core.sensor.truth import MeshDistance, check_grasp  # noqa: E402
 from pregrasp_core.simulate import simulate_grasps  # noqa: E402
 
-_spec = importlib.util.spec_from_file_location("make_views", REPO / "scripts" / "make_views.py")
-assert _spec is not None and _spec.loader is not None
-mv = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(mv)
+mv = make_views_module()
 
 SETTINGS = ("auto", "completed", "occupied")
 VIEWS = ((40.0, 0.0), (200.0, 0.002))  # (azimuth degrees, noise metres)

@@ -26,7 +26,6 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # one BLAS thread, before numpy loads
 
 import argparse  # noqa: E402
-import importlib.util  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -39,6 +38,8 @@ import trimesh  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this checkout's pregrasp_core, not an installed one
 
+from _timing import make_views_module  # noqa: E402
+
 from pregrasp_core.errors import PregraspError  # noqa: E402
 from pregrasp_core.hand import Hand  # noqa: E402
 from pregrasp_core.io import load_point_cloud  # noqa: E402
@@ -47,11 +48,7 @@ from pregrasp_core.pipeline import PipelineParams, run_pipeline, with_cloud  # n
 from pregrasp_core.sensor.synthetic import orbit_camera, render_view  # noqa: E402
 from pregrasp_core.sensor.truth import MeshDistance, check_grasp  # noqa: E402
 
-_spec = importlib.util.spec_from_file_location("make_views", ROOT / "scripts" / "make_views.py")
-assert _spec is not None and _spec.loader is not None
-MAKE_VIEWS = importlib.util.module_from_spec(_spec)
-sys.modules["make_views"] = MAKE_VIEWS
-_spec.loader.exec_module(MAKE_VIEWS)
+MAKE_VIEWS = make_views_module()
 
 CAMERAS: dict[str, tuple[float, float, bool, float]] = {
     "top85": (85.0, 1.0, False, 0.001),

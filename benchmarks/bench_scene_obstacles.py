@@ -27,7 +27,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # one BLAS thread, before nu
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
-import importlib.util  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -41,6 +40,8 @@ import trimesh  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this checkout's pregrasp_core, not an installed one
 
+from _timing import make_views_module  # noqa: E402
+
 from pregrasp_core.hand import Hand  # noqa: E402
 from pregrasp_core.io import SensorOptions, load_point_cloud  # noqa: E402
 from pregrasp_core.paths import OBJECTS_DIR  # noqa: E402
@@ -49,11 +50,7 @@ from pregrasp_core.sensor import Intrinsics, occluded  # noqa: E402
 from pregrasp_core.sensor.synthetic import clutter_meshes, orbit_camera, render_view  # noqa: E402
 
 K = Intrinsics(420.0, 420.0, 239.5, 179.5)
-_spec = importlib.util.spec_from_file_location("make_views", ROOT / "scripts" / "make_views.py")
-assert _spec is not None and _spec.loader is not None
-MAKE_VIEWS = importlib.util.module_from_spec(_spec)
-sys.modules["make_views"] = MAKE_VIEWS
-_spec.loader.exec_module(MAKE_VIEWS)
+MAKE_VIEWS = make_views_module()
 INTO_MM = 4.0
 
 
