@@ -391,10 +391,8 @@ def _run_stages(
     if prev is not None and prev.occupied is not None and prev.occluded_used == mode:
         hidden.append(prev.occupied)  # the same cloud and setting: the same space
 
-    scene_obstacles = (
-        None
-        if cloud.obstacles is None or not len(cloud.obstacles)
-        else (np.asarray(cloud.obstacles, dtype=np.float64))
+    scene_obstacles = (  # (PointCloud keeps them as a read-only float64 (K, 3) array)
+        cloud.obstacles if cloud.obstacles is not None and len(cloud.obstacles) else None
     )
 
     def obstacles() -> tuple[np.ndarray, OccupiedSpace | None]:

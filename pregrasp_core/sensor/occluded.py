@@ -251,10 +251,10 @@ def neighbour_shadows(
     """(K, 3) the hidden space behind each neighbour of a view's object, as obstacle points:
     for each of ``clusters`` (labels into ``labels`` over ``points``: the other objects on the
     table), :func:`occupied_space` of its seen points, with a margin of its width along the
-    table (a can seen from the front is as deep as it is wide; at least 2 cm, at most
-    :data:`NEIGHBOUR_DEPTH_MAX`) on a grid of ``voxel``. A hand that reaches behind a can
-    through its unseen back would otherwise find no point there. A neighbour whose grid passes
-    :data:`MAX_OCCLUDED_VOXELS` keeps only its seen points."""
+    table times :data:`NEIGHBOUR_DEPTH_RATIO` (a can seen from the front is as deep as it is
+    wide; at least 2 cm, at most :data:`NEIGHBOUR_DEPTH_MAX`) on a grid of ``voxel``. A hand
+    that reaches behind a can through its unseen back would otherwise find no point there. A
+    neighbour whose grid passes :data:`MAX_OCCLUDED_VOXELS` keeps only its seen points."""
     out = [np.zeros((0, 3))]
     n = np.asarray(plane.normal, dtype=np.float64)
     for c in clusters:  # loop over the few neighbours within reach

@@ -410,10 +410,11 @@ def merge_hidden(
     viewpoint: np.ndarray,
     plane: SupportPlane,
     params: SegmentParams,
-    band: float = 0.0,
+    band: float,
 ) -> np.ndarray:
-    """``mine`` (A,) bool over the points ``above`` the band (cluster labels ``lab``, sizes
-    ``counts``) grown by the clusters that ``params.hidden_gap`` merges: the clusters of at least
+    """``mine`` (A,) bool over the points ``above`` the band (``band`` m about the table's
+    plane ``plane``; cluster labels ``lab``, sizes ``counts``) grown by the clusters that
+    ``params.hidden_gap`` merges: the clusters of at least
     ``merge_min_points`` points whose image, seen from ``viewpoint``, touches the object's through
     bins where the camera saw something above the table (one 8-connected region of the
     :class:`~.completion.VisibilityMap` of the points above the band: only an occlusion parts
