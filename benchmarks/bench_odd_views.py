@@ -1,6 +1,7 @@
 """Single views from cameras the generated views do not use, checked against the TRUE mesh.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_odd_views.py [--objects A,B]
+        [--cameras top85,top70] [--azimuths 60,150] [--simulate K] [--no-skirt]
 
 ``scripts/make_views.py`` casts every demo object from three cameras at 35 degrees of
 elevation, at a distance where the object spans a third of the image. A user's camera is often
@@ -16,7 +17,15 @@ first ranked) checked against the mesh the view was cast from
 contact from the surface. ``off`` is the fraction of the object's cloud (seen and assumed)
 more than 3 mm off the true surface. A second table counts per camera the views whose best
 grasp is force closure and those that also pass both true-mesh checks (penetration at most
-2 mm, contacts within 3 mm).
+2 mm, contacts within 3 mm). ``top70`` and ``top60`` (70 and 60 degrees) sit between the
+overhead camera and the generated views' 35 degrees.
+
+``--azimuths`` repeats every camera at other azimuths (degrees; default 60). ``--simulate K``
+lifts the best grasp and the first K of the ranking in MuJoCo with the true mesh as the object
+(``pregrasp_core.simulate``): columns "lift" and "top K". ``--no-skirt`` plans without the
+skirt a view from above gets (``CompletionParams.skirt`` = 0, ``docs/partial-views.md``,
+"Views from above"): with it off the completion returns exactly the arrays it returned before
+the skirt existed, so the two runs compare the code before and after it.
 """
 
 from __future__ import annotations
@@ -52,6 +61,8 @@ MAKE_VIEWS = make_views_module()
 
 CAMERAS: dict[str, tuple[float, float, bool, float]] = {
     "top85": (85.0, 1.0, False, 0.001),
+    "top70": (70.0, 1.0, False, 0.001),
+    "top60": (60.0, 1.0, False, 0.001),
     "low12": (12.0, 1.0, False, 0.001),
     "far2.5x": (35.0, 2.5, False, 0.001),
     "border": (35.0, 1.0, True, 0.001),
@@ -59,27 +70,31 @@ CAMERAS: dict[str, tuple[float, float, bool, float]] = {
 }
 """Name -> (elevation in degrees, distance factor, object at the image border, noise in m)."""
 AZIMUTH = np.radians(60.0)
+"""The default azimuth of every camera."""
 
 
-def camera(mesh: trimesh.Trimesh, elevation: float, factor: float, border: bool) -> np.ndarray:
+def camera(mesh: trimesh.Trimesh, elevation: float, factor: float, border: bool,
+           azimuth: float = AZIMUTH) -> np.ndarray:  # fmt: skip
     """The camera pose (4, 4) of one case: ``make_views``' target and distance (times
     ``factor``); with ``border`` the camera aimed beside the object so that it sits at the
     image's right edge (its far half out of the frame)."""
     target, distance, _ = MAKE_VIEWS.view_setup(mesh)
     d = distance * factor
     if border:
-        right = np.array([-np.sin(AZIMUTH), np.cos(AZIMUTH), 0.0])
+        right = np.array([-np.sin(azimuth), np.cos(azimuth), 0.0])
         half_width = d * (MAKE_VIEWS.WIDTH / 2.0) / MAKE_VIEWS.INTRINSICS.fx * 0.95
         target = target - right * half_width
-    return orbit_camera(target, d, AZIMUTH, np.radians(elevation))
+    return orbit_camera(target, d, azimuth, np.radians(elevation))
 
 
-def run(name: str, case: str, hand: Hand, tmp: Path) -> dict[str, object]:
-    """One view of the demo object ``name`` from camera ``case``, planned and checked."""
+def run(name: str, case: str, hand: Hand, tmp: Path, azimuth: float = AZIMUTH,
+        simulate: int = 0) -> dict[str, object]:  # fmt: skip
+    """One view of the demo object ``name`` from camera ``case``, planned and checked (and
+    with ``simulate`` its best grasp and first ``simulate`` ranked lifted in MuJoCo)."""
     elevation, factor, border, noise = CAMERAS[case]
     mesh = trimesh.load(OBJECTS_DIR / f"{name}.obj", force="mesh")
     _, _, table_half = MAKE_VIEWS.view_setup(mesh)
-    T = camera(mesh, elevation, factor, border)
+    T = camera(mesh, elevation, factor, border, azimuth)
     view = render_view(mesh.vertices, mesh.faces, T, MAKE_VIEWS.INTRINSICS, MAKE_VIEWS.WIDTH,
                        MAKE_VIEWS.HEIGHT, table_half=table_half + (1.0 if border else 0.0),
                        noise=noise, rng=np.random.default_rng(3))  # fmt: skip
@@ -106,44 +121,94 @@ def run(name: str, case: str, hand: Hand, tmp: Path) -> dict[str, object]:
     g = gs.grasps[gs.best if gs.best is not None else gs.ranking[0]]
     check = check_grasp(g, res.hand, truth)
     row.update(eps=g.epsilon, pen=check.penetration * 1000.0, contact=check.worst_contact * 1000.0)
+    if simulate:
+        from pregrasp_core.simulate import SimulationParams, simulate_grasps
+
+        best = gs.best if gs.best is not None else gs.ranking[0]
+        sims = simulate_grasps(res, [best, *gs.ranking[:simulate]], hand, SimulationParams(),
+                               mesh=mesh)  # fmt: skip
+        row.update(lift=sims[0].success, top=sum(s.success for s in sims[1:]), n_top=len(sims) - 1)
     return row
+
+
+def no_skirt() -> None:
+    """Plan every view without the skirt (``CompletionParams.skirt`` = 0): the loader builds its
+    completion parameters itself, so the one function that adds the skirt is given them with
+    the skirt off."""
+    import dataclasses
+
+    from pregrasp_core.sensor import completion
+
+    add = completion.add_skirt
+
+    def without(visible, cloud, vis, params):  # type: ignore[no-untyped-def]
+        return add(visible, cloud, vis, dataclasses.replace(params, skirt=0.0))
+
+    completion.add_skirt = without
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--objects", default=None, help="comma-separated demo objects (default all)")
+    ap.add_argument("--cameras", default=",".join(CAMERAS), help="comma-separated cameras")
+    ap.add_argument("--azimuths", default="60", help="comma-separated azimuths in degrees")
+    ap.add_argument("--simulate", type=int, default=0, metavar="K",
+                    help="lift the best grasp and the first K in MuJoCo (true mesh)")  # fmt: skip
+    ap.add_argument("--no-skirt", action="store_true", help="plan without the skirt")
     args = ap.parse_args()
     names = args.objects.split(",") if args.objects else [p.stem for p in demo_objects()]
+    cameras = args.cameras.split(",")
+    unknown = sorted(set(cameras) - set(CAMERAS))
+    if unknown:
+        ap.error(f"unknown cameras {unknown}; choose from {list(CAMERAS)}")
+    azimuths = [float(a) for a in args.azimuths.split(",")]
+    if args.no_skirt:
+        no_skirt()
     hand = Hand.load()
     tmp = Path(tempfile.mkdtemp(prefix="pregrasp-odd-views-"))
+    sim = args.simulate
     print(f"# {platform.machine()}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
-          f"load {os.getloadavg()[0]:.2f}")  # fmt: skip
-    print("| object | camera | seen | off > 3 mm | parts | pool | force closure | best epsilon "
-          "| penetration (mm) | worst contact (mm) | plan (s) |")  # fmt: skip
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-    counts = {c: [0, 0, 0] for c in CAMERAS}  # views, best force closure, all three
+          f"load {os.getloadavg()[0]:.2f}{', no skirt' if args.no_skirt else ''}")  # fmt: skip
+    extra = f" lift | top {sim} |" if sim else ""
+    print("| object | camera | azimuth | seen | off > 3 mm | parts | pool | force closure | best "
+          "epsilon | penetration (mm) | worst contact (mm) | plan (s) |" + extra)  # fmt: skip
+    print(
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|" + "---:|" * (2 if sim else 0)
+    )
+    counts = {c: [0, 0, 0, 0, 0, 0] for c in cameras}  # views, fc, all three, lift, top, tried
     for name in names:  # loop over the demo objects
-        for case in CAMERAS:  # loop over the five cameras
-            r = run(name, case, hand, tmp)
-            counts[case][0] += 1
-            if "error" in r:
-                print(f"| {name} | {case} | {r['seen']} | | | | | error: {r['error']} | | | |")
-                continue
-            if "eps" not in r:
-                print(f"| {name} | {case} | {r['seen']} | {r['off']:.2f} | {r['parts']} | "
-                      f"{r['pool']} | 0 | no kept grasp | | | {r['time']:.2f} |")  # fmt: skip
-                continue
-            fc = float(r["eps"]) > 0.0  # type: ignore[arg-type]
-            ok = fc and float(r["pen"]) <= 2.0 and float(r["contact"]) <= 3.0  # type: ignore[arg-type]
-            counts[case][1] += int(fc)
-            counts[case][2] += int(ok)
-            print(f"| {name} | {case} | {r['seen']} | {r['off']:.2f} | {r['parts']} | "
-                  f"{r['pool']} | {r['fc']} | {r['eps']:.4f} | {r['pen']:.1f} | "
-                  f"{r['contact']:.1f} | {r['time']:.2f} |", flush=True)  # fmt: skip
-    print("\n| camera | views | best grasp force closure | and both true-mesh checks |")
-    print("|---|---:|---:|---:|")
-    for case, (n, fc, ok) in counts.items():
-        print(f"| {case} | {n} | {fc} | {ok} |")
+        for case in cameras:  # loop over the cameras
+            for az in azimuths:  # loop over the azimuths
+                r = run(name, case, hand, tmp, np.radians(az), sim)
+                c = counts[case]
+                c[0] += 1
+                head = f"| {name} | {case} | {az:g} | {r['seen']} |"
+                if "error" in r:
+                    print(f"{head} | | | | error: {r['error']} | | | |" + " |" * (2 if sim else 0))
+                    continue
+                if "eps" not in r:
+                    print(f"{head} {r['off']:.2f} | {r['parts']} | {r['pool']} | 0 | no kept "
+                          f"grasp | | | {r['time']:.2f} |" + " |" * (2 if sim else 0))  # fmt: skip
+                    continue
+                fc = float(r["eps"]) > 0.0  # type: ignore[arg-type]
+                ok = fc and float(r["pen"]) <= 2.0 and float(r["contact"]) <= 3.0  # type: ignore[arg-type]
+                c[1] += int(fc)
+                c[2] += int(ok)
+                tail = ""
+                if sim:
+                    c[3] += int(bool(r["lift"]))
+                    c[4] += int(r["top"])  # type: ignore[call-overload]
+                    c[5] += int(r["n_top"])  # type: ignore[call-overload]
+                    tail = f" {'yes' if r['lift'] else 'no'} | {r['top']}/{r['n_top']} |"
+                print(f"{head} {r['off']:.2f} | {r['parts']} | {r['pool']} | {r['fc']} | "
+                      f"{r['eps']:.4f} | {r['pen']:.1f} | {r['contact']:.1f} | "
+                      f"{r['time']:.2f} |{tail}", flush=True)  # fmt: skip
+    extra = " best grasp lifts | top grasps that lift |" if sim else ""
+    print("\n| camera | views | best grasp force closure | and both true-mesh checks |" + extra)
+    print("|---|---:|---:|---:|" + "---:|" * (2 if sim else 0))
+    for case, (n, fc, ok, lift, top, tried) in counts.items():
+        tail = f" {lift} | {top}/{tried} |" if sim else ""
+        print(f"| {case} | {n} | {fc} | {ok} |{tail}")
     return 0
 
 

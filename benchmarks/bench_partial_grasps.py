@@ -210,10 +210,8 @@ def main() -> int:
             line += (f"{g.epsilon:>6.3f} {ch.penetration * 1e3:>6.1f} {ch.link:<13} "
                      f"{ch.worst_contact * 1e3:>7.1f} {n_ass:>3}/{g.n_contacts:<3}")  # fmt: skip
         done = cloud.sensor.completion if cloud.sensor is not None else None
-        if done is not None and np.any(done.assumed & ~done.filled):
-            row.copy = float(
-                np.median(truths[name].signed(cloud.points[done.assumed & ~done.filled]))
-            )
+        if done is not None and np.any(done.copied):
+            row.copy = float(np.median(truths[name].signed(cloud.points[done.copied])))
         line += f" {parts:>3}/{full_parts.get(name, -1):<3} {row.copy * 1e3:>+7.1f} {dt:>5.1f}"
         line += f" {cpu:>5.1f}"
         if args.simulate and best is not None:  # one MuJoCo scene (the true mesh) for them all

@@ -368,6 +368,8 @@ def _scene_or_view(
         "plane": view.plane.to_dict(),
         "completion": None if view.completion is None else view.completion.kind,
     }
+    if view.completion is not None and view.completion.skirt.any():
+        info["scene"]["n_skirt"] = int(np.count_nonzero(view.completion.skirt))
     if opts.flying_pixels:
         info["scene"]["n_flying"] = view.n_flying
     _note_background(info, view.segmentation, cloud.source)

@@ -110,6 +110,23 @@ FILL_PAIR: float = 3.0
 FILL_HOLE: float = 1.5
 """Point spacings: a midpoint with no point within this is in a hole."""
 
+SKIRT_STEP: float = 2.0
+"""Point spacings between the points of a skirt (:func:`add_skirt`) down a column, and the side
+of the cubes of which each keeps at most one skirt point."""
+
+SKIRT_COLUMN: float = 0.5
+"""Point spacings: a skirt has one column per horizontal cell of this side, under the
+outermost outline point of the cell."""
+
+SKIRT_COVER: float = 1.5
+"""Skirt steps: a skirt point this close to a point of the completed cloud is left out (the
+copy or the view already has the wall there), and an outline point this low above the table
+gets no column."""
+
+SKIRT_NEIGHBOURS: int = 16
+"""Columns of a skirt (its own and the nearest others) whose line along the table gives a
+column's outward normal."""
+
 GAP_MAX_DEFAULT: float = 0.01
 """Metres: default ``CompletionParams.gap_max``, about half a finger's width (a wider opening
 may be real: the space between a handle and the body)."""
@@ -138,6 +155,14 @@ class CompletionParams:
     (:func:`fill_gaps`); 0 = never."""
     seed: int = 0
     """Seed of the scoring subset."""
+    skirt: float = 0.015
+    """Metres: below the outline of an object seen from above, a wall this deep is assumed
+    where no point is (:func:`add_skirt`; the walls under an overhead camera's outline are out
+    of its sight and no symmetry copies them); 0 = never."""
+    skirt_angle: float = 30.0
+    """Degrees: only outline points whose camera ray is within this of the support plane's
+    normal (a camera looking down on them) get a skirt; a side camera's outline keeps none, the
+    symmetry copy covers its back."""
 
     def __post_init__(self) -> None:
         # bounds: docs/limits.md ("Sensor input"); each refused value names its field
@@ -156,6 +181,10 @@ class CompletionParams:
                                        lo_open=True))  # fmt: skip
         put("score_points", check_int("score_points", self.score_points, 10, MAX_MIN_POINTS))
         put("seed", check_int("seed", self.seed, 0, MAX_SEED))
+        put("skirt", check_real("skirt", self.skirt, 0.0, MAX_LENGTH, what="a length",
+                                unit=" m"))  # fmt: skip
+        put("skirt_angle", check_real("skirt_angle", self.skirt_angle, 0.0, 90.0,
+                                      what="an angle", unit=" degrees"))  # fmt: skip
 
 
 @dataclass(frozen=True, eq=False)
@@ -185,8 +214,19 @@ class CompletedView:
     """(N + M,) bool: the points whose normal is their source's moved by the symmetry (the
     copies and the midpoints whose end is a copy)."""
     filled: np.ndarray
-    """(N + M,) bool: the assumed points that close holes (midpoints, :func:`fill_gaps`); the
-    other assumed points are copies, ``transform`` applied to their source."""
+    """(N + M,) bool: the assumed points that close holes (midpoints, :func:`fill_gaps`)."""
+    skirt: np.ndarray
+    """(N + M,) bool: the assumed points of the skirt below an outline seen from above
+    (:func:`add_skirt`; the last rows)."""
+    skirt_normals: np.ndarray
+    """(S, 3) unit outward normals of the skirt's points (the rows where ``skirt``), horizontal:
+    perpendicular to the support plane's normal."""
+
+    @property
+    def copied(self) -> np.ndarray:
+        """(N + M,) bool: the assumed points that are copies, ``transform`` applied to their
+        source (neither midpoints nor skirt)."""
+        return self.assumed & ~self.filled & ~self.skirt
 
     @property
     def n_visible(self) -> int:
@@ -459,15 +499,103 @@ def complete_view(
     if params.gap_max > 0.0:
         out, source, moved = fill_gaps(out, source, moved, vis.spacing, params.gap_max)
         n_fill = len(out) - len(pts) - len(q)
-    assumed = np.arange(len(out)) >= len(pts)
-    filled = np.arange(len(out)) >= len(pts) + len(q)
-    for arr in (out, assumed, source, moved, filled):
+    n_done = len(out)
+    sk_points, sk_normals, sk_source = add_skirt(pts, out, vis, params)
+    out = np.concatenate([out, sk_points])
+    source = np.concatenate([source, sk_source])
+    moved = np.concatenate([moved, np.zeros(len(sk_points), bool)])
+    idx = np.arange(len(out))
+    assumed = idx >= len(pts)
+    filled = (idx >= len(pts) + len(q)) & (idx < n_done)
+    skirt = idx >= n_done
+    for arr in (out, assumed, source, moved, filled, skirt, sk_normals):
         arr.setflags(write=False)
     logger.info(
-        "completion: %s, %d points assumed (%d closing holes), %.1f %% of the copy dropped as "
-        "seen free", kind, len(q) + n_fill, n_fill, 100.0 * float(bad.mean()),
+        "completion: %s, %d points assumed (%d closing holes, %d of a skirt), %.1f %% of the "
+        "copy dropped as seen free", kind, len(out) - len(pts), n_fill, len(sk_points),
+        100.0 * float(bad.mean()),
     )  # fmt: skip
-    return CompletedView(out, assumed, source, kind, M, float(bad.mean()), vp.copy(), moved, filled)
+    return CompletedView(out, assumed, source, kind, M, float(bad.mean()), vp.copy(), moved,
+                         filled, skirt, sk_normals)  # fmt: skip
+
+
+def add_skirt(
+    visible: np.ndarray, cloud: np.ndarray, vis: RangeImage, params: CompletionParams
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(points (S, 3), outward normals (S, 3), source (S,))`` of the skirt of a view: below
+    every visible point on the outer outline of the seen image (``vis.seen`` with its holes
+    filled, less its erosion by a 5 x 5 cell square: below a hole in the sampling of a top face
+    lies the object's inside) whose camera ray makes at most ``params.skirt_angle`` with the
+    support plane's normal, the points straight down (along the normal) every ``SKIRT_STEP``
+    spacings, at most ``params.skirt`` deep and not below the table; those within
+    ``SKIRT_COVER`` steps of a point of ``cloud`` (the completed cloud so far) or contradicting
+    the view (``vis.violates``) are left out. One column per horizontal cell of ``SKIRT_COLUMN``
+    spacings (under the outermost outline point of the cell), then at most one point per cube
+    of a step. The normal is horizontal, across the line of the ``SKIRT_NEIGHBOURS`` nearest
+    columns, outward (where the image's distance to the unseen falls). The wall of a box, a can
+    or a ramekin under an overhead camera's outline is vertical there; a bowl's or a ball's
+    curves in below it, and the skirt stays short so that it does not wall off what lies under
+    an overhang (``docs/partial-views.md``, "Views from above")."""
+    empty = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64))
+    if params.skirt <= 0.0:
+        return empty
+    n = vis.plane.normal
+    step = SKIRT_STEP * vis.spacing
+    qc = (visible - vis.viewpoint) @ vis.R
+    uv = qc[:, :2] / np.maximum(qc[:, 2:3], 1e-9)
+    ij = np.floor((uv - vis.lo) / vis.cell).astype(np.int64)
+    inside = np.all((ij >= 0) & (ij < np.array(vis.shape)), axis=1) & (qc[:, 2] > 0.0)
+    ij = np.where(inside[:, None], ij, 0)
+    silhouette = ndimage.binary_fill_holes(vis.seen)  # the outer outline only: none in a hole
+    interior = ndimage.binary_erosion(silhouette, structure=np.ones((5, 5), dtype=bool))
+    ray = visible - vis.viewpoint
+    ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-12)
+    height = vis.plane.signed_distance(visible)
+    on_outline = inside & silhouette[ij[:, 0], ij[:, 1]] & ~interior[ij[:, 0], ij[:, 1]]
+    steep = -(ray @ n) >= np.cos(np.radians(params.skirt_angle))
+    idx = np.nonzero(on_outline & steep & (height > SKIRT_COVER * step))[0]
+    if not len(idx):
+        return empty
+    depth_in = ndimage.distance_transform_edt(silhouette)
+    # one column per horizontal cell of SKIRT_COLUMN spacings, under its outermost outline point
+    e1 = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
+    e1 /= np.linalg.norm(e1)
+    flat = visible[idx] @ np.stack([e1, np.cross(n, e1)], axis=1)  # (K, 2) along the table
+    order = np.lexsort((idx, depth_in[ij[idx, 0], ij[idx, 1]]))
+    column = SKIRT_COLUMN * vis.spacing
+    _, first = np.unique(np.floor(flat[order] / column).astype(np.int64), axis=0,
+                         return_index=True)  # fmt: skip
+    keep = np.sort(order[first])
+    idx, flat = idx[keep], flat[keep]
+    if len(idx) < 3:
+        return empty
+    # the outward normal: across the outline's local line (the smallest principal direction of
+    # its SKIRT_NEIGHBOURS nearest columns along the table), on the side the image's distance
+    # to the unseen falls toward
+    _, nb = cKDTree(flat).query(flat, k=min(SKIRT_NEIGHBOURS, len(flat)))
+    d = flat[nb] - flat[nb].mean(axis=1, keepdims=True)  # (K, k, 2)
+    _, vecs = np.linalg.eigh(np.einsum("kni,knj->kij", d, d))
+    across = vecs[:, :, 0] @ np.stack([e1, np.cross(n, e1)])  # (K, 3) horizontal unit
+    gu, gv = np.gradient(depth_in)
+    away = -(gu[ij[idx, 0], ij[idx, 1]][:, None] * vis.R[:, 0]
+             + gv[ij[idx, 0], ij[idx, 1]][:, None] * vis.R[:, 1])  # fmt: skip
+    side = np.einsum("ij,ij->i", across, away)
+    ok = side != 0.0
+    idx, out = idx[ok], across[ok] * np.sign(side[ok])[:, None]
+    reach = np.minimum(height[idx], params.skirt)  # (K,) metres down
+    k = np.floor(reach / step).astype(np.int64)  # points below each outline point
+    src = np.repeat(idx, k)
+    t = (np.arange(int(k.sum())) - np.repeat(np.cumsum(k) - k, k) + 1) * step
+    q = visible[src] - t[:, None] * n
+    nrm = np.repeat(out, k, axis=0)
+    if not len(q):
+        return empty
+    near, _ = cKDTree(cloud).query(q)
+    keep = (near > SKIRT_COVER * step) & ~vis.violates(q, params.tolerance)
+    q, nrm, src = q[keep], nrm[keep], src[keep]
+    _, first = np.unique(np.floor(q / step).astype(np.int64), axis=0, return_index=True)
+    first = np.sort(first)
+    return q[first], nrm[first], src[first].astype(np.int64)
 
 
 def fill_gaps(

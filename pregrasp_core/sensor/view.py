@@ -92,7 +92,8 @@ class SensorView:
 
     def full_normals(self, visible_normals: np.ndarray) -> np.ndarray:
         """(M, 3) normals of every point from those of the visible points (n_visible, 3): the
-        assumed points take their source's normal moved by the symmetry."""
+        assumed points take their source's normal moved by the symmetry, a skirt's points
+        their own (``CompletedView.skirt_normals``)."""
         nv = np.asarray(visible_normals, dtype=np.float64)
         if nv.shape != (self.n_visible, 3):
             raise ValueError(
@@ -104,6 +105,7 @@ class SensorView:
         out = nv[self.completion.source]
         mv = self.completion.moved
         out[mv] = out[mv] @ R.T
+        out[self.completion.skirt] = self.completion.skirt_normals
         return out
 
 

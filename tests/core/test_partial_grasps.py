@@ -185,7 +185,7 @@ def test_grasp_of_a_new_view_holds_on_the_true_mesh(
     truth = MeshDistance(mesh)
     copies = cloud.sensor.completion
     assert copies is not None
-    sd = truth.signed(cloud.points[copies.assumed & ~copies.filled])
+    sd = truth.signed(cloud.points[copies.copied])
     assert abs(float(np.median(sd))) < 0.0015, np.median(sd)
     res = run_pipeline(cloud, PipelineParams(), until="grasps")
     gs = res.grasps

@@ -399,7 +399,7 @@ def test_completion_recovers_the_true_box(name: str, azimuth: float) -> None:
     # each copy is its source moved by the symmetry; the points that close holes lie between
     # two others, in a hole (no other point within a spacing)
     M = done.transform
-    copy = done.assumed & ~done.filled
+    copy = done.copied
     src = done.source[copy]
     assert np.allclose(done.points[copy], pts[src] @ M[:3, :3].T + M[:3, 3])
     assert np.array_equal(done.moved, copy | (done.filled & done.moved))
