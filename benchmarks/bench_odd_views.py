@@ -22,10 +22,13 @@ overhead camera and the generated views' 35 degrees.
 
 ``--azimuths`` repeats every camera at other azimuths (degrees; default 60). ``--simulate K``
 lifts the best grasp and the first K of the ranking in MuJoCo with the true mesh as the object
-(``pregrasp_core.simulate``): columns "lift" and "top K". ``--no-skirt`` plans without the
-skirt a view from above gets (``CompletionParams.skirt`` = 0, ``docs/partial-views.md``,
-"Views from above"): with it off the completion returns exactly the arrays it returned before
-the skirt existed, so the two runs compare the code before and after it.
+(``pregrasp_core.simulate``): columns "lift" and "top K". ``--depth`` writes each view as
+``make_views``' depth PNG with its camera file instead of a PCD (the loader then knows the
+image's edge: the ``border`` case gets ``scene.n_image_edge`` and its warning).
+``--no-skirt`` plans without the skirt a view from above gets (``CompletionParams.skirt`` = 0,
+``docs/partial-views.md``, "Views from above"): with it off the completion returns exactly the
+arrays it returned before the skirt existed, so the two runs compare the code before and after
+it.
 """
 
 from __future__ import annotations
@@ -88,9 +91,10 @@ def camera(mesh: trimesh.Trimesh, elevation: float, factor: float, border: bool,
 
 
 def run(name: str, case: str, hand: Hand, tmp: Path, azimuth: float = AZIMUTH,
-        simulate: int = 0) -> dict[str, object]:  # fmt: skip
+        simulate: int = 0, depth: bool = False) -> dict[str, object]:  # fmt: skip
     """One view of the demo object ``name`` from camera ``case``, planned and checked (and
-    with ``simulate`` its best grasp and first ``simulate`` ranked lifted in MuJoCo)."""
+    with ``simulate`` its best grasp and first ``simulate`` ranked lifted in MuJoCo; with
+    ``depth`` written as a depth image instead of a PCD)."""
     elevation, factor, border, noise = CAMERAS[case]
     mesh = trimesh.load(OBJECTS_DIR / f"{name}.obj", force="mesh")
     _, _, table_half = MAKE_VIEWS.view_setup(mesh)
@@ -99,8 +103,15 @@ def run(name: str, case: str, hand: Hand, tmp: Path, azimuth: float = AZIMUTH,
                        MAKE_VIEWS.HEIGHT, table_half=table_half + (1.0 if border else 0.0),
                        noise=noise, rng=np.random.default_rng(3))  # fmt: skip
     pts, lab = view.points_world()
-    path = tmp / f"{name}_{case}.pcd"
-    path.write_bytes(MAKE_VIEWS.pcd_bytes(pts, lab, T))
+    if depth:  # make_views' 16-bit PNG in millimetres and its camera file
+        import imageio.v3 as iio
+
+        path = tmp / f"{name}_{case}_{np.degrees(azimuth):.0f}.png"
+        iio.imwrite(path, MAKE_VIEWS.depth_png(view))
+        path.with_suffix(".json").write_text(MAKE_VIEWS.camera_json(view))
+    else:
+        path = tmp / f"{name}_{case}.pcd"
+        path.write_bytes(MAKE_VIEWS.pcd_bytes(pts, lab, T))
     row: dict[str, object] = {"seen": int(np.sum(lab == MAKE_VIEWS.LABEL_OBJECT))}
     t0 = time.perf_counter()
     try:
@@ -155,6 +166,8 @@ def main() -> int:
     ap.add_argument("--simulate", type=int, default=0, metavar="K",
                     help="lift the best grasp and the first K in MuJoCo (true mesh)")  # fmt: skip
     ap.add_argument("--no-skirt", action="store_true", help="plan without the skirt")
+    ap.add_argument("--depth", action="store_true",
+                    help="each view as a depth PNG with its camera file, not a PCD")  # fmt: skip
     args = ap.parse_args()
     names = args.objects.split(",") if args.objects else [p.stem for p in demo_objects()]
     cameras = args.cameras.split(",")
@@ -179,7 +192,7 @@ def main() -> int:
     for name in names:  # loop over the demo objects
         for case in cameras:  # loop over the cameras
             for az in azimuths:  # loop over the azimuths
-                r = run(name, case, hand, tmp, np.radians(az), sim)
+                r = run(name, case, hand, tmp, np.radians(az), sim, args.depth)
                 c = counts[case]
                 c[0] += 1
                 head = f"| {name} | {case} | {az:g} | {r['seen']} |"
