@@ -1039,7 +1039,11 @@ LEGEND = (
     ("ghost shade", "brighter or darker by the box face the pre-grasp was sampled from"),
     ("yellow dots", "contacts of the chosen grasp"),
     ("yellow cones", "their friction cones, as scored (half-angle atan mu)"),
-    ("dark slate points", "the unseen back of a single depth view, assumed by symmetry"),
+    (
+        "dark slate points",
+        "the unseen back of a single depth view, assumed by symmetry (seen from above, also a "
+        "short wall below its outline)",
+    ),
     (
         "pale blue points",
         "the space hidden behind a single depth view, kept free of the hand (--occluded "
