@@ -541,6 +541,13 @@ def add_skirt(
         return empty
     n = vis.plane.normal
     step = SKIRT_STEP * vis.spacing
+    ray = visible - vis.viewpoint
+    ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-12)
+    height = vis.plane.signed_distance(visible)
+    steep = -(ray @ n) >= np.cos(np.radians(params.skirt_angle))
+    steep &= height > SKIRT_COVER * step
+    if not np.any(steep):  # a side camera: no image work
+        return empty
     qc = (visible - vis.viewpoint) @ vis.R
     uv = qc[:, :2] / np.maximum(qc[:, 2:3], 1e-9)
     ij = np.floor((uv - vis.lo) / vis.cell).astype(np.int64)
@@ -548,12 +555,8 @@ def add_skirt(
     ij = np.where(inside[:, None], ij, 0)
     silhouette = ndimage.binary_fill_holes(vis.seen)  # the outer outline only: none in a hole
     interior = ndimage.binary_erosion(silhouette, structure=np.ones((5, 5), dtype=bool))
-    ray = visible - vis.viewpoint
-    ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-12)
-    height = vis.plane.signed_distance(visible)
     on_outline = inside & silhouette[ij[:, 0], ij[:, 1]] & ~interior[ij[:, 0], ij[:, 1]]
-    steep = -(ray @ n) >= np.cos(np.radians(params.skirt_angle))
-    idx = np.nonzero(on_outline & steep & (height > SKIRT_COVER * step))[0]
+    idx = np.nonzero(on_outline & steep)[0]
     if not len(idx):
         return empty
     depth_in = ndimage.distance_transform_edt(silhouette)
