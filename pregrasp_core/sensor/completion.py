@@ -353,18 +353,24 @@ class RangeImage(_VirtualCamera):
         _, near = ndimage.distance_transform_edt(~seen, return_indices=True)
         self.near = near  # (2, H, W): the nearest seen cell of every cell
 
+    def locate(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Where the points ``q`` (..., 3) fall in the image: ``(qc (..., 3) in the virtual
+        camera's frame, uv (..., 2) image coordinates, ij (..., 2) their cells (0 where off the
+        image), inside (...,) bool: on the image)`` (``inside`` ignores the sign of depth)."""
+        qc = (q - self.viewpoint) @ self.R
+        uv = qc[..., :2] / np.maximum(qc[..., 2], 1e-9)[..., None]
+        ij = np.floor((uv - self.lo) / self.cell).astype(np.int64)
+        inside = np.all((ij >= 0) & (ij < np.array(self.shape)), axis=-1)
+        return qc, uv, np.where(inside[..., None], ij, 0), inside
+
     def excess(self, q: np.ndarray) -> np.ndarray:
         """(...,) metres by which the points ``q`` (..., 3) contradict the view: how far they lie
         in front of the seen surface, below the table, or outside the seen silhouette (0 when
         hidden behind the seen surface); inf off the image or behind the camera."""
-        qc = (q - self.viewpoint) @ self.R
+        qc, uv, ijc, inside = self.locate(q)
         z = qc[..., 2]
         zc = np.maximum(z, 1e-9)
-        uv = qc[..., :2] / zc[..., None]
         rng = np.linalg.norm(qc, axis=-1)
-        ij = np.floor((uv - self.lo) / self.cell).astype(np.int64)
-        inside = np.all((ij >= 0) & (ij < np.array(self.shape)), axis=-1)
-        ijc = np.where(inside[..., None], ij, 0)
         i, j = ijc[..., 0], ijc[..., 1]
         seen = self.seen[i, j]
         c = self.coef[i, j]
@@ -548,11 +554,8 @@ def add_skirt(
     steep &= height > SKIRT_COVER * step
     if not np.any(steep):  # a side camera: no image work
         return empty
-    qc = (visible - vis.viewpoint) @ vis.R
-    uv = qc[:, :2] / np.maximum(qc[:, 2:3], 1e-9)
-    ij = np.floor((uv - vis.lo) / vis.cell).astype(np.int64)
-    inside = np.all((ij >= 0) & (ij < np.array(vis.shape)), axis=1) & (qc[:, 2] > 0.0)
-    ij = np.where(inside[:, None], ij, 0)
+    qc, _, ij, inside = vis.locate(visible)
+    inside &= qc[:, 2] > 0.0
     silhouette = ndimage.binary_fill_holes(vis.seen)  # the outer outline only: none in a hole
     interior = ndimage.binary_erosion(silhouette, structure=np.ones((5, 5), dtype=bool))
     on_outline = inside & silhouette[ij[:, 0], ij[:, 1]] & ~interior[ij[:, 0], ij[:, 1]]

@@ -115,13 +115,9 @@ def plane_frame(plane: SupportPlane, toward: np.ndarray) -> np.ndarray:
 def hidden(vis: RangeImage, q: np.ndarray) -> np.ndarray:
     """(...,) bool: the points ``q`` (..., 3) lie behind the surface the camera saw (in a seen
     direction, farther than the interpolated seen range) and above the support plane."""
-    qc = (q - vis.viewpoint) @ vis.R
-    z = qc[..., 2]
-    uv = qc[..., :2] / np.maximum(z, 1e-9)[..., None]
+    qc, uv, ijc, inside = vis.locate(q)
+    inside &= qc[..., 2] > 0.0
     rng = np.linalg.norm(qc, axis=-1)
-    ij = np.floor((uv - vis.lo) / vis.cell).astype(np.int64)
-    inside = np.all((ij >= 0) & (ij < np.array(vis.shape)), axis=-1) & (z > 0.0)
-    ijc = np.where(inside[..., None], ij, 0)
     i, j = ijc[..., 0], ijc[..., 1]
     c = vis.coef[i, j]
     D = c[..., 0] + c[..., 1] * uv[..., 0] + c[..., 2] * uv[..., 1]
