@@ -20,6 +20,7 @@ grasp is force closure and those that also pass both true-mesh checks (penetrati
 2 mm, contacts within 3 mm). ``top70`` and ``top60`` (70 and 60 degrees) sit between the
 overhead camera and the generated views' 35 degrees.
 
+``--primitives`` renders shapes that are not demo objects (:func:`primitives`) instead.
 ``--azimuths`` repeats every camera at other azimuths (degrees; default 60). ``--simulate K``
 lifts the best grasp and the first K of the ranking in MuJoCo with the true mesh as the object
 (``pregrasp_core.simulate``): columns "lift" and "top K". ``--depth`` writes each view as
@@ -76,6 +77,43 @@ AZIMUTH = np.radians(60.0)
 """The default azimuth of every camera."""
 
 
+def _standing(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """``mesh`` moved up onto the table (z = 0)."""
+    mesh.apply_translation([0.0, 0.0, -mesh.bounds[0, 2]])
+    return mesh
+
+
+def primitives() -> dict[str, trimesh.Trimesh]:
+    """Shapes that are not demo objects (``--primitives``): a hexagonal prism, a cone, a
+    standing capsule, a box tilted by 17 degrees, an annulus (a thick ring) and a can lying
+    down, each standing on the table."""
+    rot = trimesh.transformations.rotation_matrix
+    return {
+        "hexprism": _standing(trimesh.creation.cylinder(radius=0.035, height=0.09, sections=6)),
+        "cone": _standing(trimesh.creation.cone(radius=0.045, height=0.10, sections=48)),
+        "capsule": _standing(trimesh.creation.capsule(height=0.06, radius=0.025)),
+        "tilted_box": _standing(
+            trimesh.creation.box((0.05, 0.08, 0.06), transform=rot(0.3, [1, 0, 0]))
+        ),
+        "annulus": _standing(
+            trimesh.creation.annulus(r_min=0.03, r_max=0.045, height=0.05, sections=64)
+        ),
+        "lying_can": _standing(
+            trimesh.creation.cylinder(
+                radius=0.03, height=0.11, sections=48, transform=rot(np.pi / 2, [1, 0, 0])
+            )
+        ),
+    }
+
+
+def load_mesh(name: str) -> trimesh.Trimesh:
+    """The true mesh ``name``: a shape of :func:`primitives` or a demo object."""
+    shapes = primitives()
+    if name in shapes:
+        return shapes[name]
+    return trimesh.load(OBJECTS_DIR / f"{name}.obj", force="mesh")
+
+
 def camera(mesh: trimesh.Trimesh, elevation: float, factor: float, border: bool,
            azimuth: float = AZIMUTH) -> np.ndarray:  # fmt: skip
     """The camera pose (4, 4) of one case: ``make_views``' target and distance (times
@@ -96,7 +134,7 @@ def run(name: str, case: str, hand: Hand, tmp: Path, azimuth: float = AZIMUTH,
     with ``simulate`` its best grasp and first ``simulate`` ranked lifted in MuJoCo; with
     ``depth`` written as a depth image instead of a PCD)."""
     elevation, factor, border, noise = CAMERAS[case]
-    mesh = trimesh.load(OBJECTS_DIR / f"{name}.obj", force="mesh")
+    mesh = load_mesh(name)
     _, _, table_half = MAKE_VIEWS.view_setup(mesh)
     T = camera(mesh, elevation, factor, border, azimuth)
     view = render_view(mesh.vertices, mesh.faces, T, MAKE_VIEWS.INTRINSICS, MAKE_VIEWS.WIDTH,
@@ -161,6 +199,8 @@ def no_skirt() -> None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--objects", default=None, help="comma-separated demo objects (default all)")
+    ap.add_argument("--primitives", action="store_true",
+                    help="the shapes of primitives() instead of the demo objects")  # fmt: skip
     ap.add_argument("--cameras", default=",".join(CAMERAS), help="comma-separated cameras")
     ap.add_argument("--azimuths", default="60", help="comma-separated azimuths in degrees")
     ap.add_argument("--simulate", type=int, default=0, metavar="K",
@@ -170,6 +210,8 @@ def main() -> int:
                     help="each view as a depth PNG with its camera file, not a PCD")  # fmt: skip
     args = ap.parse_args()
     names = args.objects.split(",") if args.objects else [p.stem for p in demo_objects()]
+    if args.primitives:
+        names = list(primitives())
     cameras = args.cameras.split(",")
     unknown = sorted(set(cameras) - set(CAMERAS))
     if unknown:
