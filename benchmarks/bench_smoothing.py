@@ -42,9 +42,7 @@ from pregrasp_core.paths import demo_objects  # noqa: E402
 from pregrasp_core.sensor.smooth import smooth_view  # noqa: E402
 from pregrasp_core.sensor.synthetic import LABEL_OBJECT, render_view  # noqa: E402
 from pregrasp_core.sensor.truth import MeshDistance  # noqa: E402
-
-K: int = 24
-"""Neighbours of the projection (``sensor.view.SMOOTH_K``)."""
+from pregrasp_core.sensor.view import SMOOTH_K as K  # noqa: E402
 
 
 def limited(points: np.ndarray, radius: float | None, gate: float | None) -> np.ndarray:
@@ -97,10 +95,13 @@ def main() -> int:
                         f"| {name} | {label} | {noise * 1e3:.0f} | {len(obj)} | - | - | - | - | - |"
                     )
                     continue
+                main_view = smooth_view(obj, K)
+                # without a limit the variants' projection is main's (only the limit differs)
+                assert np.allclose(limited(obj, None, None), main_view, rtol=0.0, atol=1e-12)
                 reach = float(np.median(cKDTree(obj).query(obj, k=K)[0][:, -1]))
                 sigma = noise * np.sin(np.radians(35.0))
                 cells = []
-                for p in (obj, smooth_view(obj, K), limited(obj, 0.010, None),
+                for p in (obj, main_view, limited(obj, 0.010, None),
                           limited(obj, None, 2.0 * sigma)):  # fmt: skip
                     d = np.abs(truth.signed(p))
                     cells.append(
