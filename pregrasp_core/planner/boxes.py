@@ -20,6 +20,27 @@ def box_signed_distance(p: np.ndarray, T_boxes: np.ndarray, half: np.ndarray) ->
     return outside + inside
 
 
+def box_push_direction(p: np.ndarray, T_boxes: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """(M, 3) unit direction in which each box ``T_boxes[k]`` (M, 4, 4; half extents ``half[k]``
+    (M, 3)) pushes the point ``p[k]`` (M, 3, same frame): the box's outward normal at the point
+    of its surface nearest ``p[k]`` (from that point to ``p[k]`` when ``p[k]`` is outside; the
+    normal of the nearest face when it is inside or on it)."""
+    R = T_boxes[:, :3, :3]
+    local = np.einsum("kji,kj->ki", R, p - T_boxes[:, :3, 3])  # R^T (p - c)
+    q = np.abs(local) - half
+    out = np.where(q > 0.0, np.sign(local) * np.maximum(q, 0.0), 0.0)
+    norm = np.linalg.norm(out, axis=1)
+    inside = norm <= 0.0
+    if inside.any():  # on or in the box: the face of least depth
+        ax = np.argmax(q[inside], axis=1)
+        face = np.zeros((int(inside.sum()), 3))
+        rows = np.arange(len(ax))
+        face[rows, ax] = np.where(local[inside][rows, ax] < 0.0, -1.0, 1.0)
+        out[inside] = face
+        norm[inside] = 1.0
+    return np.einsum("kij,kj->ki", R, out / norm[:, None])
+
+
 def sweep_hit(
     p: np.ndarray, T_boxes: np.ndarray, half: np.ndarray, direction: np.ndarray
 ) -> tuple[float, int]:

@@ -374,6 +374,38 @@ def test_box_signed_distance_matches_trimesh():
     assert np.allclose(ours, theirs, atol=1e-9)
 
 
+def test_box_push_direction_is_the_gradient_of_the_exact_distance():
+    """The direction a link's box pushes a point is the gradient of the box's signed distance
+    (central differences of trimesh's exact distance), outside and inside, for rotated boxes."""
+    from pregrasp_core.planner.boxes import box_push_direction
+
+    rng = np.random.default_rng(11)
+    M = 60
+    T = np.tile(np.eye(4), (M, 1, 1))
+    T[:, :3, :3] = Rotation.random(M, random_state=rng).as_matrix()
+    T[:, :3, 3] = rng.normal(scale=0.05, size=(M, 3))
+    half = rng.uniform(0.005, 0.03, size=(M, 3))
+    p = T[:, :3, 3] + rng.normal(scale=0.03, size=(M, 3))
+    ours = box_push_direction(p, T, half)
+    h = 1e-6
+    for k in range(M):  # loop over the boxes: one trimesh box each
+        mesh = trimesh.creation.box(extents=2 * half[k], transform=T[k])
+        probes = p[k] + h * np.vstack([np.eye(3), -np.eye(3)])
+        d = -trimesh.proximity.signed_distance(mesh, probes)  # trimesh: positive inside
+        grad = (d[:3] - d[3:]) / (2 * h)
+        assert np.allclose(ours[k], grad / np.linalg.norm(grad), atol=1e-4), k
+    assert np.allclose(np.linalg.norm(ours, axis=1), 1.0)
+    # analytic: beyond a face, beyond an edge (the diagonal), on the face itself
+    box = np.eye(4)[None]
+    unit = np.array([[0.01, 0.01, 0.01]])
+    got = box_push_direction(
+        np.array([[0.0, 0.0, 0.02], [0.02, 0.0, 0.02], [0.005, 0.0, 0.01]]),
+        np.repeat(box, 3, axis=0),
+        np.repeat(unit, 3, axis=0),
+    )
+    assert np.allclose(got, [[0, 0, 1], [2**-0.5, 0, 2**-0.5], [0, 0, 1]])
+
+
 def test_parameter_and_shape_checks(hand):
     with pytest.raises(ValueError, match="contact_distance"):
         PlannerParams(contact_distance=0.0005, closing_margin=0.001)
