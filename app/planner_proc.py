@@ -341,14 +341,15 @@ class PlannerProcess:
         support: Any = None,
         progress: Callable[[int, int], None] | None = None,
         assumed: Any = None,
+        crest: Any = None,
         check: Callable[[], None] | None = None,
     ) -> Any:
-        """``plan_grasps(points, normals, pool, hand, params, support, progress, assumed)`` in
-        the worker (the same ``GraspSet``, bit for bit), or here when the worker is not ready,
-        has failed, or ``hand`` was not read from the worker's URDF. ``check()``: raises once
-        a newer request has made this plan useless (the viewer's ``Superseded``); the worker's
-        plan is then cancelled and the exception raised here."""
-        args = (points, normals, pool, hand, params, support, progress, assumed)
+        """``plan_grasps(points, normals, pool, hand, params, support, progress, assumed,
+        crest)`` in the worker (the same ``GraspSet``, bit for bit), or here when the worker is
+        not ready, has failed, or ``hand`` was not read from the worker's URDF. ``check()``:
+        raises once a newer request has made this plan useless (the viewer's ``Superseded``);
+        the worker's plan is then cancelled and the exception raised here."""
+        args = (points, normals, pool, hand, params, support, progress, assumed, crest)
         with self._lock:
             if not self._closed and self._same_hand(hand) and self._check_ready():
                 self._job += 1
@@ -359,6 +360,7 @@ class PlannerProcess:
                     "params": params,
                     "support": support,
                     "assumed": assumed,
+                    "crest": crest,
                     "fork": self.fork,
                     "viewer": os.getpid(),
                 }
@@ -572,6 +574,7 @@ def worker_main(r_req: int, w_ans: int, urdf_path: str, warm: bool) -> None:
                 support=kw["support"],
                 progress=progress,
                 assumed=kw["assumed"],
+                crest=kw.get("crest"),
             )
             reply = ("done", job, pack_grasp_set(gs))
         except _Cancelled:

@@ -13,7 +13,10 @@ grasps, their contacts, the contacts whose normal does not point into the true m
 link, point; marked * where the point's normal is the crest rule's, see ``docs/design.md``,
 normals), as ``tests/core/test_normals.py`` checks them, the points of the outer surface whose
 normal disagrees with the true mesh's, the contacts at crest-rule points and the kept grasps
-they belong to (what a planner that took no contact there would lose), and the wall seconds.
+they belong to (what a planner that took no contact there would lose), the median cosine of
+those contacts' normals (on the outer surface) with the true inward normal, beside that of the
+cloud's own normals at the same points (the contact takes the mean of the cloud's and the
+link's push there, ``docs/planner.md`` step 6), and the wall seconds.
 A fix of the normals in creases (``docs/limits.md``, "Normals in creases") must give no wrong
 contact on every one of these clouds: one cloud alone passes or fails on the last bit of the
 floating-point results.
@@ -90,7 +93,7 @@ def main() -> None:
     from test_normals import _exterior, _hand, _inside
 
     from pregrasp_core.io import PointCloud, load_point_cloud
-    from pregrasp_core.normals import SCALE_FLAT, estimate_normals, nearest_neighbours
+    from pregrasp_core.normals import estimate_normals
     from pregrasp_core.paths import OBJECTS_DIR
     from pregrasp_core.pipeline import run_pipeline
 
@@ -120,22 +123,17 @@ def main() -> None:
         print(
             f"\n| {name}, {args.points:,} points | kept grasps | contacts "
             "| wrong contacts (rank, link, point; *: crest rule) | wrong outer points "
-            "| contacts at crest-rule points (their grasps) | s |"
-            "\n|---|---:|---:|---|---:|---:|---:|"
+            "| contacts at crest-rule points (their grasps) "
+            "| their median cosine to the true normal: contact / cloud | s |"
+            "\n|---|---:|---:|---|---:|---:|---:|---:|"
         )
         for label, (pts, true, mesh) in clouds.items():
             w0 = time.perf_counter()
             ext_all = _exterior(mesh, pts, true)
             cn = estimate_normals(pts)
             bad_pts = int(np.sum((np.einsum("ij,ij->i", cn.normals, true) <= 0.0) & ext_all))
-            # the points whose normal is the crest rule's: flat at no scale, the normal the
-            # direction away from the 16 neighbours' centroid (docs/design.md, normals)
-            _, nb16 = nearest_neighbours(pts, 16)
-            away = pts - pts[nb16].mean(axis=1)
-            away /= np.linalg.norm(away, axis=1, keepdims=True)
-            crest = (cn.curvature >= SCALE_FLAT) & (
-                np.abs(np.einsum("ij,ij->i", cn.normals, away)) > 1.0 - 1e-9
-            )
+            crest = cn.crest  # the points whose normal is the crest rule's (docs/design.md)
+            assert crest is not None
             cloud = PointCloud(points=pts, normals=None, source=bare.source)
             res = run_pipeline(cloud, hand=_hand(), until="grasps")
             assert res.grasps is not None
@@ -154,10 +152,19 @@ def main() -> None:
             ]
             at_crest = crest[pid]
             n_grasps = len({r for (r, _), c in zip(contacts, at_crest, strict=True) if c})
+            # on the outer surface: the contact's normal and the cloud's against the true one
+            sel = at_crest & ext
+            inward = -true[pid[sel]]
+            cos_used = np.einsum("ij,ij->i", n_in[sel], inward)
+            cos_cloud = np.einsum("ij,ij->i", -cn.normals[pid[sel]], inward)
+            cosines = (
+                f"{np.median(cos_used):.2f} / {np.median(cos_cloud):.2f}" if sel.any() else "-"
+            )
             print(
                 f"| {label} | {len(kept)} | {len(contacts)} | {len(wrong)}"
                 f"{': ' + ', '.join(wrong) if wrong else ''} | {bad_pts} "
-                f"| {int(at_crest.sum())} ({n_grasps}) | {time.perf_counter() - w0:.0f} |",
+                f"| {int(at_crest.sum())} ({n_grasps}) | {cosines} "
+                f"| {time.perf_counter() - w0:.0f} |",
                 flush=True,
             )
     print(f"\n# load average after: {os.getloadavg()}")

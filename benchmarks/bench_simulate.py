@@ -10,7 +10,7 @@ BLAS on one thread, the process pinned to one CPU; times are CPU seconds (``proc
 Usage::
 
     .venv/bin/python benchmarks/bench_simulate.py [--top 5] [--objects mug can_soda]
-        [--model-error]
+        [--model-error] [--bare]
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import datetime  # noqa: E402
 import platform  # noqa: E402
 import time  # noqa: E402
@@ -51,6 +52,10 @@ def main() -> None:
     ap.add_argument("--objects", nargs="*", default=None, help="object names (default: all)")
     ap.add_argument("--model-error", action="store_true", help="also the collision model error")
     ap.add_argument(
+        "--bare", action="store_true", help="plan on each cloud without its normals (a PLY "
+        "with xyz only: the orientation by visibility and the crest rule, docs/design.md)",
+    )  # fmt: skip
+    ap.add_argument(
         "--synchronous", action="store_true", help="SimulationParams.synchronous: fingers "
         "reach their planned contacts at the same moment",
     )  # fmt: skip
@@ -76,6 +81,8 @@ def main() -> None:
     errors = []
     for path in paths:
         cloud = load_point_cloud(path)
+        if args.bare:  # the same points, normals dropped; the mesh is found by its source
+            cloud = dataclasses.replace(cloud, normals=None)
         result = run_pipeline(cloud, pp, hand, until="grasps")
         gs = result.grasps
         top = [int(i) for i in gs.ranking[: args.top]]

@@ -185,6 +185,9 @@ class CloudNormals:
     """(N,) float64 surface variation l3 / (l1 + l2 + l3) of each neighbourhood, in [0, 1/3]."""
     orient: str
     """The orientation rule that was applied (one of ``ORIENT_MODES`` but ``'auto'``)."""
+    crest: np.ndarray | None = None
+    """(N,) bool: the points whose normal is the crest rule's (orientation by visibility only:
+    flat at no scale, the direction away from their neighbours' centroid), None otherwise."""
 
 
 def usable_cpus() -> int:
@@ -391,16 +394,18 @@ def _orient_visibility(
     rough: np.ndarray | None = None,
     threads: int = 0,
     order: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Normals (N, 3) and their signs (N,) by visibility, filling and seeded propagation (see
-    the module docstring); ``rough`` (N,) bool: the points flat at no scale, whose normal becomes
-    the direction from their neighbours' centroid when the viewers see them from that side;
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Normals (N, 3), their signs (N,) and which points' normal is the crest rule's (N,) bool,
+    by visibility, filling and seeded propagation (see the module docstring); ``rough`` (N,)
+    bool: the points flat at no scale, whose normal becomes the direction from their
+    neighbours' centroid when the viewers see them from that side;
     ``threads`` those of the votes (0: the usable CPUs; the result does not depend on it),
     ``order`` the order the votes read the points in (see :func:`_visibility_votes`)."""
     from . import normal_kernels
 
     spacing = max(float(np.median(dist[:, min(4, dist.shape[1] - 1)])), GEOM_EPS)
     crest = None
+    ridged = np.zeros(len(points), dtype=bool)
     rows = np.flatnonzero(rough) if rough is not None else np.zeros(0, dtype=np.int64)
     if len(rows):
         away = points[rows] - points[nbr[rows]].mean(axis=1)
@@ -422,14 +427,15 @@ def _orient_visibility(
         normals[ridge] = crest[ridge]
         decided[ridge] = True
         sign[ridge] = 1.0
+        ridged[ridge] = True
     if decided.all():
-        return normals, sign
+        return normals, sign, ridged
     wts = normal_kernels.same_side_weights(points, normals, nbr, SAME_SIDE_SIGMA * spacing, decided)
     sign = normal_kernels.fill_signs(sign, decided, nbr, wts, FILL_ROUNDS)
     left = sign == 0.0
     if left.any():
         if not decided.any():
-            return normals, _orient_propagate(points, normals, nbr)
+            return normals, _orient_propagate(points, normals, nbr), ridged
         seeds = np.flatnonzero(~left)
         prop = _orient_propagate(points, normals, nbr, seeds=seeds, seed_signs=sign[seeds])
         sign[left] = prop[left]
@@ -439,7 +445,7 @@ def _orient_visibility(
         100.0 * (1.0 - decided.mean() - left.mean()),
         100.0 * left.mean(),
     )
-    return normals, sign
+    return normals, sign, ridged
 
 
 class _Grid:
@@ -610,6 +616,7 @@ def estimate_normals(
             "use a denser cloud or a smaller k"
         )
     mode = orient_rule(params, ref is not None)
+    crest = None
     if mode == "reference" and ref is None:
         raise ValueError("orient='reference' needs reference normals")
     if mode in PLAIN_RULES:
@@ -624,7 +631,7 @@ def estimate_normals(
         signs = np.where(np.einsum("ij,ij->i", normals, to_cam) < 0.0, -1.0, 1.0)
     elif mode == "visibility":
         rough = curvature >= SCALE_FLAT
-        normals, signs = _orient_visibility(
+        normals, signs, crest = _orient_visibility(
             pts, normals, nbr, dist, params.n_views, rough, threads, order
         )
     elif mode == "centroid":
@@ -632,4 +639,5 @@ def estimate_normals(
         signs = np.where(np.einsum("ij,ij->i", normals, out) < 0.0, -1.0, 1.0)
     else:
         signs = _orient_propagate(pts, normals, nbr)
-    return CloudNormals(normals=normals * signs[:, None], curvature=curvature, orient=mode)
+    normals = normals * signs[:, None]
+    return CloudNormals(normals=normals, curvature=curvature, orient=mode, crest=crest)

@@ -43,8 +43,8 @@ from .errors import WorkLimitError
 from .facemask import FaceMaskParams, FaceMasks, compute_face_masks, support_plane
 from .io import PointCloud
 from .limits import WorkLimits
-from .normals import PLAIN_RULES, NormalParams, estimate_normals, orient_rule
-from .planner import GraspSet, PlannerParams, cloud_normals, grasps_sections, plan_grasps
+from .normals import PLAIN_RULES, CloudNormals, NormalParams, estimate_normals, orient_rule
+from .planner import GraspSet, PlannerParams, grasps_sections, plan_grasps
 from .planner.assumed import without_occupied
 from .planner.serialize import SimulatedRanking
 from .pregrasps import PreGraspPool, SamplingParams, Traversal, build_pool, traverse
@@ -124,6 +124,10 @@ class PipelineResult:
     """The pre-grasp pool (stage ``pool``)."""
     normals: np.ndarray | None = None
     """(N, 3) outward unit normals of the cloud (stage ``grasps``)."""
+    crest: np.ndarray | None = None
+    """(N,) bool: the points whose normal is the crest rule's (``CloudNormals.crest``; a cloud
+    without normals oriented by visibility), whose contacts also follow the touching link
+    (stage ``grasps``); None for every other orientation."""
     grasps: GraspSet | None = None
     """Every pre-grasp planned: kept grasps ranked, rejections with reasons (stage ``grasps``)."""
     timings: dict[str, float] = field(default_factory=dict)
@@ -192,7 +196,7 @@ def run_pipeline(
     background = None
     if last >= 4 and not _normals_reusable(prev, params):
         nprm = params.planner.normals
-        background = _Background(view_normals, cloud, nprm, background_threads(cloud, nprm))
+        background = _Background(view_cloud_normals, cloud, nprm, background_threads(cloud, nprm))
     try:
         if params.occluded == "auto" and cloud.sensor is not None and last >= 4:
             return _run_auto(
@@ -506,17 +510,18 @@ def _run_stages(
         # carried through a run that stops before the planner (the viewer's threshold change
         # shows the new pool first, then plans from that result: no second normal estimation)
         assert prev is not None
-        out["normals"] = prev.normals
+        out["normals"], out["crest"] = prev.normals, prev.crest
         timings["normals"] = prev.timings.get("normals", 0.0)
     if last >= 4:
         # normals depend on the cloud only (computed once per cloud; timed as "normals")
         if normals_same:
             assert prev is not None
-            out["normals"] = prev.normals
+            out["normals"], out["crest"] = prev.normals, prev.crest
             timings["normals"] = prev.timings.get("normals", 0.0)
         else:  # computed on their own thread since the run started: joined here
             assert background is not None
-            out["normals"], timings["normals"] = background.result()
+            cn, timings["normals"] = background.result()
+            out["normals"], out["crest"] = cn.normals, cn.crest
 
         def _plan_progress(done: int, total: int) -> None:
             if progress is not None:
@@ -525,7 +530,7 @@ def _run_stages(
         def _grasps() -> dict[str, Any]:
             assert hand is not None  # loaded by the pool stage above
             masks = out["masks"]
-            normals, assumed = out["normals"], cloud.assumed
+            normals, assumed, crest = out["normals"], cloud.assumed, out["crest"]
             geom, occ = obstacles()
             n_extra = len(geom) - len(points)  # the obstacle points after the cloud's
             if n_extra:  # (planner/assumed.py: never contacts)
@@ -535,6 +540,8 @@ def _run_stages(
                 normals = np.concatenate([normals, *extra])
                 seen = np.zeros(len(points), dtype=bool) if assumed is None else assumed
                 assumed = np.concatenate([seen, np.zeros(n_extra, dtype=bool)])
+                if crest is not None:
+                    crest = np.concatenate([crest, np.zeros(n_extra, dtype=bool)])
             gs = planner(
                 geom,
                 normals,
@@ -544,11 +551,12 @@ def _run_stages(
                 support=None if masks is None else masks.support,
                 progress=_plan_progress,
                 assumed=assumed,
+                crest=crest,
             )
             if n_extra:
                 gs = without_occupied(
                     gs, points, out["normals"], cloud.assumed, run_hand, params.planner,
-                    len(out["pool"]),
+                    len(out["pool"]), out["crest"],
                 )  # fmt: skip
             return {"grasps": gs}
 
@@ -632,11 +640,23 @@ def view_normals(cloud: PointCloud, params: NormalParams, threads: int = 0) -> n
     (oriented as ``params`` says, toward the camera by default) and, for the assumed points,
     their source's normal moved by the symmetry (``SensorView.full_normals``). ``threads``:
     those of the normals' kernels (0: the usable CPUs; the normals do not depend on it)."""
+    return view_cloud_normals(cloud, params, threads).normals
+
+
+def view_cloud_normals(cloud: PointCloud, params: NormalParams, threads: int = 0) -> CloudNormals:
+    """:func:`view_normals` with the rest of their ``CloudNormals`` (the crest-rule points of
+    a cloud without normals, which the planner takes; for a completed view, the visible
+    points' flags followed by False for the assumed points)."""
     sv = cloud.sensor
     if sv is None or not np.any(sv.assumed):
-        return cloud_normals(cloud, params, threads)
+        return estimate_normals(cloud.points, params, reference=cloud.normals, threads=threads)
     visible = np.asarray(cloud.points)[~sv.assumed]
-    return sv.full_normals(estimate_normals(visible, params, threads=threads).normals)
+    cn = estimate_normals(visible, params, threads=threads)
+    crest = None
+    if cn.crest is not None:
+        crest = np.zeros(len(sv.assumed), dtype=bool)
+        crest[~sv.assumed] = cn.crest
+    return dataclasses.replace(cn, normals=sv.full_normals(cn.normals), crest=crest)
 
 
 def background_threads(cloud: PointCloud, params: NormalParams) -> int:

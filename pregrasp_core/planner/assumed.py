@@ -34,20 +34,21 @@ if TYPE_CHECKING:
     from ..hand import Hand
     from .types import GraspSet, PlannerParams
 
-__all__ = ["MAX_ASSUMED_CLEARANCE", "assumed_mask", "obstacle_points", "without_occupied"]
+__all__ = ["MAX_ASSUMED_CLEARANCE", "obstacle_points", "point_mask", "without_occupied"]
 
 
-def assumed_mask(assumed: np.ndarray | None, n_points: int) -> np.ndarray | None:
-    """``assumed`` as an (N,) bool array checked against the cloud's ``n_points``, or None when
-    it is None or flags no point."""
-    if assumed is None:
+def point_mask(mask: np.ndarray | None, n_points: int, name: str = "assumed") -> np.ndarray | None:
+    """``mask`` (the points a view's completion assumed, or those of another per-point flag
+    called ``name``) as an (N,) bool array checked against the cloud's ``n_points``, or None
+    when it is None or flags no point."""
+    if mask is None:
         return None
-    mask = np.asarray(assumed, dtype=bool)
-    if mask.shape != (n_points,):
+    out = np.asarray(mask, dtype=bool)
+    if out.shape != (n_points,):
         raise ValueError(
-            f"assumed must be a bool mask of shape ({n_points},), got shape {mask.shape}"
+            f"{name} must be a bool mask of shape ({n_points},), got shape {out.shape}"
         )
-    return mask if np.any(mask) else None
+    return out if np.any(out) else None
 
 
 def obstacle_points(
@@ -71,19 +72,23 @@ def without_occupied(
     hand: Hand,
     params: PlannerParams,
     n_pool: int,
+    crest: np.ndarray | None = None,
 ) -> GraspSet:
     """``gs``, planned on the cloud ``points`` (N, 3) followed by obstacle points (a single
     view's hidden space, ``sensor/occluded.py``), with contacts only on the cloud's points: a
     link whose contact is an obstacle point (index >= N) takes the cloud point nearest its box
     within ``contact_distance`` instead (as the planner picks contacts; none: the contact is
     dropped); a grasp left without contacts is rejected as ``no_contact``; every kept grasp is
-    rescored (torques about the cloud's own frame, not the obstacles') and ranked again."""
+    rescored (torques about the cloud's own frame, not the obstacles') and ranked again.
+    ``crest``: (N,) bool or None, the cloud's crest-rule points (as :func:`plan_grasps` takes
+    them)."""
     from .plan import rank_grasps
     from .rank import first_level, quality_frame, score_grasp, settle_exact
     from .types import Contact, Grasp, GraspSet
+    from .verify import crest_contact_normals
 
     n = len(points)
-    am = assumed_mask(assumed, n)
+    am = point_mask(assumed, n)
     geom = obstacle_points(points, normals, am, params.assumed_clearance)
     tree = cKDTree(geom)
     half = np.asarray(hand.link_box_half, dtype=np.float64)
@@ -113,8 +118,12 @@ def without_occupied(
                 if d[k] > params.contact_distance:
                     continue
                 p = int(near[k])
+                n_in = -normals[p]
+                if crest is not None and crest[p]:
+                    n_in = crest_contact_normals(n_in[None], points[p][None], Tb[j][None],
+                                                 half[j][None])[0]  # fmt: skip
                 kept.append(Contact(
-                    points[p].copy(), -normals[p], c.link, p, float(d[k]), Tb[j, :3, 1].copy(),
+                    points[p].copy(), n_in, c.link, p, float(d[k]), Tb[j, :3, 1].copy(),
                     bool(am[p]) if am is not None else False,
                 ))  # fmt: skip
             if not kept:

@@ -93,14 +93,18 @@ class Context:
         support: SupportPlane | None,
         surface: np.ndarray | None = None,
         assumed: np.ndarray | None = None,
+        crest: np.ndarray | None = None,
     ) -> None:
         """points, normals: (N, 3) float64, world (outward unit normals); support: the table
         or None; surface: (N, 3) the contacts' positions when they differ from the points the
-        hand clears (assumed points, ``planner/assumed.py``); assumed: (N,) bool or None."""
+        hand clears (assumed points, ``planner/assumed.py``); assumed: (N,) bool or None; crest:
+        (N,) bool or None, the points whose normal is the crest rule's (their contacts take the
+        link's normal, :func:`~pregrasp_core.planner.verify.contact_normals`)."""
         self.surface = points if surface is None else surface
         self.assumed = np.zeros(len(points), dtype=bool) if assumed is None else assumed
         self.points = points
         self.normals = normals
+        self.crest = crest
         self.hand = hand
         self.params = params
         self.support = support

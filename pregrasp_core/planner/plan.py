@@ -26,7 +26,7 @@ from ..geometry import as_points, as_points_like
 from ..normals import NormalParams, estimate_normals
 from ..quality import LEVEL_EXACT, GraspQuality
 from .approach import Prepared, prepare
-from .assumed import assumed_mask, obstacle_points
+from .assumed import obstacle_points, point_mask
 from .context import Context
 from .packing import pack_grasps, unpack_grasps
 from .rank import (
@@ -580,6 +580,7 @@ def plan_grasps(
     support: SupportPlane | None = None,
     progress: Callable[[int, int], None] | None = None,
     assumed: np.ndarray | None = None,
+    crest: np.ndarray | None = None,
 ) -> GraspSet:
     """Plan every pre-grasp of ``pool`` against the cloud.
 
@@ -588,7 +589,10 @@ def plan_grasps(
     ``spread`` (P,), ``grasp_type`` (P,)); hand: ``pregrasp_core.hand.Hand``; support: the
     ``SupportPlane`` (normal, height) or None; progress: called as ``progress(done, total)``;
     assumed: (N,) bool, the points a single view's completion assumed (the hand keeps
-    ``params.assumed_clearance`` from them, ``planner/assumed.py``), or None.
+    ``params.assumed_clearance`` from them, ``planner/assumed.py``), or None; crest: (N,) bool,
+    the points whose normal is the crest rule's (``CloudNormals.crest``: their contacts' normals
+    also follow the touching link, :func:`~pregrasp_core.planner.verify.crest_contact_normals`),
+    or None.
     """
     prm = PlannerParams() if params is None else params
     pts = as_points(points)
@@ -599,9 +603,10 @@ def plan_grasps(
         raise ValueError(
             f"pool.q has {np.shape(pool.q)[1]} joints, the hand has {len(joint_names)}"
         )
-    am = assumed_mask(assumed, len(pts))
+    am = point_mask(assumed, len(pts))
     geom = obstacle_points(pts, nrm, am, prm.assumed_clearance)
-    ctx = Context(geom, nrm, hand, prm, support, surface=pts, assumed=am)
+    cm = None if crest is None else point_mask(crest, len(pts), "crest")
+    ctx = Context(geom, nrm, hand, prm, support, surface=pts, assumed=am, crest=cm)
     grasps: list[Grasp] = []
     # chunks of pre-grasps: approach and slicing per pre-grasp, the closing of every finger of
     # the chunk in one call of the batched closing model, verification and quality per

@@ -10,7 +10,8 @@ from typing import TYPE_CHECKING
 import fcl
 import numpy as np
 
-from .boxes import box_signed_distance
+from ..tolerances import GEOM_EPS
+from .boxes import box_push_direction, box_signed_distance
 from .context import Context, View
 from .kernels import kernels
 from .types import Contact, FingerTrace, Grasp
@@ -156,7 +157,7 @@ def _contacts(
     dist = d[pick[links]].tolist()
     Tb = ctx.boxes(q)[0]
     tangents = Tb[links, :3, 1] @ T[:3, :3].T  # link box y axes in the world
-    normals_in = -ctx.normals[pid]
+    normals_in = contact_normals(ctx, T @ Tb[links], ctx.half[links], pid)
     return tuple(
         Contact(
             ctx.surface[p].copy(), normals_in[k].copy(), ctx.link_names[j], int(p), dist[k],
@@ -164,6 +165,39 @@ def _contacts(
         )
         for k, (j, p) in enumerate(zip(links.tolist(), pid.tolist(), strict=True))
     )  # fmt: skip
+
+
+def contact_normals(
+    ctx: Context, T_links: np.ndarray, half: np.ndarray, pid: np.ndarray
+) -> np.ndarray:
+    """(K, 3) the unit normals, into the object, of contacts at the cloud points ``pid`` (K,)
+    touched by link boxes with world poses ``T_links`` (K, 4, 4) and half extents ``half``
+    (K, 3): the cloud's normal negated; at a point whose normal is the crest rule's
+    (``ctx.crest``) :func:`crest_contact_normals`."""
+    n_in = -ctx.normals[pid]
+    if ctx.crest is not None:
+        at = np.flatnonzero(ctx.crest[pid])
+        if len(at):
+            n_in[at] = crest_contact_normals(n_in[at], ctx.surface[pid[at]], T_links[at], half[at])
+    return n_in
+
+
+def crest_contact_normals(
+    n_in: np.ndarray, points: np.ndarray, T_links: np.ndarray, half: np.ndarray
+) -> np.ndarray:
+    """(K, 3) the contact normals at crest points (flat at no scale: an edge, a rolled rim,
+    a notch), where a cloud without normals has no trustworthy one: the unit mean of the
+    cloud's normal ``n_in`` (K, 3, into the object: the direction away from the neighbours'
+    centroid, negated) and the direction in which the touching link's box (poses ``T_links``
+    (K, 4, 4), half extents ``half`` (K, 3)) pushes the point ``points`` (K, 3), its outward
+    normal nearest the point (:func:`~pregrasp_core.planner.boxes.box_push_direction`). Each
+    alone is wrong where the other is right (an edge of the link's box against the object's
+    edge; a PCA line across a notch); their mean lies nearer the true normal on every demo
+    object (``docs/limits.md``, "Normals in creases")."""
+    mid = n_in + box_push_direction(points, T_links, half)
+    norm = np.linalg.norm(mid, axis=1, keepdims=True)
+    # (the two exactly opposite: the cloud's normal stays)
+    return np.where(norm > GEOM_EPS, mid / np.maximum(norm, GEOM_EPS), n_in)
 
 
 def _least(near: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:

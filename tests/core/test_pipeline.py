@@ -273,14 +273,17 @@ def test_normals_beside_the_stages_equal_a_serial_run_and_leave_no_thread(
     import threading
 
     from pregrasp_core import pipeline
-    from pregrasp_core.pipeline import view_normals
+    from pregrasp_core.pipeline import view_cloud_normals
 
     cloud = l_shape_cloud()
     before = threading.active_count()
     res = run_pipeline(cloud, params, hand, until="grasps")
     assert threading.active_count() == before
-    ref = view_normals(res.cloud, res.params.planner.normals)
-    assert res.normals is not None and res.normals.tobytes() == ref.tobytes()
+    ref = view_cloud_normals(res.cloud, res.params.planner.normals)
+    assert res.normals is not None and res.normals.tobytes() == ref.normals.tobytes()
+    # a cloud without normals: the crest-rule points the planner took (docs/design.md)
+    assert ref.crest is not None and res.crest is not None
+    assert res.crest.tobytes() == ref.crest.tobytes()
     assert res.grasps is not None and len(res.grasps.grasps) == len(res.pool)
     assert list(res.timings) == [*STAGES, "normals", "grasps"] and res.timings["normals"] > 0
     with pytest.raises(WorkLimitError, match="max_parts"):
@@ -290,7 +293,7 @@ def test_normals_beside_the_stages_equal_a_serial_run_and_leave_no_thread(
     def fails(*args):
         raise RuntimeError("normals failed")
 
-    monkeypatch.setattr(pipeline, "view_normals", fails)
+    monkeypatch.setattr(pipeline, "view_cloud_normals", fails)
     with pytest.raises(RuntimeError, match="normals failed"):
         run_pipeline(cloud, params, hand, until="grasps")
     assert threading.active_count() == before
