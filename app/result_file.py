@@ -369,6 +369,8 @@ def _grasps(doc: dict[str, Any], hand: Any, pool: PreGraspPool | None) -> GraspS
                         point_index=int(_get(c, "point_index", int, wc)),
                         distance=float(_get(c, "distance", float, wc)),
                         tangent=T[:3, :3] @ Tb[links.index(link), :3, 1],
+                        assumed=bool(c.get("assumed", False)),
+                        crest=bool(c.get("crest", False)),
                     )
                 )
         rank = it.get("rank")

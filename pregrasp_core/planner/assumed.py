@@ -119,12 +119,13 @@ def without_occupied(
                     continue
                 p = int(near[k])
                 n_in = -normals[p]
-                if crest is not None and crest[p]:
+                at_crest = crest is not None and bool(crest[p])
+                if at_crest:
                     n_in = crest_contact_normals(n_in[None], points[p][None], Tb[j][None],
                                                  half[j][None])[0]  # fmt: skip
                 kept.append(Contact(
                     points[p].copy(), n_in, c.link, p, float(d[k]), Tb[j, :3, 1].copy(),
-                    bool(am[p]) if am is not None else False,
+                    bool(am[p]) if am is not None else False, at_crest,
                 ))  # fmt: skip
             if not kept:
                 out.append(Grasp.from_rejection(

@@ -27,7 +27,7 @@ import numpy as np
 
 from .types import Contact, FingerTrace, Grasp, GraspSet
 
-_FORMAT: str = "pregrasp-grasps-1"
+_FORMAT: str = "pregrasp-grasps-2"
 """Tag of a packed list (its first item)."""
 
 _PLAIN: str = "pregrasp-grasps-plain"
@@ -90,7 +90,7 @@ def pack_grasps(grasps: Sequence[Grasp]) -> Packed:
          f.corrected)
         for f in fingers
     ]  # fmt: skip
-    contact_rows = [(c.link, c.point_index, c.distance, c.assumed) for c in contacts]
+    contact_rows = [(c.link, c.point_index, c.distance, c.assumed, c.crest) for c in contacts]
     return (_FORMAT, grasp_rows, finger_rows, contact_rows, stacked)
 
 
@@ -108,8 +108,8 @@ def unpack_grasps(packed: Packed) -> list[Grasp]:
         for k, (name, n_slice, links, palm, support, limits, corrected) in enumerate(finger_rows)
     ]
     contacts = [
-        Contact(point[k], normal[k], link, index, distance, tangent[k], assumed)
-        for k, (link, index, distance, assumed) in enumerate(contact_rows)
+        Contact(point[k], normal[k], link, index, distance, tangent[k], assumed, crest)
+        for k, (link, index, distance, assumed, crest) in enumerate(contact_rows)
     ]
     out = []
     kf = kc = 0

@@ -80,6 +80,7 @@ def grasp_to_dict(
                 "point_index": c.point_index,
                 "distance": c.distance,
                 "assumed": c.assumed,
+                **({"crest": True} if c.crest else {}),
             }
             for c in g.contacts
         ],

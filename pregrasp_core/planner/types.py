@@ -146,6 +146,10 @@ class Contact:
     """(3,) float64 unit, world: first friction-cone edge direction (the link box's y axis)."""
     assumed: bool = False
     """The touched point was assumed by a single view's completion (``planner/assumed.py``)."""
+    crest: bool = False
+    """The touched point's normal is the crest rule's (a cloud without normals: an edge, a rim,
+    a notch), so :attr:`normal` is the mean of it and the link's push
+    (:func:`~pregrasp_core.planner.verify.crest_contact_normals`)."""
 
 
 @dataclass(frozen=True)

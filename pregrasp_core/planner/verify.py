@@ -158,10 +158,11 @@ def _contacts(
     Tb = ctx.boxes(q)[0]
     tangents = Tb[links, :3, 1] @ T[:3, :3].T  # link box y axes in the world
     normals_in = contact_normals(ctx, T, Tb[links], ctx.half[links], pid)
+    crest = ctx.crest
     return tuple(
         Contact(
             ctx.surface[p].copy(), normals_in[k].copy(), ctx.link_names[j], int(p), dist[k],
-            tangents[k].copy(), bool(ctx.assumed[p]),
+            tangents[k].copy(), bool(ctx.assumed[p]), crest is not None and bool(crest[p]),
         )
         for k, (j, p) in enumerate(zip(links.tolist(), pid.tolist(), strict=True))
     )  # fmt: skip

@@ -63,7 +63,7 @@ def test_the_packing_knows_every_field_of_the_grasp_types():
         "corrected",
     )  # fmt: skip
     assert names[Contact] == (
-        "point", "normal", "link", "point_index", "distance", "tangent", "assumed",
+        "point", "normal", "link", "point_index", "distance", "tangent", "assumed", "crest",
     )  # fmt: skip
 
 
@@ -80,6 +80,45 @@ def planned():
     res = run_pipeline(cloud, hand=load_hand(), until="grasps")
     assert res.grasps is not None
     return res.grasps
+
+
+def test_crest_contacts_come_back_flagged():
+    """A cloud without normals has contacts on crest points (their normal the mean of the
+    cloud's and the link's, flagged ``Contact.crest``): they come back bit for bit and still
+    flagged."""
+    import dataclasses as dc
+
+    from pregrasp_core.hand import load_hand
+    from pregrasp_core.io import load_point_cloud
+    from pregrasp_core.paths import DEFAULT_OBJECT
+    from pregrasp_core.pipeline import run_pipeline
+
+    cloud = dc.replace(load_point_cloud(DEFAULT_OBJECT, n_points=5000, seed=0), normals=None)
+    res = run_pipeline(cloud, hand=load_hand(), until="grasps")
+    assert res.grasps is not None and res.crest is not None
+    gs = list(res.grasps.grasps)
+    flags = [c.crest for g in gs for c in g.contacts]
+    assert any(flags) and not all(flags)
+    assert flags == [bool(res.crest[c.point_index]) for g in gs for c in g.contacts]
+    back = _through_pipe(gs)
+    _same(gs, back, "grasps")
+    assert [c.crest for g in back for c in g.contacts] == flags
+    # the result file keeps them (``crest`` only where true) and the viewer reads them back
+    import json
+
+    from app.result_file import read_result_file
+    from pregrasp_core.pipeline import result_document
+    from pregrasp_core.result import to_jsonable
+
+    doc = to_jsonable(result_document(res))
+    written = [c for g in doc["grasps"]["items"] for c in g.get("contacts", [])]
+    assert any("crest" in c for c in written) and not all("crest" in c for c in written)
+    assert all(c["crest"] is True for c in written if "crest" in c)
+    read = read_result_file(json.dumps(doc).encode(), "bare.json", res.hand).result
+    assert read.grasps is not None
+    assert [c.crest for g in read.grasps.grasps for c in g.contacts] == [
+        c.crest for g in res.grasps.grasps for c in g.contacts
+    ]
 
 
 def test_the_planners_grasps_come_back_bit_for_bit(planned):
