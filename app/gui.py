@@ -1005,7 +1005,10 @@ def grasp_table(s: AppState) -> str:
         fc = "yes" if is_force_closure(g) else "**NO**"
         lift = f" {md_text(outcome_cell(lifts.get(int(g.pregrasp))))} |" if lifts else ""
         n_assumed = int(np.count_nonzero(assumed_contacts(g, s.cloud)))
-        contacts = f"{len(contact_arrays(g)[0])}" + (f" ({n_assumed} assumed)" if n_assumed else "")
+        n_crest = sum(bool(getattr(c, "crest", False)) for c in g.contacts)
+        notes = [f"{n_assumed} assumed"] if n_assumed else []
+        notes += [f"{n_crest} at edges"] if n_crest else []  # the crest mean (docs/planner.md)
+        contacts = f"{len(contact_arrays(g)[0])}" + (f" ({', '.join(notes)})" if notes else "")
         return (
             f"| {k + 1} | {md_text(_type_of(g))} | {node} | {contacts} | "
             f"{score_text(g.epsilon, getattr(g, 'epsilon_exact', True), '.4f')} | "

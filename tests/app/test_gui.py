@@ -508,6 +508,36 @@ def test_legend_names_every_colour_of_the_scene(app):
     assert "epsilon" in text and "not force closure" in text
 
 
+def test_the_grasp_table_counts_the_contacts_at_edges_of_a_cloud_without_normals(
+    make_app, tmp_path
+):
+    """A PLY with xyz only: the contacts whose normal is the mean of the cloud's and the
+    link's (at crest points, ``Contact.crest``) are counted in the grasp table's contacts
+    column, per grasp; a mesh (with normals) has none."""
+    from app.gui import grasp_table
+    from pregrasp_core.io import load_point_cloud
+    from pregrasp_core.paths import DEFAULT_OBJECT
+    from tests.app.conftest import APP_POINTS
+
+    pts = np.asarray(load_point_cloud(DEFAULT_OBJECT, n_points=APP_POINTS, seed=0).points)
+    path = tmp_path / "bare.ply"
+    header = f"ply\nformat ascii 1.0\nelement vertex {len(pts)}\n"
+    header += "property float x\nproperty float y\nproperty float z\nend_header\n"
+    path.write_text(header + "\n".join(f"{x:.6f} {y:.6f} {z:.6f}" for x, y, z in pts) + "\n")
+    app = make_app(input=path)
+    s = app.controller.plan()
+    assert s.error == "" and s.result.grasps is not None and s.result.crest is not None
+    table = grasp_table(s)
+    counts = [sum(c.crest for c in g.contacts) for g in s.result.grasps.ranked]
+    assert any(counts)
+    rows = [r for r in table.splitlines() if r.startswith("| ") and r[2].isdigit()]
+    assert rows and any("at edges" in r for r in rows)
+    for r in rows:  # the shown rows: ranked grasps, best first
+        k = int(r.split("|")[1]) - 1
+        assert (f"{counts[k]} at edges" in r) == bool(counts[k]), r
+    assert "at edges" not in grasp_table(make_app().controller.plan())
+
+
 def test_the_up_dropdown_plans_a_y_up_mesh_standing_and_turns_the_view(make_app, tmp_path):
     """The default object turned to stand along +y (as glTF, Blender's and ShapeNet's files
     are) opens lying on its side (up +z: its support plane is its side); 'up' +y plans it
