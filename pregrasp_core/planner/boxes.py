@@ -28,7 +28,7 @@ def box_push_direction(p: np.ndarray, T_boxes: np.ndarray, half: np.ndarray) -> 
     R = T_boxes[:, :3, :3]
     local = np.einsum("kji,kj->ki", R, p - T_boxes[:, :3, 3])  # R^T (p - c)
     q = np.abs(local) - half
-    out = np.where(q > 0.0, np.sign(local) * np.maximum(q, 0.0), 0.0)
+    out = np.where(q > 0.0, np.sign(local) * q, 0.0)  # from the nearest surface point
     norm = np.linalg.norm(out, axis=1)
     inside = norm <= 0.0
     if inside.any():  # on or in the box: the face of least depth

@@ -99,7 +99,7 @@ class Context:
         or None; surface: (N, 3) the contacts' positions when they differ from the points the
         hand clears (assumed points, ``planner/assumed.py``); assumed: (N,) bool or None; crest:
         (N,) bool or None, the points whose normal is the crest rule's (their contacts take the
-        mean of it and the link's push, :func:`~pregrasp_core.planner.verify.contact_normals`)."""
+        mean of it and the link's push, ``verify.crest_contact_normals``)."""
         self.surface = points if surface is None else surface
         self.assumed = np.zeros(len(points), dtype=bool) if assumed is None else assumed
         self.points = points

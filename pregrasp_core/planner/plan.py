@@ -605,7 +605,7 @@ def plan_grasps(
         )
     am = point_mask(assumed, len(pts))
     geom = obstacle_points(pts, nrm, am, prm.assumed_clearance)
-    cm = None if crest is None else point_mask(crest, len(pts), "crest")
+    cm = point_mask(crest, len(pts), "crest")
     ctx = Context(geom, nrm, hand, prm, support, surface=pts, assumed=am, crest=cm)
     grasps: list[Grasp] = []
     # chunks of pre-grasps: approach and slicing per pre-grasp, the closing of every finger of

@@ -157,30 +157,20 @@ def _contacts(
     dist = d[pick[links]].tolist()
     Tb = ctx.boxes(q)[0]
     tangents = Tb[links, :3, 1] @ T[:3, :3].T  # link box y axes in the world
-    normals_in = contact_normals(ctx, T, Tb[links], ctx.half[links], pid)
-    crest = ctx.crest
+    normals_in = -ctx.normals[pid]
+    on_crest = np.zeros(len(pid), dtype=bool) if ctx.crest is None else ctx.crest[pid]
+    if on_crest.any():  # no trustworthy normal there: the mean with the link's push
+        at = np.flatnonzero(on_crest)
+        normals_in[at] = crest_contact_normals(
+            normals_in[at], ctx.surface[pid[at]], T @ Tb[links[at]], ctx.half[links[at]]
+        )
     return tuple(
         Contact(
             ctx.surface[p].copy(), normals_in[k].copy(), ctx.link_names[j], int(p), dist[k],
-            tangents[k].copy(), bool(ctx.assumed[p]), crest is not None and bool(crest[p]),
+            tangents[k].copy(), bool(ctx.assumed[p]), bool(on_crest[k]),
         )
         for k, (j, p) in enumerate(zip(links.tolist(), pid.tolist(), strict=True))
     )  # fmt: skip
-
-
-def contact_normals(
-    ctx: Context, T: np.ndarray, Tb: np.ndarray, half: np.ndarray, pid: np.ndarray
-) -> np.ndarray:
-    """(K, 3) the unit normals, into the object, of contacts at the cloud points ``pid`` (K,)
-    touched by link boxes with poses ``Tb`` (K, 4, 4) in the frame of the hand at pose ``T``
-    and half extents ``half`` (K, 3): the cloud's normal negated; at a point whose normal is
-    the crest rule's (``ctx.crest``) :func:`crest_contact_normals`."""
-    n_in = -ctx.normals[pid]
-    if ctx.crest is not None:
-        at = np.flatnonzero(ctx.crest[pid])
-        if len(at):
-            n_in[at] = crest_contact_normals(n_in[at], ctx.surface[pid[at]], T @ Tb[at], half[at])
-    return n_in
 
 
 def crest_contact_normals(
